@@ -1,0 +1,1 @@
+"""Measured data: readers, pre-processing, datasets, the loss and synthetic data."""

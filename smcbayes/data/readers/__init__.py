@@ -1,0 +1,1 @@
+"""Readers of measured curves, one module per file format."""

@@ -1,0 +1,139 @@
+"""A press configuration turned into SI numbers for the solvers (geometry + protocol).
+
+The physics (model and effects) holds no numbers; a :class:`Case` holds the numbers of one
+trial: mould and charge geometry, stack height and mass, temperatures and the press
+programme.  Build once per configuration, solve for many parameter vectors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from smcbayes.config import ConfigurationSpec
+from smcbayes.errors import ConfigError
+from smcbayes.units import G, KN, MM, celsius_to_kelvin
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SpeedProfile:
+    """Measured ram position vs time, used instead of a constant set speed.
+
+    Attributes:
+        time: sample times (s), strictly increasing, shape ``(K,)``.
+        position: ram travel from first contact (m, positive closing), shape ``(K,)``.
+    """
+
+    time: Array
+    position: Array
+
+    def speed(self, t: Array) -> Array:
+        """Closing speed (m/s) at times ``t`` (s): slope of the segment holding ``t``."""
+        slopes = np.diff(self.position) / np.diff(self.time)
+        idx = np.clip(np.searchsorted(self.time, t, side="right") - 1, 0, slopes.size - 1)
+        return np.maximum(slopes[idx], 0.0)
+
+    @classmethod
+    def read(cls, path: Path) -> SpeedProfile:
+        """Read a CSV with columns ``time_s`` and ``position_mm`` (closing positive)."""
+        try:
+            data = np.genfromtxt(path, delimiter=",", names=True)
+            t, x = np.asarray(data["time_s"], float), np.asarray(data["position_mm"], float) * MM
+        except (OSError, ValueError) as err:
+            raise ConfigError(f"{path}: cannot read ram profile (need columns time_s, position_mm): {err}") from None
+        if t.size < 2 or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(x)):
+            raise ConfigError(f"{path}: ram profile needs >= 2 rows with strictly increasing time_s")
+        return cls(t, x - x[0])
+
+
+@dataclass(frozen=True)
+class Case:
+    """One press trial in SI units.
+
+    Attributes:
+        id: configuration id.
+        planar: True for a full-width bar (1-D planar flow), False for a centre charge
+            (axisymmetric flow of the equal-area disc).
+        width: mould width across the bar's flow (m).
+        mould_length: mould length along the bar's flow (m).
+        area0: initial charge area (m^2).
+        area_mould: cavity area (m^2).
+        gap0: initial stack height H0 (m).
+        mass: charge mass (kg) or None.
+        T_mould, T_charge: temperatures (K).
+        speed: set closing speed (m/s).
+        force_limit: force limit (N).
+        hold: force-controlled hold time (s).
+        profile: measured ram profile replacing ``speed``, or None.
+    """
+
+    id: str
+    planar: bool
+    width: float
+    mould_length: float
+    area0: float
+    area_mould: float
+    gap0: float
+    mass: float | None
+    T_mould: float
+    T_charge: float
+    speed: float
+    force_limit: float
+    hold: float
+    profile: SpeedProfile | None = None
+
+    @property
+    def gap_full(self) -> float:
+        """Gap at which an incompressible charge fills the cavity (thesis eq. 4.1) (m)."""
+        return self.gap0 * self.area0 / self.area_mould
+
+    def front(self, area: Array) -> Array:
+        """Flow length from the charge area: half-length (planar) or radius (m)."""
+        return area / (2.0 * self.width) if self.planar else np.sqrt(area / np.pi)
+
+    def set_speed(self, t: Array) -> Array:
+        """Commanded closing speed (m/s) at times ``t`` (s)."""
+        if self.profile is None:
+            return np.full_like(np.asarray(t, dtype=float), self.speed)
+        return self.profile.speed(np.asarray(t, dtype=float))
+
+    @classmethod
+    def from_spec(cls, spec: ConfigurationSpec, base_dir: Path | None = None) -> Case:
+        """Build from a validated configuration; raises :class:`ConfigError` on bad geometry."""
+        mould, charge, press = spec.mould, spec.charge, spec.press
+        L, W = mould.length_mm * MM, mould.width_mm * MM
+        area_mould = L * W
+        where = f"configuration '{spec.id}'"
+        if charge.shape == "bar":
+            if charge.width_mm is not None and abs(charge.width_mm - mould.width_mm) > 1e-9:
+                raise ConfigError(f"{where}: charge.width_mm of a bar must equal mould.width_mm "
+                                  f"({mould.width_mm:g}); use the 2-D solver for a partial-width strip")
+            length = charge.length_mm * MM if charge.length_mm else charge.coverage_pct / 100 * L
+            if length > L:
+                raise ConfigError(f"{where}: charge.length_mm {length / MM:g} exceeds mould.length_mm {L / MM:g}")
+            area0 = length * W
+        else:
+            if charge.length_mm is not None:
+                lx = charge.length_mm * MM
+                ly = (charge.width_mm or charge.length_mm) * MM
+                if lx > L or ly > W:
+                    raise ConfigError(f"{where}: centre charge {lx / MM:g} x {ly / MM:g} mm does not fit the mould")
+                area0 = lx * ly
+            else:
+                area0 = charge.coverage_pct / 100 * area_mould
+        profile = None
+        if press.profile is not None:
+            p = Path(press.profile)
+            profile = SpeedProfile.read(p if p.is_absolute() or base_dir is None else base_dir / p)
+        T_mould = celsius_to_kelvin(mould.temperature_C)
+        T_charge = celsius_to_kelvin(charge.temperature_C) if charge.temperature_C is not None else T_mould
+        return cls(id=spec.id, planar=charge.shape == "bar", width=W, mould_length=L,
+                   area0=area0, area_mould=area_mould, gap0=charge.stack_height_mm * MM,
+                   mass=charge.mass_g * G if charge.mass_g else None, T_mould=T_mould,
+                   T_charge=T_charge, speed=press.speed_mm_s * MM,
+                   force_limit=press.force_limit_kN * KN, hold=press.hold_s, profile=profile)

@@ -1,0 +1,14 @@
+"""Switchable physics for the sim-to-real gap diagnosis (design 4.3).
+
+Importing this package registers the built-in effects.
+"""
+
+from smcbayes.forward.effects.base import (
+    Effect,
+    EffectStack,
+    available,
+    get_effect,
+    register,
+)
+
+__all__ = ["Effect", "EffectStack", "available", "get_effect", "register"]

@@ -1,0 +1,136 @@
+"""The forward model: physics (effects) + configurations (cases) + a solver.
+
+Built once from a validated project, it simulates any number of parameter vectors on any
+subset of configurations.  It is the only thing the layers above see of the physics.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from smcbayes.config import MaterialSpec, ProjectConfig, SolverSpec
+from smcbayes.errors import ConfigError, SolverError
+from smcbayes.forward.case import Case
+from smcbayes.forward.effects.base import EffectStack, get_effect
+from smcbayes.forward.parameters import (
+    BASE_PARAMETERS, Parameter, ParameterSpace, closest, to_si, validate_batch,
+)
+from smcbayes.forward.result import SimulationResult
+from smcbayes.forward.squeeze1d import Squeeze1D, Squeeze1DOptions
+
+Array = NDArray[np.float64]
+
+
+class Solver(Protocol):
+    """The solver contract: one configuration, a batch of SI parameter sets."""
+
+    name: str
+
+    def solve(self, case: Case, p: dict[str, Array], effects: EffectStack,
+              material: MaterialSpec) -> SimulationResult: ...
+
+
+def make_solver(spec: SolverSpec, fidelity: str | None = None) -> Solver:
+    """Solver for a fidelity (``1d`` or ``2d``) with the project's discretisation."""
+    kind = fidelity or spec.fidelity
+    if kind == "1d":
+        return Squeeze1D(Squeeze1DOptions(
+            closing_steps=spec.closing_steps, hold_steps=spec.hold_steps,
+            per_decade=spec.stress_points_per_decade,
+            output_closing_points=spec.output_closing_points,
+            output_hold_points=spec.output_hold_points))
+    if kind == "2d":
+        try:
+            from smcbayes.forward.hele_shaw2d import HeleShaw2D
+        except ImportError:
+            raise ConfigError("--fidelity 2d: the 2-D solver is not available in this version") from None
+        return HeleShaw2D.from_spec(spec)
+    raise ConfigError(f"unknown fidelity '{kind}'; accepted: 1d, 2d")
+
+
+def build_space(project: ProjectConfig, effects: EffectStack,
+                overrides: Mapping[str, float] | None = None) -> ParameterSpace:
+    """Parameter space of base + effect parameters with the project's bounds and values.
+
+    ``[parameters.NAME]`` tables set ``value`` (the simulate value and, if ``fixed``, a
+    constant) and ``bounds``; ``overrides`` (from ``--set``) fix values.
+    """
+    params: list[Parameter] = list(BASE_PARAMETERS) + list(effects.parameters)
+    names = [p.name for p in params]
+    for name in project.parameters:
+        if name not in names:
+            raise ConfigError(f"[parameters.{name}]: unknown parameter{closest(name, names)}; "
+                              f"accepted with the enabled effects: {', '.join(names)}")
+    out: list[Parameter] = []
+    fixed: dict[str, float] = {}
+    for p in params:
+        spec = project.parameters.get(p.name)
+        if spec is not None and spec.value is not None:
+            p.check_value(spec.value, f"[parameters.{p.name}].value")
+            p = replace(p, default=float(spec.value))
+            if spec.fixed:
+                fixed[p.name] = float(spec.value)
+        out.append(p)
+    space = ParameterSpace(tuple(out))
+    bounds = {n: s.bounds for n, s in project.parameters.items() if s.bounds is not None}
+    space = space.with_bounds(bounds).with_fixed(fixed, "[parameters]")
+    return space.with_fixed(dict(overrides or {}), "--set")
+
+
+class ForwardModel:
+    """Simulate configurations of a project for batches of parameter vectors.
+
+    Args:
+        project: the validated project.
+        effects: effect names to switch on (default: the project's ``effects``).
+        overrides: parameter values to fix (``--set``), user units.
+        fidelity: ``1d`` or ``2d`` (default: the project's solver setting).
+    """
+
+    def __init__(self, project: ProjectConfig, effects: Sequence[str] | None = None,
+                 overrides: Mapping[str, float] | None = None, fidelity: str | None = None) -> None:
+        self.project = project
+        self.effects = EffectStack([get_effect(n) for n in (project.effects if effects is None else effects)])
+        self.space = build_space(project, self.effects, overrides)
+        self.solver = make_solver(project.solver, fidelity)
+        base = Path(project.base_dir)
+        self.cases = {c.id: Case.from_spec(c, base) for c in project.configuration}
+
+    @property
+    def config_ids(self) -> list[str]:
+        """All configuration ids, in file order."""
+        return list(self.cases)
+
+    def ids(self, role: str | None = None) -> list[str]:
+        """Configuration ids with the given role (``train``/``validation``), or all."""
+        return [c.id for c in self.project.configuration if role is None or c.role == role]
+
+    def simulate(self, theta: ArrayLike | None = None,
+                 config_ids: Iterable[str] | None = None) -> dict[str, SimulationResult]:
+        """Run the free-parameter vectors ``theta`` ``(P, d)`` (user units) on configurations."""
+        return self.simulate_params(self.space.batch(theta), config_ids)
+
+    def simulate_params(self, params: Mapping[str, ArrayLike],
+                        config_ids: Iterable[str] | None = None) -> dict[str, SimulationResult]:
+        """Run a full parameter batch (name -> ``(P,)``, user units) on configurations."""
+        batch = {k: np.atleast_1d(np.asarray(v, dtype=float)) for k, v in params.items()}
+        missing = [p.name for p in self.space.parameters if p.name not in batch]
+        if missing:
+            raise ConfigError(f"parameter batch lacks {', '.join(missing)}")
+        validate_batch(batch, self.space.parameters)
+        si = to_si(batch, self.space.parameters)
+        out: dict[str, SimulationResult] = {}
+        for cid in (self.config_ids if config_ids is None else list(config_ids)):
+            if cid not in self.cases:
+                raise ConfigError(f"unknown configuration '{cid}'{closest(cid, self.config_ids)}")
+            try:
+                out[cid] = self.solver.solve(self.cases[cid], si, self.effects, self.project.material)
+            except FloatingPointError as err:
+                raise SolverError(f"configuration '{cid}': {err}") from err
+        return out

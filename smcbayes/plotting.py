@@ -1,0 +1,90 @@
+"""Figures shared across the package: measured in black, simulated in colour.
+
+Matplotlib is used with the non-interactive Agg backend; every figure is written as PNG
+and SVG, with units on every axis and configuration names in titles or legends.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from smcbayes.forward.result import SimulationResult
+
+Array = NDArray[np.float64]
+MEASURED = "black"
+
+
+def pyplot():  # noqa: ANN201  (matplotlib is typed loosely)
+    """matplotlib.pyplot on the Agg backend (no display needed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save(fig, path: str | Path) -> list[Path]:  # noqa: ANN001
+    """Write ``fig`` as ``path`` with .png and .svg suffixes; returns both paths."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    out = [path.with_suffix(".png"), path.with_suffix(".svg")]
+    fig.savefig(out[0], dpi=130, bbox_inches="tight")
+    fig.savefig(out[1], bbox_inches="tight")
+    pyplot().close(fig)
+    return out
+
+
+def grid_shape(count: int, cols: int = 3) -> tuple[int, int]:
+    """Rows and columns of a panel grid for ``count`` panels."""
+    cols = min(cols, max(count, 1))
+    return math.ceil(count / cols), cols
+
+
+def plot_simulation(results: Mapping[str, SimulationResult],
+                    measured: Mapping[str, tuple[Array, Array]], path: str | Path,
+                    title: str, row: int = 0) -> list[Path]:
+    """Force and ram displacement vs time per configuration over the closing phase.
+
+    Args:
+        results: simulation per configuration (row ``row`` is drawn).
+        measured: measured force curve per configuration, ``(time_s, force_kN)``.
+        path: output path without suffix.
+        title: figure title (e.g. parameters and effects that were on).
+    """
+    plt = pyplot()
+    ids = list(results)
+    nrows, ncols = grid_shape(len(ids))
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.0 * nrows), squeeze=False)
+    colours = plt.get_cmap("tab10")
+    for k, cid in enumerate(ids):
+        ax = axes[k // ncols][k % ncols]
+        res = results[cid]
+        t, f, d = res.time_s[row], res.force_kN[row], res.displacement_mm[row]
+        t_end = res.switch_time_s[row] * 1.15 if np.isfinite(res.switch_time_s[row]) else t[-1]
+        if cid in measured:
+            tm, fm = measured[cid]
+            ax.plot(tm, fm, color=MEASURED, lw=1.2, label="measured force")
+            t_end = max(t_end, tm[-1] * 1.05)
+        mask = t <= t_end
+        ax.plot(t[mask], f[mask], color=colours(0), lw=1.5, label="simulated force")
+        ax.set_xlim(0, t_end)
+        ax.set_title(cid, fontsize=10)
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("force (kN)")
+        ax2 = ax.twinx()
+        ax2.plot(t[mask], d[mask], color=colours(1), lw=1.0, ls="--", label="simulated ram displacement")
+        ax2.set_ylabel("ram displacement (mm)")
+        if k == 0:
+            lines = ax.get_lines() + ax2.get_lines()
+            ax.legend(lines, [ln.get_label() for ln in lines], fontsize=7, loc="upper left")
+    for k in range(len(ids), nrows * ncols):
+        axes[k // ncols][k % ncols].set_visible(False)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return save(fig, path)
