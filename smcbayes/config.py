@@ -17,6 +17,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from smcbayes.data.specs import LossSpec, PreprocessSpec
 from smcbayes.errors import ConfigError
 from smcbayes.forward.parameters import closest
 
@@ -70,6 +71,11 @@ class DataSpec(Strict):
     hold: str | None = None
     displacement: str | None = None
     format: Literal["csv", "press", "moldflow"] = "csv"
+    time_column: str | None = Field(None, description="csv: time column (default time_s)")
+    force_column: str | None = Field(None, description="default force_kN (csv), dbPr\\diIstKraftGes (press)")
+    displacement_column: str | None = Field(None, description="default displacement_mm (csv), dbPr\\diIstPos (press)")
+    force_unit: str | None = Field(None, description="N, kN, MN, tonne-force; default from the file")
+    displacement_unit: str | None = Field(None, description="mm, m, um; default from the file")
 
 
 class ConfigurationSpec(Strict):
@@ -113,6 +119,26 @@ class SolverSpec(Strict):
     output_hold_points: int = Field(50, ge=2, le=100000)
 
 
+class CalibrationSpec(Strict):
+    """Settings of ``smcbayes calibrate`` (Bayesian optimisation); CLI options override them."""
+
+    budget: int = Field(60, ge=2, le=100000, description="total evaluations, initial design included")
+    init: int = Field(20, ge=2, le=100000, description="Latin hypercube initial design size")
+    batch: int = Field(1, ge=1, le=256, description="candidates per round (qLogEI when > 1)")
+    kernel: Literal["rbf", "matern52"] = "matern52"
+    tolerance: float = Field(0.0, ge=0.0, lt=1.0,
+                             description="stop when the best loss improves by less than this "
+                                         "fraction over `patience` rounds (0: off)")
+    patience: int = Field(10, ge=1, le=100000)
+    seed: int = Field(0, ge=0)
+    failed: Literal["impute", "exclude"] = Field(
+        "impute", description="failed evaluations: imputed at the worst loss seen, or left out")
+    truth: dict[str, float] | None = Field(
+        None, description="synthetic check: 'measured' curves simulated at these values")
+    restarts: int = Field(8, ge=1, le=1000, description="acquisition optimiser restarts")
+    raw_samples: int = Field(256, ge=8, le=100000, description="acquisition optimiser raw samples")
+
+
 class ProjectConfig(Strict):
     """A whole project file."""
 
@@ -122,6 +148,9 @@ class ProjectConfig(Strict):
     parameters: dict[str, ParameterSpec] = {}
     effects: list[str] = []
     solver: SolverSpec = SolverSpec()
+    calibration: CalibrationSpec = CalibrationSpec()
+    preprocess: PreprocessSpec = PreprocessSpec()
+    loss: LossSpec = LossSpec()
     configuration: list[ConfigurationSpec] = Field(min_length=1)
     base_dir: str = "."
 
@@ -153,7 +182,8 @@ class ProjectConfig(Strict):
 _MODELS: dict[str, type[BaseModel]] = {
     "": ProjectConfig, "configuration": ConfigurationSpec, "mould": MouldSpec,
     "charge": ChargeSpec, "press": PressSpec, "data": DataSpec, "material": MaterialSpec,
-    "solver": SolverSpec, "parameters": ParameterSpec,
+    "solver": SolverSpec, "parameters": ParameterSpec, "calibration": CalibrationSpec,
+    "preprocess": PreprocessSpec, "loss": LossSpec,
 }
 
 

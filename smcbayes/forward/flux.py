@@ -119,6 +119,10 @@ class MaterialTable:
         slip = slip_velocity(tau[None, :], col(a_s), col(tau_c), col(m), threshold_exponent)
         return cls(tau=tau, slip=np.broadcast_to(slip, shear.shape), shear=shear)
 
+    def take(self, rows: NDArray[np.int64]) -> MaterialTable:
+        """The tables of a subset of parameter sets."""
+        return MaterialTable(self.tau, self.slip[rows], self.shear[rows])
+
     def shear_at(self, cure: Array) -> Array:
         """I*eta0 with a cure factor c: c^2 K(tau/c), log-log interpolated; ``(P, M)``.
 
@@ -236,7 +240,7 @@ class FlowTable:
         rows = np.arange(y.shape[0])
         y0, y1 = y[rows, j], y[rows, j + 1]
         with np.errstate(divide="ignore", invalid="ignore"):
-            theta = np.log(target / y0) / np.log(y1 / y0)
+            theta = np.log(np.maximum(target, 1e-300) / y0) / np.log(y1 / y0)
         theta = np.where(np.isfinite(theta), theta, 0.0)
         out = (count == 0) | (count == self.tau.size)
         ln_r = np.log(self.tau[1] / self.tau[0])
@@ -245,6 +249,11 @@ class FlowTable:
         k = np.log(q1 / q0) / ln_r
         q_f = q0 * np.exp(k * theta * ln_r)
         p = self.power
-        cum = self.cum[rows, j] + (_ipow(q_f, p) * tau_f - _ipow(q0, p) * self.tau[j]) / (p * k + 1.0)
-        force = self.force_scale * np.maximum(tau_f - cum / _ipow(q_f, p), 0.0)
-        return FlowSolution(tau_f, q_f, force, q_f / self.kin, out)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cum = self.cum[rows, j] + (_ipow(q_f, p) * tau_f - _ipow(q0, p) * self.tau[j]) / (p * k + 1.0)
+            force = self.force_scale * np.maximum(tau_f - cum / _ipow(q_f, p), 0.0)
+        # a zero target (press at rest) means no flow and no force
+        rest = ~(target > 0)
+        if np.any(rest):
+            tau_f, q_f, force = (np.where(rest, 0.0, v) for v in (tau_f, q_f, force))
+        return FlowSolution(tau_f, q_f, force, q_f / self.kin, out & ~rest)

@@ -1,8 +1,10 @@
 """Switchable physics for the sim-to-real gap diagnosis (design 4.3).
 
-Importing this package registers the built-in effects.
+Importing this package registers the built-in effects: ``compressibility``, ``heating``,
+``curing``, ``press_compliance`` and ``speed_ramp``.
 """
 
+from smcbayes.forward.effects import compressibility, press, thermal  # noqa: F401  (registration)
 from smcbayes.forward.effects.base import (
     Effect,
     EffectStack,

@@ -1,0 +1,61 @@
+"""Typed options of the pre-processing and of the loss (``[preprocess]`` and ``[loss]``).
+
+Kept free of other package imports so that :mod:`smcbayes.config` can embed them.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+ClipMode = Literal["none", "flow_stop", "force_limit"]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class PreprocessSpec(_Strict):
+    """Optional pre-processing of measured curves; every step applied is recorded.
+
+    Attributes:
+        trim_idle: drop idle press states: samples before the last one below the contact
+            threshold that precedes the force rise, and samples after the press opened
+            (force back below the threshold after its peak).
+        zero_at_contact: put t = 0 where the force first reaches ``contact_threshold_kN``
+            (linear interpolation between samples); earlier samples are dropped.
+        contact_threshold_kN: force that marks first contact (kN).
+        smooth_window_s: Savitzky-Golay window (s); None switches smoothing off.
+        smooth_order: Savitzky-Golay polynomial order.
+        resample_dt_s: resample every curve to a uniform grid of this spacing (s).
+        clip: cut the measured closing curve at the incompressible flow-stop time
+            (thesis eq. 4.1) or at its first crossing of the force limit.
+    """
+
+    trim_idle: bool = False
+    zero_at_contact: bool = False
+    contact_threshold_kN: float = Field(2.0, gt=0)
+    smooth_window_s: float | None = Field(None, gt=0)
+    smooth_order: int = Field(3, ge=1, le=6)
+    resample_dt_s: float | None = Field(None, gt=0)
+    clip: ClipMode = "none"
+
+
+class LossSpec(_Strict):
+    """Options of the loss (thesis eq. 3.5-3.7).
+
+    Attributes:
+        w_force: weight w_F of the force MSE (kN^2).
+        w_displacement: weight w_D of the hold-displacement MSE (mm^2).
+        grid_points: points N of the common time grid per configuration.
+        clip: ``none``: force compared over [0, max(t_switch_sim, t_end_meas)];
+            ``flow_stop``: over [0, t_flow_stop] (the thesis's clipped loss);
+            ``force_limit``: both curves cut where they first reach the force limit and
+            their values capped at the limit.
+    """
+
+    w_force: float = Field(1.0, ge=0)
+    w_displacement: float = Field(0.0, ge=0)
+    grid_points: int = Field(400, ge=10, le=100000)
+    clip: ClipMode = "none"

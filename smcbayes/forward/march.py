@@ -1,0 +1,304 @@
+"""Time-marching path of the 1-D solver, for effects that carry state.
+
+Each step solves, per parameter set, the closing-rate balance of the current state
+
+    spreading speed V_s (flow tables)  +  compaction speed V_c  =  gap closing speed V,
+    V + F / (k dt) + U_set beta F / F_limit = U_set + delta / dt     (speed control),
+    F / A = P_c(s) + zeta V_c / H  while the charge compacts,         F = F_limit (force control),
+
+where k is the press stiffness (frame deflection delta = F / k, integrated by backward
+Euler), U_set the free ram speed with load sensitivity beta (speed ramp), P_c(s) the
+compaction pressure and zeta the bulk viscosity (compressibility).  Every case reduces to
+one monotone table solve ``alpha F + beta V = target`` (see
+:meth:`~smcbayes.forward.flux.FlowTable.solve`).  Gap, charge area and effect states then
+advance by explicit Euler; the charge area is updated as A (H/H')^(V_s/V), which keeps
+A H constant to round-off when the charge does not compact, and the solid fraction is
+derived from mass conservation, s = s0 H0 A0 / (H A), so solid mass is conserved exactly.
+Switching to force control and filling the cavity are located inside a step by
+interpolation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from smcbayes.forward.case import Case
+from smcbayes.forward.effects.base import EffectStack
+from smcbayes.forward.flux import FlowTable, MaterialTable
+from smcbayes.forward.nodes import Nodes
+from smcbayes.forward.result import PHASE_FLOW, PHASE_FORCE, PHASE_FULL, STATUS_OK
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class _State:
+    """Per-row state, every field ``(P,)`` (extra: effect states by name)."""
+
+    t: Array
+    gap: Array
+    area: Array
+    delta: Array
+    phase: NDArray[np.int8]
+    switch: Array
+    extra: dict[str, Array] = field(default_factory=dict)
+
+    def copy(self) -> _State:
+        return _State(self.t.copy(), self.gap.copy(), self.area.copy(), self.delta.copy(),
+                      self.phase.copy(), self.switch.copy(), {k: v.copy() for k, v in self.extra.items()})
+
+    def blend(self, other: _State, theta: Array, rows: NDArray[np.bool_]) -> None:
+        """Move ``rows`` to ``self + theta (other - self)``; area interpolated in log."""
+        th = np.where(rows, theta, 0.0)
+        for name in ("t", "gap", "delta"):
+            a, b = getattr(self, name), getattr(other, name)
+            setattr(self, name, np.where(rows, a + th * (b - a), a))
+        self.area = np.where(rows, self.area * (other.area / self.area) ** th, self.area)
+        for k, v in self.extra.items():
+            self.extra[k] = np.where(rows, v + th * (other.extra[k] - v), v)
+
+
+@dataclass
+class _Rates:
+    """Result of one balance solve, every field ``(P,)``: force (N), gap speed V,
+    spreading speed V_s (m/s)."""
+
+    force: Array
+    speed: Array
+    spread: Array
+
+
+@dataclass(frozen=True)
+class _Context:
+    """Everything constant over a run."""
+
+    case: Case
+    p: dict[str, Array]
+    effects: EffectStack
+    table: MaterialTable
+    solid0: Array
+    compressible: bool
+    inv_k: Array
+    dt_close: Array
+    gap_end: Array
+
+    def solid(self, gap: Array, area: Array) -> Array:
+        c = self.case
+        return self.solid0 * c.gap0 * c.area0 / (gap * area)
+
+
+def _flow_table(ctx: _Context, st: _State, rows: NDArray[np.int64]) -> FlowTable:
+    eta_f, cure = ctx.effects.viscosity_factors(ctx.case, ctx.p, st.extra, st.t.size)
+    table = ctx.table.take(rows)
+    q = table.flux(st.gap[rows], (ctx.p["B"] * eta_f)[rows], cure[rows])
+    c = ctx.case
+    return FlowTable.build(q, table.tau, c.planar, c.front(st.area[rows]), st.gap[rows], c.width)
+
+
+def _compaction(ctx: _Context, st: _State) -> tuple[Array, Array]:
+    if not ctx.compressible:
+        return np.full(st.t.size, np.inf), np.zeros(st.t.size)
+    return ctx.effects.compaction(ctx.case, ctx.p, ctx.solid(st.gap, st.area))
+
+
+def _speed_control(ft: FlowTable, a0: Array, t0: Array, pc: Array, zeta: Array,
+                   area: Array, gap: Array) -> _Rates:
+    """Speed-controlled spreading (rows of ``ft``), with compaction where it is active."""
+    one, zero = np.ones(a0.size), np.zeros(a0.size)
+    s0 = ft.solve(a0, one, t0)
+    force, spread = s0.force, s0.speed
+    speed = spread.copy()
+    comp = force > area * pc
+    if np.any(comp):
+        visc = zeta > 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(visc, gap / (zeta * area), 0.0)
+            s1 = ft.solve(a0 + r, one, t0 + np.where(visc, pc * gap / zeta, 0.0))
+            v1 = s1.speed + np.where(visc, (s1.force / area - pc) * gap / zeta, 0.0)
+            f2 = np.where(comp, area * pc, 1.0)
+            s2 = ft.solve(one, zero, f2)
+        force = np.where(comp, np.where(visc, s1.force, f2), force)
+        spread = np.where(comp, np.where(visc, s1.speed, s2.speed), spread)
+        speed = np.where(comp, np.where(visc, v1, t0 - a0 * f2), speed)
+    return _Rates(force, speed, spread)
+
+
+def _evaluate(ctx: _Context, st: _State, dt: Array) -> _Rates:
+    """Force and speeds of every row at state ``st`` for a closing step ``dt`` (s).
+
+    Rows fall in five groups: spreading under speed control; an incompressible charge
+    that has just filled the cavity (its last flow force); a compressible charge packing
+    a full cavity under speed control; force control while spreading; force control in a
+    full cavity (no closure, or creep through the bulk viscosity).
+    """
+    c, P = ctx.case, st.t.size
+    full = st.area >= c.area_mould * (1.0 - 1e-12)
+    fc = st.phase == PHASE_FORCE
+    pc, zeta = _compaction(ctx, st)
+    free, beta = ctx.effects.ram_speed(c, ctx.p, st.t, c.set_speed(st.t))
+    a0 = ctx.inv_k / dt + free * beta / c.force_limit
+    t0 = free + st.delta / dt
+    force, speed, spread = np.full(P, c.force_limit), np.zeros(P), np.zeros(P)
+    rows = np.nonzero(~full | (~fc & (not ctx.compressible)))[0]
+    if rows.size:
+        ft = _flow_table(ctx, st, rows)
+        sc_rows, fc_rows = ~fc[rows], fc[rows]
+        if np.any(sc_rows):
+            sc = _speed_control(ft, a0[rows], t0[rows], pc[rows], zeta[rows], st.area[rows], st.gap[rows])
+            idx = rows[sc_rows]
+            force[idx], speed[idx], spread[idx] = sc.force[sc_rows], sc.speed[sc_rows], sc.spread[sc_rows]
+        if np.any(fc_rows):
+            limit = np.full(rows.size, c.force_limit)
+            spread[rows[fc_rows]] = ft.solve(np.ones(rows.size), np.zeros(rows.size), limit).speed[fc_rows]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        creep = np.where((zeta > 0) & np.isfinite(pc),
+                         np.maximum(c.force_limit / st.area - pc, 0.0) * st.gap / zeta, 0.0)
+    speed = np.where(fc, spread + creep, speed)
+    if ctx.compressible:
+        packing = full & ~fc
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            v = np.maximum((t0 - a0 * c.area_mould * pc) / (1.0 + a0 * c.area_mould * zeta / st.gap), 0.0)
+        v = np.where(np.isfinite(v), v, 0.0)
+        force = np.where(packing, c.area_mould * (pc + zeta * v / st.gap), force)
+        speed = np.where(packing, v, speed)
+        spread = np.where(packing, 0.0, spread)
+    return _Rates(force, speed, spread)
+
+
+def _setup(case: Case, p: dict[str, Array], effects: EffectStack, table: MaterialTable,
+           steps: int) -> _Context:
+    P = p["n"].shape[0]
+    s0 = effects.solid_fraction0(case, p, P)
+    compressible = s0 is not None
+    solid0 = np.ones(P) if s0 is None else np.minimum(np.asarray(s0, float), 1.0)
+    gap_end = solid0 * case.gap_full
+    v_ref = case.speed if case.profile is None else case.profile.position[-1] / case.profile.time[-1]
+    dt_close = (case.gap0 - gap_end) / (v_ref * steps)
+    return _Context(case, p, effects, table, solid0, compressible,
+                    effects.compliance(case, p, P), dt_close, gap_end)
+
+
+def _step_size(ctx: _Context, st: _State, speed: Array, hold_steps: int, steps: int) -> Array:
+    """Closing step under speed control; geometric hold schedule capped in gap change."""
+    c = ctx.case
+    dt0 = ctx.dt_close
+    fc = st.phase == PHASE_FORCE
+    if c.hold <= 0:
+        return dt0
+    ratio = np.maximum(c.hold / dt0, 1.0 + 1e-9)
+    elapsed = np.maximum(st.t - st.switch, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        k = np.floor(hold_steps * np.log(np.maximum(elapsed, dt0 * 1e-3) / dt0) / np.log(ratio)) + 1
+    k = np.clip(np.nan_to_num(k, nan=0.0), 0, hold_steps)
+    target = st.switch + dt0 * ratio ** (k / hold_steps)
+    target = np.where(target <= st.t + 1e-12 * np.maximum(st.t, 1.0), st.switch + c.hold, target)
+    dt_hold = np.minimum(target, st.switch + c.hold) - st.t
+    with np.errstate(divide="ignore"):
+        cap = np.where(speed > 0, (c.gap0 - ctx.gap_end) / steps / speed, np.inf)
+    dt_hold = np.maximum(np.minimum(dt_hold, cap), 1e-12)
+    return np.where(fc, dt_hold, dt0)
+
+
+def _advance(ctx: _Context, st: _State, rates: _Rates, dt: Array, active: NDArray[np.bool_]) -> _State:
+    """Euler step of ``dt`` for ``active`` rows, stopping exactly at the cavity fill."""
+    c = ctx.case
+    new = st.copy()
+    dt = np.where(active, dt, 0.0)
+    gap = st.gap - rates.speed * dt
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(rates.speed > 0, rates.spread / rates.speed, 0.0)
+        area = st.area * (st.gap / gap) ** ratio
+    fills = (area > c.area_mould) & (st.area < c.area_mould) & active
+    if np.any(fills):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gap_fill = st.gap * (st.area / c.area_mould) ** (1.0 / ratio)
+            dt_fill = (st.gap - gap_fill) / rates.speed
+        gap = np.where(fills, gap_fill, gap)
+        area = np.where(fills, c.area_mould, area)
+        dt = np.where(fills, dt_fill, dt)
+    new.t, new.gap, new.area = st.t + dt, gap, np.minimum(area, c.area_mould)
+    new.delta = np.where(active & (st.phase != PHASE_FORCE), rates.force * ctx.inv_k, st.delta)
+    new.extra = ctx.effects.advance(c, ctx.p, st.extra, st.gap, dt)
+    if ctx.compressible:
+        new.phase = np.where(fills & (st.phase != PHASE_FORCE), PHASE_FULL, new.phase).astype(np.int8)
+    return new
+
+
+def _switch(ctx: _Context, st: _State, prev: _State, prev_force: Array, rates: _Rates,
+            first: bool) -> NDArray[np.bool_]:
+    """Move rows whose force passed the limit back to the crossing; returns those rows."""
+    c = ctx.case
+    hit = (st.phase != PHASE_FORCE) & (rates.force >= c.force_limit)
+    if not np.any(hit):
+        return hit
+    if not first:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            theta = (c.force_limit - prev_force) / (rates.force - prev_force)
+        theta = np.clip(np.nan_to_num(theta, nan=1.0), 0.0, 1.0)
+        back = prev.copy()
+        back.blend(st, theta, hit)
+        for name in ("t", "gap", "area", "delta"):
+            setattr(st, name, np.where(hit, getattr(back, name), getattr(st, name)))
+        for k in st.extra:
+            st.extra[k] = np.where(hit, back.extra[k], st.extra[k])
+    st.phase = np.where(hit, PHASE_FORCE, st.phase).astype(np.int8)
+    st.switch = np.where(hit, st.t, st.switch)
+    st.delta = np.where(hit, c.force_limit * ctx.inv_k, st.delta)
+    return hit
+
+
+def march(case: Case, p: dict[str, Array], effects: EffectStack, table: MaterialTable,
+          options: object) -> Nodes:
+    """Run the press programme for every parameter set; returns the node histories.
+
+    Args:
+        case: configuration in SI.
+        p: SI parameters by symbol, each ``(P,)``.
+        effects: enabled effects.
+        table: stress-grid tables of the batch.
+        options: :class:`~smcbayes.forward.squeeze1d.Squeeze1DOptions`.
+    """
+    steps, hold_steps = options.closing_steps, options.hold_steps
+    ctx = _setup(case, p, effects, table, steps)
+    P = p["n"].shape[0]
+    st = _State(np.zeros(P), np.full(P, case.gap0), np.full(P, case.area0), np.zeros(P),
+                np.full(P, PHASE_FLOW, dtype=np.int8), np.full(P, np.nan),
+                effects.initial_state(case, p, P))
+    done, count = np.zeros(P, dtype=bool), np.zeros(P, dtype=np.int64)
+    rec: dict[str, list[Array]] = {k: [] for k in ("t", "gap", "area", "force", "delta", "solid")}
+    prev, prev_force = st.copy(), np.zeros(P)
+    for it in range(4 * (steps + hold_steps) + 20):
+        rates = _evaluate(ctx, st, ctx.dt_close)
+        if np.any(_switch(ctx, st, prev, prev_force, rates, it == 0) & ~done):
+            rates = _evaluate(ctx, st, ctx.dt_close)
+        _record(rec, ctx, st, rates.force)
+        count[~done] = it + 1
+        jump = ~done & (not ctx.compressible) & (st.area >= case.area_mould * (1 - 1e-12)) & (st.phase != PHASE_FORCE)
+        if np.any(jump):
+            st.t = np.where(jump, st.t + options.jump_time_s, st.t)
+            st.phase = np.where(jump, PHASE_FORCE, st.phase).astype(np.int8)
+            st.switch = np.where(jump, st.t, st.switch)
+        done |= (st.phase == PHASE_FORCE) & (st.t >= st.switch + case.hold - 1e-9) & ~jump
+        if done.all():
+            break
+        dt = _step_size(ctx, st, rates.speed, hold_steps, steps)
+        prev, prev_force = st.copy(), rates.force
+        st = _advance(ctx, st, rates, dt, ~done & ~jump)
+    status = [STATUS_OK if d else "failed: the press programme did not finish within the step limit "
+              "(press stalled before the force limit?)" for d in done]
+    stack = {k: np.stack(v, axis=1) for k, v in rec.items()}
+    return Nodes(time=stack["t"], gap=stack["gap"], area=stack["area"], force=stack["force"],
+                 deflection=stack["delta"], solid=stack["solid"], count=count,
+                 switch=st.switch, status=status)
+
+
+def _record(rec: dict[str, list[Array]], ctx: _Context, st: _State, force: Array) -> None:
+    rec["t"].append(st.t.copy())
+    rec["gap"].append(st.gap.copy())
+    rec["area"].append(st.area.copy())
+    rec["force"].append(force.copy())
+    rec["delta"].append(force * ctx.inv_k)
+    rec["solid"].append(ctx.solid(st.gap, st.area))

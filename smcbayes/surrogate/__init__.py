@@ -1,0 +1,7 @@
+"""Bayesian calibration: design of experiments, GP surrogate, acquisition, BO loop, executors.
+
+The layer sees the forward model only through an :class:`~smcbayes.surrogate.objective.Objective`
+("evaluate these parameter vectors on this configuration"). Torch and BoTorch are imported
+by :mod:`smcbayes.surrogate.gp` and :mod:`smcbayes.surrogate.acquisition` only, so worker
+processes that just run simulations stay light.
+"""

@@ -1,0 +1,126 @@
+"""Gaussian-process surrogate of log(loss) over the unit cube (BoTorch SingleTaskGP).
+
+Inputs are the free parameters mapped to ``[0, 1]^d`` by
+:meth:`~smcbayes.forward.parameters.ParameterSpace.to_unit` (tau*, B and tau_c in log10);
+the target is ``log(loss)`` (natural log, loss in kN^2), standardised by the model's
+outcome transform.  The state file (``gp.pt``) keeps the torch ``state_dict``, the
+training data and the kernel name, so that :func:`load_gp` rebuilds the same posterior.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from botorch.exceptions import ModelFittingError
+from botorch.fit import fit_gpytorch_mll
+from botorch.models import SingleTaskGP
+from botorch.models.transforms.outcome import Standardize
+from botorch.models.utils.gpytorch_modules import get_covar_module_with_dim_scaled_prior
+from gpytorch.mlls import ExactMarginalLogLikelihood
+from numpy.typing import NDArray
+
+from smcbayes.errors import SurrogateError
+
+Array = NDArray[np.float64]
+KERNELS = ("rbf", "matern52")
+DTYPE = torch.float64
+
+
+@dataclass
+class Surrogate:
+    """A fitted GP and its training data.
+
+    Attributes:
+        model: the BoTorch model (posterior in log-loss units).
+        x_unit: training inputs, shape ``(N, d)``, unit cube.
+        log_loss: training targets, shape ``(N,)``, natural log of the loss (kN^2).
+        kernel: ``rbf`` or ``matern52``.
+        fitted: False if hyperparameter fitting failed and priors' modes were kept.
+    """
+
+    model: SingleTaskGP
+    x_unit: Array
+    log_loss: Array
+    kernel: str
+    fitted: bool = True
+
+    def predict(self, x_unit: Array) -> tuple[Array, Array]:
+        """Posterior mean and standard deviation of log(loss) at ``x_unit`` ``(M, d)``; ``(M,)`` each."""
+        x = torch.as_tensor(np.atleast_2d(x_unit), dtype=DTYPE)
+        self.model.eval()
+        with torch.no_grad():
+            post = self.model.posterior(x)
+            mean = post.mean.squeeze(-1).numpy()
+            std = post.variance.clamp_min(0).sqrt().squeeze(-1).numpy()
+        return mean.astype(float), std.astype(float)
+
+
+def build_model(x_unit: Array, log_loss: Array, kernel: str) -> SingleTaskGP:
+    """An unfitted SingleTaskGP on the given data with the chosen kernel."""
+    if kernel not in KERNELS:
+        raise SurrogateError(f"unknown kernel '{kernel}'; accepted: {', '.join(KERNELS)}")
+    x = torch.as_tensor(x_unit, dtype=DTYPE)
+    y = torch.as_tensor(log_loss, dtype=DTYPE).reshape(-1, 1)
+    covar = get_covar_module_with_dim_scaled_prior(ard_num_dims=x.shape[-1],
+                                                   use_rbf_kernel=kernel == "rbf")
+    return SingleTaskGP(x, y, covar_module=covar, outcome_transform=Standardize(m=1))
+
+
+def fit_surrogate(x_unit: Array, log_loss: Array, kernel: str, seed: int) -> Surrogate:
+    """Fit the GP's hyperparameters by maximum marginal likelihood.
+
+    Args:
+        x_unit: inputs ``(N, d)`` in the unit cube.
+        log_loss: targets ``(N,)``, finite.
+        kernel: ``rbf`` (squared exponential, as in the thesis) or ``matern52``.
+        seed: torch seed for the fitting restarts.
+    """
+    if x_unit.shape[0] < 2 or not np.all(np.isfinite(log_loss)):
+        raise SurrogateError("the GP needs at least 2 finite training targets")
+    torch.manual_seed(seed)
+    model = build_model(x_unit, log_loss, kernel)
+    mll = ExactMarginalLogLikelihood(model.likelihood, model)
+    fitted = True
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            fit_gpytorch_mll(mll)
+        except ModelFittingError:
+            fitted = False
+            model = build_model(x_unit, log_loss, kernel)
+    model.eval()
+    return Surrogate(model, np.asarray(x_unit, float), np.asarray(log_loss, float), kernel, fitted)
+
+
+def save_surrogate(path: Path, surrogate: Surrogate, meta: dict[str, Any]) -> None:
+    """Write ``gp.pt``: state dict, training data, kernel and ``meta`` (parameter names...)."""
+    tmp = Path(path).with_suffix(".tmp")
+    torch.save({
+        "state_dict": surrogate.model.state_dict(),
+        "train_x_unit": torch.as_tensor(surrogate.x_unit, dtype=DTYPE),
+        "train_log_loss": torch.as_tensor(surrogate.log_loss, dtype=DTYPE),
+        "kernel": surrogate.kernel,
+        "fitted": surrogate.fitted,
+        "target": "natural log of the loss (kN^2)",
+        "meta": meta,
+    }, tmp)
+    tmp.replace(path)
+
+
+def load_surrogate(path: str | Path) -> tuple[Surrogate, dict[str, Any]]:
+    """Rebuild the surrogate saved by :func:`save_surrogate`; returns it and its ``meta``."""
+    path = Path(path)
+    if not path.is_file():
+        raise SurrogateError(f"{path}: GP state not found (run `smcbayes calibrate` first)")
+    state = torch.load(path, weights_only=False)
+    x = state["train_x_unit"].numpy()
+    y = state["train_log_loss"].numpy()
+    model = build_model(x, y, state["kernel"])
+    model.load_state_dict(state["state_dict"])
+    model.eval()
+    return Surrogate(model, x, y, state["kernel"], bool(state.get("fitted", True))), state["meta"]

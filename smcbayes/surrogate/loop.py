@@ -1,0 +1,270 @@
+"""The Bayesian-optimisation loop (thesis Algorithm 1), resumable and executor-agnostic.
+
+Round 0 evaluates a Latin hypercube design; every later round fits the GP to all finished
+evaluations of the earlier rounds and proposes ``batch`` candidates by (q)LogEI.  A
+round's candidates are logged before they run, and each evaluation as soon as all its
+configurations are done, so a run killed at any moment resumes where it stopped, and
+(every random step being seeded from the run seed and the round) ends exactly where an
+uninterrupted run ends.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from smcbayes.errors import ConfigError
+from smcbayes.surrogate.design import latin_hypercube, round_rng, round_seed
+from smcbayes.surrogate.executors.base import Executor
+from smcbayes.surrogate.objective import Objective, Task, TaskResult, combine
+from smcbayes.surrogate.runlog import LogState, RunLog
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class BOSettings:
+    """Settings of the loop (see :class:`smcbayes.config.CalibrationSpec`)."""
+
+    budget: int = 60
+    init: int = 20
+    batch: int = 1
+    kernel: str = "matern52"
+    tolerance: float = 0.0
+    patience: int = 10
+    seed: int = 0
+    failed: str = "impute"
+    restarts: int = 8
+    raw_samples: int = 256
+
+    def check(self) -> None:
+        """Raise :class:`ConfigError` for inconsistent settings."""
+        if self.init < 2 or self.budget < self.init:
+            raise ConfigError(f"calibration: need 2 <= init ({self.init}) <= budget ({self.budget})")
+        if self.batch < 1:
+            raise ConfigError(f"calibration: batch = {self.batch} must be at least 1")
+        if self.failed not in ("impute", "exclude"):
+            raise ConfigError(f"calibration: failed = {self.failed!r}; accepted: impute, exclude")
+
+
+@dataclass(frozen=True)
+class Progress:
+    """What the loop reports after each finished evaluation."""
+
+    done: int
+    budget: int
+    best_loss: float
+    elapsed_s: float
+    remaining_s: float
+    failures: int
+
+
+def training_data(state: LogState, space_to_unit: Callable[[Array], Array], names: list[str],
+                  failed: str, before_round: int | None = None) -> tuple[Array, Array]:
+    """GP inputs ``(N, d)`` (unit cube) and targets ``(N,)`` (log loss) from the log.
+
+    Failed evaluations are left out (``failed="exclude"``) or given the worst successful
+    log loss (``"impute"``), which steers the search away from where the solver fails.
+    """
+    recs = [r for i, r in sorted(state.evaluations.items())
+            if before_round is None or r["round"] < before_round]
+    if not recs:
+        return np.zeros((0, len(names))), np.zeros(0)
+    theta = np.array([[r["params"][n] for n in names] for r in recs], dtype=float)
+    loss = np.array([r["loss"] if r["loss"] is not None else np.nan for r in recs], dtype=float)
+    ok = np.isfinite(loss) & (loss > 0)
+    y = np.full(loss.shape, np.nan)
+    y[ok] = np.log(loss[ok])
+    if failed == "impute" and ok.any():
+        y[~ok] = y[ok].max()
+        keep = np.ones_like(ok)
+    else:
+        keep = ok
+    return space_to_unit(theta[keep]), y[keep]
+
+
+class BayesOpt:
+    """One calibration run over an objective, logged in ``log``.
+
+    Args:
+        objective: evaluates parameter vectors on configurations.
+        settings: loop settings.
+        log: the run's evaluation log (may hold a previous, interrupted run).
+        executor: where evaluations run (started by :meth:`run`).
+        on_progress: called after every finished evaluation.
+        on_round: called after each round with the loop (e.g. to write the summary).
+    """
+
+    def __init__(self, objective: Objective, settings: BOSettings, log: RunLog, executor: Executor,
+                 on_progress: Callable[[Progress], None] | None = None,
+                 on_round: Callable[[BayesOpt], None] | None = None) -> None:
+        settings.check()
+        self.objective = objective
+        self.space = objective.space
+        self.settings = settings
+        self.log = log
+        self.executor = executor
+        self.on_progress = on_progress
+        self.on_round = on_round
+        self.state = LogState()
+        self.stop_reason = ""
+        self._start = time.perf_counter()
+        self._evaluated_now = 0
+        self._seconds_now = 0.0
+        self.last_surrogate: Any = None
+        self.last_candidate: Array | None = None
+
+    # -- bookkeeping ---------------------------------------------------------------
+    def losses(self) -> Array:
+        """Loss of every logged evaluation in index order, NaN for failures, ``(N,)``."""
+        return np.array([r["loss"] if r["loss"] is not None else np.nan
+                         for _, r in sorted(self.state.evaluations.items())], dtype=float)
+
+    def best(self) -> dict[str, Any] | None:
+        """The evaluation record with the lowest loss (earliest on ties), or ``None``."""
+        ok = [r for _, r in sorted(self.state.evaluations.items()) if r["loss"] is not None]
+        return min(ok, key=lambda r: r["loss"]) if ok else None
+
+    def failures(self) -> int:
+        """Number of failed evaluations."""
+        return sum(1 for r in self.state.evaluations.values() if r["status"] != "ok")
+
+    def _best_after(self, rnd: int) -> float:
+        vals = [r["loss"] for r in self.state.evaluations.values()
+                if r["round"] <= rnd and r["loss"] is not None]
+        return min(vals) if vals else math.inf
+
+    def _should_stop(self, rnd: int, proposed: int) -> bool:
+        s = self.settings
+        if proposed >= s.budget:
+            self.stop_reason = f"budget of {s.budget} evaluations reached"
+            return True
+        bo_rounds = rnd - 1  # rounds completed after the initial design
+        if s.tolerance > 0 and bo_rounds >= s.patience:
+            old, new = self._best_after(rnd - 1 - s.patience), self._best_after(rnd - 1)
+            if math.isfinite(old) and old - new < s.tolerance * abs(old):
+                self.stop_reason = (f"best loss improved by less than {s.tolerance:.3g} "
+                                    f"(relative) over {s.patience} rounds")
+                return True
+        return False
+
+    # -- proposing -------------------------------------------------------------------
+    def _propose(self, rnd: int, proposed: int) -> Array:
+        s = self.settings
+        if rnd == 0:
+            return latin_hypercube(min(s.init, s.budget), self.space.dim, round_rng(s.seed, 0))
+        q = min(s.batch, s.budget - proposed)
+        x, y = training_data(self.state, self.space.to_unit, self.space.free_names, s.failed, rnd)
+        if x.shape[0] < 2 or np.ptp(y) == 0:
+            return round_rng(s.seed, rnd).random((q, self.space.dim))
+        from smcbayes.surrogate.acquisition import propose
+        from smcbayes.surrogate.gp import fit_surrogate
+
+        seed = round_seed(s.seed, rnd)
+        self.last_surrogate = fit_surrogate(x, y, s.kernel, seed)
+        cand, _ = propose(self.last_surrogate, q, seed, s.restarts, s.raw_samples)
+        return cand
+
+    def _log_round(self, rnd: int, proposed: int, unit: Array) -> dict[str, Any]:
+        theta = self.space.from_unit(unit)
+        record = {"type": "round", "round": rnd, "kind": "init" if rnd == 0 else "bo",
+                  "indices": list(range(proposed, proposed + unit.shape[0])),
+                  "unit": unit.tolist(), "params": theta.tolist(),
+                  "names": self.space.free_names, "seed": round_seed(self.settings.seed, rnd)}
+        self.log.append(record)
+        self.state.rounds[rnd] = record
+        return record
+
+    # -- evaluating --------------------------------------------------------------------
+    def _tasks(self, indices: list[int], theta: Array) -> list[Task]:
+        size = self.executor.rows_per_task or max(len(indices), 1)
+        tasks = []
+        for cid in self.objective.config_ids:
+            for lo in range(0, len(indices), size):
+                tasks.append(Task(tuple(indices[lo:lo + size]), theta[lo:lo + size], cid))
+        return tasks
+
+    def _record(self, index: int, rnd: int, theta_row: Array, parts: dict[str, tuple[TaskResult, int]]) -> dict[str, Any]:
+        ids = self.objective.config_ids
+        errors = {c: float(parts[c][0].error[parts[c][1]]) for c in ids}
+        reasons = [f"{c}: {parts[c][0].status[parts[c][1]]}" for c in ids
+                   if parts[c][0].status[parts[c][1]] != "ok"]
+        loss = combine(errors, ids)
+        if not reasons and not (math.isfinite(loss) and loss > 0):
+            reasons = [f"loss {loss!r} is not finite and positive"]
+        seconds = sum(parts[c][0].seconds / len(parts[c][0].indices) for c in ids)
+        params = self.space.batch(theta_row[None, :])
+        return {"type": "evaluation", "index": index, "round": rnd,
+                "params": {k: float(v[0]) for k, v in params.items()},
+                "errors": errors,
+                "force_mse_kN2": {c: float(parts[c][0].force_mse_kN2[parts[c][1]]) for c in ids},
+                "displacement_mse_mm2": {c: float(parts[c][0].displacement_mse_mm2[parts[c][1]]) for c in ids},
+                "loss": None if reasons else loss, "status": "failed" if reasons else "ok",
+                "reason": "; ".join(reasons) or None, "seconds": seconds}
+
+    def _evaluate_round(self, record: dict[str, Any]) -> None:
+        rnd = record["round"]
+        theta_all = np.array(record["params"], dtype=float)
+        rows = [(i, k) for k, i in enumerate(record["indices"]) if i not in self.state.evaluations]
+        if not rows:
+            return
+        indices = [i for i, _ in rows]
+        theta = theta_all[[k for _, k in rows]]
+        row_of = {i: theta[j] for j, i in enumerate(indices)}
+        pending: dict[int, dict[str, tuple[TaskResult, int]]] = {i: {} for i in indices}
+        n_cfg = len(self.objective.config_ids)
+        for result in self.executor.run(self._tasks(indices, theta)):
+            for j, i in enumerate(result.indices):
+                pending[i][result.config_id] = (result, j)
+                if len(pending[i]) == n_cfg:
+                    rec = self._record(i, rnd, row_of[i], pending.pop(i))
+                    self.log.append(rec)
+                    self.state.evaluations[i] = rec
+                    self._evaluated_now += 1
+                    self._seconds_now += time.perf_counter() - self._start
+                    self._report()
+
+    def _report(self) -> None:
+        if self.on_progress is None:
+            return
+        done = len(self.state.evaluations)
+        best = self.best()
+        elapsed = time.perf_counter() - self._start
+        rate = elapsed / self._evaluated_now if self._evaluated_now else math.nan
+        remaining = rate * max(self.settings.budget - done, 0)
+        self.on_progress(Progress(done, self.settings.budget, best["loss"] if best else math.nan,
+                                  elapsed, remaining, self.failures()))
+
+    # -- the loop ----------------------------------------------------------------------
+    def run(self) -> BayesOpt:
+        """Run (or resume) until the budget or the tolerance rule stops it."""
+        self.state = self.log.read(repair=True)
+        self._start = time.perf_counter()
+        self.executor.start(self.objective)
+        try:
+            rnd, proposed = 0, 0
+            while True:
+                record = self.state.rounds.get(rnd)
+                if record is None:
+                    if self._should_stop(rnd, proposed):
+                        break
+                    record = self._log_round(rnd, proposed, self._propose(rnd, proposed))
+                self.last_candidate = np.array(record["unit"], dtype=float)
+                self._evaluate_round(record)
+                proposed += len(record["indices"])
+                rnd += 1
+                if self.on_round is not None:
+                    self.on_round(self)
+        finally:
+            self.executor.close()
+        return self
+
+    def settings_dict(self) -> dict[str, Any]:
+        """The settings as a plain dict (for the summary)."""
+        return asdict(self.settings)
