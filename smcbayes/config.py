@@ -36,10 +36,21 @@ class MouldSpec(Strict):
     temperature_C: float = Field(135.0, gt=-273.15, lt=1000.0)
 
 
-class ChargeSpec(Strict):
-    """Charge layout: ``center`` (centred square/rectangle) or ``bar`` (full-width strip)."""
+class PieceSpec(Strict):
+    """One rectangle of a charge layout, centred at (x_mm, y_mm) from the mould centre."""
 
-    shape: Literal["center", "bar"]
+    x_mm: float = Field(0.0, description="centre along the mould length, from the mould centre")
+    y_mm: float = Field(0.0, description="centre across the mould, from the mould centre")
+    length_mm: float = Field(gt=0, description="side along the mould length")
+    width_mm: float = Field(gt=0, description="side across the mould")
+
+
+class ChargeSpec(Strict):
+    """Charge layout: ``center`` (centred square/rectangle), ``bar`` (full-width strip) or
+    ``layout`` (union of rectangles ``pieces``; the 1-D solver uses its equal-area disc)."""
+
+    shape: Literal["center", "bar", "layout"]
+    pieces: list[PieceSpec] | None = Field(None, description="rectangles of a layout charge")
     coverage_pct: float | None = Field(None, gt=0, le=100)
     length_mm: float | None = Field(None, gt=0, description="explicit size along the flow direction")
     width_mm: float | None = Field(None, gt=0, description="explicit size across (center only)")
@@ -50,6 +61,14 @@ class ChargeSpec(Strict):
 
     @model_validator(mode="after")
     def _size_given(self) -> ChargeSpec:
+        if self.shape == "layout":
+            if not self.pieces:
+                raise ValueError("a layout charge needs pieces = [{ x_mm, y_mm, length_mm, width_mm }, ...]")
+            if self.coverage_pct is not None or self.length_mm is not None or self.width_mm is not None:
+                raise ValueError("a layout charge takes its size from pieces; remove coverage_pct/length_mm/width_mm")
+            return self
+        if self.pieces is not None:
+            raise ValueError("pieces need shape = \"layout\"")
         if self.coverage_pct is None and self.length_mm is None:
             raise ValueError("give coverage_pct or length_mm")
         return self
@@ -117,6 +136,10 @@ class SolverSpec(Strict):
     stress_points_per_decade: int = Field(12, ge=4, le=400)
     output_closing_points: int = Field(200, ge=10, le=100000)
     output_hold_points: int = Field(50, ge=2, le=100000)
+    cells_2d: int = Field(48, ge=4, le=4096, description="2-D grid: cells along the longer mould side")
+    courant_2d: float = Field(0.5, gt=0, le=1.0, description="2-D front: largest cell share filled per step")
+    closing_steps_2d: int = Field(100, ge=5, le=100000, description="2-D: minimum steps over the closing")
+    hold_steps_2d: int = Field(40, ge=5, le=100000, description="2-D: minimum steps under force control")
 
 
 class CalibrationSpec(Strict):
@@ -181,7 +204,7 @@ class ProjectConfig(Strict):
 
 _MODELS: dict[str, type[BaseModel]] = {
     "": ProjectConfig, "configuration": ConfigurationSpec, "mould": MouldSpec,
-    "charge": ChargeSpec, "press": PressSpec, "data": DataSpec, "material": MaterialSpec,
+    "charge": ChargeSpec, "pieces": PieceSpec, "press": PressSpec, "data": DataSpec, "material": MaterialSpec,
     "solver": SolverSpec, "parameters": ParameterSpec, "calibration": CalibrationSpec,
     "preprocess": PreprocessSpec, "loss": LossSpec,
 }
@@ -204,7 +227,9 @@ def _where(loc: tuple[Any, ...]) -> str:
 
 def format_validation_error(err: ValidationError, source: str) -> str:
     """One line for the first error of ``err``: the key, what is wrong, what is accepted."""
-    e = err.errors()[0]
+    errors = err.errors()
+    # a misspelt key also makes the key it stands for missing: report the misspelling
+    e = next((x for x in errors if x["type"] == "extra_forbidden"), errors[0])
     loc = tuple(p for p in e["loc"] if p not in ("function-after",))
     key = _where(loc)
     kind = e["type"]

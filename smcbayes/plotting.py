@@ -88,3 +88,51 @@ def plot_simulation(results: Mapping[str, SimulationResult],
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return save(fig, path)
+
+
+def plot_flow_front(result: SimulationResult, time_s: Array, fill: Array, x_faces_mm: Array,
+                    y_faces_mm: Array, path: str | Path, title: str, row: int = 0) -> list[Path]:
+    """Filled area of the mould at a few instants (2-D solver) next to the force curve.
+
+    Args:
+        result: simulation of one configuration (row ``row`` is drawn).
+        time_s: snapshot times (s), ``(K,)``.
+        fill: fill fraction per cell at those times, ``(K, NX, NY)`` (NX along the length).
+        x_faces_mm, y_faces_mm: cell faces relative to the mould centre (mm).
+        path: output path without suffix.
+        title: figure title.
+    """
+    plt = pyplot()
+    fig, (ax, axf) = plt.subplots(1, 2, figsize=(10.0, 4.2), gridspec_kw={"width_ratios": [1, 1.3]})
+    # cell centres plus the walls (edge values), so that a filled wall cell reaches the wall
+    xc = np.concatenate([x_faces_mm[:1], 0.5 * (x_faces_mm[1:] + x_faces_mm[:-1]), x_faces_mm[-1:]])
+    yc = np.concatenate([y_faces_mm[:1], 0.5 * (y_faces_mm[1:] + y_faces_mm[:-1]), y_faces_mm[-1:]])
+    colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.9, max(len(time_s), 2)))
+    for k in range(len(time_s) - 1, -1, -1):  # latest first, so earlier areas are drawn on top
+        ax.contourf(xc, yc, np.pad(fill[k], 1, mode="edge").T, levels=[0.5, 2.0], colors=[colours[k]],
+                    alpha=0.85)
+        ax.plot([], [], color=colours[k], lw=6, label=f"t = {time_s[k]:.2f} s")
+    ax.add_patch(plt.Rectangle((x_faces_mm[0], y_faces_mm[0]), x_faces_mm[-1] - x_faces_mm[0],
+                               y_faces_mm[-1] - y_faces_mm[0], fill=False, color="black", lw=1.5))
+    ax.set_xlim(x_faces_mm[0] * 1.04, x_faces_mm[-1] * 1.04)
+    ax.set_ylim(y_faces_mm[0] * 1.04, y_faces_mm[-1] * 1.04)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x along the mould (mm)")
+    ax.set_ylabel("y across the mould (mm)")
+    ax.set_title("filled area (fill fraction > 0.5)", fontsize=10)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    t, f = result.time_s[row], result.force_kN[row]
+    t_end = result.switch_time_s[row] * 1.1 if np.isfinite(result.switch_time_s[row]) else t[-1]
+    mask = t <= t_end
+    axf.plot(t[mask], f[mask], color=plt.get_cmap("tab10")(0), lw=1.5, label="simulated force")
+    for k, tk in enumerate(time_s):
+        axf.axvline(tk, color=colours[k], lw=1.0, ls=":")
+    axf.set_xlim(0, t_end)
+    axf.set_xlabel("time (s)")
+    axf.set_ylabel("force (kN)")
+    axf.set_yscale("log")
+    axf.set_title(result.config_id, fontsize=10)
+    axf.legend(fontsize=7, loc="upper left")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return save(fig, path)

@@ -1,5 +1,5 @@
 """CLI subcommands, one module each with ``add_parser(subparsers)`` and ``run(args)``."""
 
-from smcbayes.commands import demo, simulate
+from smcbayes.commands import calibrate, demo, evaluate, posterior, simulate, synth
 
-COMMANDS = (simulate, demo)
+COMMANDS = (simulate, synth, evaluate, calibrate, posterior, demo)

@@ -8,8 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from smcbayes.config import ProjectConfig
-from smcbayes.data.readers.csv import read_columns
-from smcbayes.errors import DataError
+from smcbayes.data.dataset import load_dataset
 from smcbayes.forward.result import PHASE_NAMES, SimulationResult
 
 
@@ -28,20 +27,17 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
 
 
 def measured_force(project: ProjectConfig, ids: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Measured force curves ``(time_s, force_kN)`` of configurations that have them."""
+    """Measured force curves ``(time_s, force_kN)`` of configurations that have them.
+
+    Read through :func:`smcbayes.data.dataset.load_dataset` (formats, units, the project's
+    pre-processing); empty when the project's data folder does not exist.
+    """
     root = project.data_path()
-    out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     if root is None or not root.is_dir():
-        return out
-    for cid in ids:
-        spec = project.get(cid)
-        if spec.data is None or spec.data.force is None:
-            continue
-        path = root / spec.data.force
-        if not path.is_file():
-            raise DataError(f"{path}: data file of configuration '{cid}' not found")
-        out[cid] = read_columns(path, ("time_s", "force_kN"))
-    return out
+        return {}
+    dataset = load_dataset(project, ids)
+    return {cid: (m.force.time_s, m.force.values) for cid, m in dataset.measurements.items()
+            if m.force is not None}
 
 
 def write_curves(result: SimulationResult, row: int, path: Path) -> None:

@@ -9,7 +9,7 @@ from pathlib import Path
 from smcbayes.commands.common import add_model_options, measured_force, write_curves
 from smcbayes.config import load_project, parse_assignments
 from smcbayes.forward.model import ForwardModel
-from smcbayes.plotting import plot_simulation
+from smcbayes.plotting import plot_flow_front, plot_simulation
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -55,4 +55,11 @@ def simulate_and_write(model: ForwardModel, ids: list[str], out: Path) -> int:
     for cid, res in results.items():
         print(f"{cid:<16}{res.status[0]:<10}{res.switch_time_s[0]:>18.2f}{res.gap_mm[0, -1]:>16.3f}")
     print(f"curves: {out}/<id>.csv; figure: {figure[0]}")
+    fields = getattr(model.solver, "fields", None)
+    if fields:
+        for cid, res in results.items():
+            h = fields[cid][0]
+            front = plot_flow_front(res, h.time_s, h.fill, h.x_faces_mm, h.y_faces_mm,
+                                    out / f"flow_front_{cid}", f"{cid}: {label}")
+        print(f"flow-front figures: {front[0].parent}/flow_front_<id>.png")
     return 0

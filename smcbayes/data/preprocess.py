@@ -79,7 +79,8 @@ def zero_at_contact(force: Curve, threshold_kN: float) -> tuple[Curve, float, st
     """Shift time so that t = 0 at first contact and drop earlier samples."""
     tc = contact_time(force, threshold_kN)
     out = shift(cut(force, start_s=tc), tc)
-    return out, tc, f"t = 0 at first contact: force reaches {threshold_kN:g} kN at {tc:.4f} s of the file"
+    text = f"t = 0 at first contact: force reaches {threshold_kN:g} kN at {tc:.4f} s of the file"
+    return out, tc, text
 
 
 def split_at_limit(force: Curve, limit_kN: float) -> tuple[float, str]:

@@ -57,5 +57,5 @@ class LossSpec(_Strict):
 
     w_force: float = Field(1.0, ge=0)
     w_displacement: float = Field(0.0, ge=0)
-    grid_points: int = Field(400, ge=10, le=100000)
+    grid_points: int = Field(400, ge=2, le=100000)
     clip: ClipMode = "none"

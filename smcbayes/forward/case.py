@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from smcbayes.config import ConfigurationSpec
 from smcbayes.errors import ConfigError
+from smcbayes.forward.layout import union_area
 from smcbayes.units import G, KN, MM, celsius_to_kelvin
 
 Array = NDArray[np.float64]
@@ -70,6 +71,9 @@ class Case:
         force_limit: force limit (N).
         hold: force-controlled hold time (s).
         profile: measured ram profile replacing ``speed``, or None.
+        pieces: charge layout as rectangles ``(x, y, length, width)`` (m), centres relative
+            to the mould centre (x along the mould length); one rectangle for ``center``
+            and ``bar`` charges.
     """
 
     id: str
@@ -86,6 +90,7 @@ class Case:
     force_limit: float
     hold: float
     profile: SpeedProfile | None = None
+    pieces: tuple[tuple[float, float, float, float], ...] = ()
 
     @property
     def gap_full(self) -> float:
@@ -117,6 +122,10 @@ class Case:
             if length > L:
                 raise ConfigError(f"{where}: charge.length_mm {length / MM:g} exceeds mould.length_mm {L / MM:g}")
             area0 = length * W
+            pieces = ((0.0, 0.0, length, W),)
+        elif charge.shape == "layout":
+            pieces = _layout_pieces(spec)
+            area0 = union_area(pieces)
         else:
             if charge.length_mm is not None:
                 lx = charge.length_mm * MM
@@ -126,6 +135,9 @@ class Case:
                 area0 = lx * ly
             else:
                 area0 = charge.coverage_pct / 100 * area_mould
+                # a coverage-only centre charge is the mould scaled down about its centre
+                lx, ly = L * (charge.coverage_pct / 100) ** 0.5, W * (charge.coverage_pct / 100) ** 0.5
+            pieces = ((0.0, 0.0, lx, ly),)
         profile = None
         if press.profile is not None:
             p = Path(press.profile)
@@ -136,4 +148,20 @@ class Case:
                    area0=area0, area_mould=area_mould, gap0=charge.stack_height_mm * MM,
                    mass=charge.mass_g * G if charge.mass_g else None, T_mould=T_mould,
                    T_charge=T_charge, speed=press.speed_mm_s * MM,
-                   force_limit=press.force_limit_kN * KN, hold=press.hold_s, profile=profile)
+                   force_limit=press.force_limit_kN * KN, hold=press.hold_s, profile=profile,
+                   pieces=pieces)
+
+
+def _layout_pieces(spec: ConfigurationSpec) -> tuple[tuple[float, float, float, float], ...]:
+    """Rectangles (m) of a ``layout`` charge; raises :class:`ConfigError` if one leaves the mould."""
+    L, W = spec.mould.length_mm * MM, spec.mould.width_mm * MM
+    out = []
+    for k, piece in enumerate(spec.charge.pieces or []):
+        x, y, lx, ly = piece.x_mm * MM, piece.y_mm * MM, piece.length_mm * MM, piece.width_mm * MM
+        if abs(x) + lx / 2 > L / 2 * (1 + 1e-9) or abs(y) + ly / 2 > W / 2 * (1 + 1e-9):
+            raise ConfigError(f"configuration '{spec.id}': charge.pieces[{k}] "
+                              f"({piece.length_mm:g} x {piece.width_mm:g} mm at x_mm={piece.x_mm:g}, "
+                              f"y_mm={piece.y_mm:g}) leaves the {spec.mould.length_mm:g} x "
+                              f"{spec.mould.width_mm:g} mm mould; centres are relative to the mould centre")
+        out.append((x, y, lx, ly))
+    return tuple(out)

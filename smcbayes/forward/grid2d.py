@@ -12,10 +12,11 @@ Fluxes per unit width follow the generalised Hele-Shaw law q(G) of
 
     sum_faces S_f |face| (p_i - p_nb) / d_f = V A_cell      (every filled cell i).
 
-The fluidity is iterated (Picard) with a relaxation 1/k per face, k = d ln q / d ln G the
-local power-law exponent of the table: for a power law this is the Newton step of the
-one-face problem, which keeps the iteration convergent for strongly shear-thinning and
-slip-dominated laws where plain Picard oscillates.
+|grad p| at a face combines the normal difference with the mean tangential difference of
+the two cells.  The nonlinear system is solved by Newton's method with the exact
+Jacobian of this discretisation and step halving (plain Picard on S oscillates once the
+local exponent k = d ln q / d ln G of the table exceeds 2, i.e. for strongly
+shear-thinning or slip-dominated laws).
 """
 
 from __future__ import annotations
@@ -66,6 +67,9 @@ class FaceSet:
 
     Attributes:
         a, b: flat cell indices of the two sides, ``(K,)``.
+        plus, minus: flat indices of the tangential neighbours of ``a`` and ``b`` (the cell
+            itself at a wall), ``(K, 2)``; the tangential gradient is
+            sum(p[plus] - p[minus]) / (2 tangent_step).
         full_a, full_b: which side is filled, ``(K,)``.
         dist: distance between the pressure points (m), ``(K,)``.
         length: face length (m).
@@ -77,6 +81,9 @@ class FaceSet:
     full_b: Mask
     dist: Array
     length: float
+    plus: NDArray[np.int64]
+    minus: NDArray[np.int64]
+    tangent_step: float
 
 
 def faces(grid: Grid, full: Mask, fill: Array) -> tuple[FaceSet, FaceSet]:
@@ -95,8 +102,20 @@ def faces(grid: Grid, full: Mask, fill: Array) -> tuple[FaceSet, FaceSet]:
         # half a cell to the face plus the filled share of the front cell
         dist = np.where(fa & fb, h, np.where(fa, (0.5 + np.minimum(f[b], 1.0)) * h,
                                              (0.5 + np.minimum(f[a], 1.0)) * h))
-        out.append(FaceSet(a, b, fa, fb, dist, length))
+        plus, minus = _tangential(grid, a, b, axis)
+        out.append(FaceSet(a, b, fa, fb, dist, length, plus, minus,
+                           2.0 * (grid.dy if axis == 0 else grid.dx)))
     return out[0], out[1]
+
+
+def _tangential(grid: Grid, a: NDArray[np.int64], b: NDArray[np.int64],
+                axis: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Tangential neighbours of both cells of each face, clipped at walls: ``(K, 2)`` each."""
+    cells = np.stack([a, b], axis=1)
+    i, j = np.divmod(cells, grid.ny)
+    if axis == 0:
+        return i * grid.ny + np.minimum(j + 1, grid.ny - 1), i * grid.ny + np.maximum(j - 1, 0)
+    return np.minimum(i + 1, grid.nx - 1) * grid.ny + j, np.maximum(i - 1, 0) * grid.ny + j
 
 
 class Fluidity:
@@ -123,49 +142,42 @@ class Fluidity:
         return np.exp(ln_q - ln_g), k
 
 
-def _face_gradient(grid: Grid, p: Array, fs: FaceSet, axis: int) -> Array:
-    """|grad p| at faces (Pa/m): normal difference plus the averaged tangential one."""
+def _face_gradient(p: Array, fs: FaceSet) -> tuple[Array, Array, Array]:
+    """|grad p|, its normal and its tangential part at the faces (Pa/m), each ``(K,)``.
+
+    The tangential part is the mean of the two cells' central differences (one-sided at
+    walls and symmetry planes, where the normal gradient vanishes).
+    """
     flat = p.ravel()
     gn = (flat[fs.a] - flat[fs.b]) / fs.dist
-    pad = np.pad(p, 1, mode="edge")  # walls and symmetry planes: zero normal gradient
-    if axis == 0:
-        gt = (pad[1:-1, 2:] - pad[1:-1, :-2]) / (2.0 * grid.dy)
-    else:
-        gt = (pad[2:, 1:-1] - pad[:-2, 1:-1]) / (2.0 * grid.dx)
-    gt = gt.ravel()
-    g_t = 0.5 * (gt[fs.a] + gt[fs.b])
-    return np.sqrt(gn * gn + g_t * g_t)
+    gt = (flat[fs.plus] - flat[fs.minus]).sum(axis=1) / (2.0 * fs.tangent_step)
+    return np.sqrt(gn * gn + gt * gt), gn, gt
 
 
 @dataclass
 class PressureSolution:
-    """Pressure field, face conductances and fluxes of one solve.
+    """Pressure field and fluxes of one solve.
 
     Attributes:
         p: pressure per cell (Pa), ``(nx, ny)``, 0 outside the filled region.
         speed: closing speed V (m/s).
         force: press force over the whole mould (N).
         inflow: volume rate into each non-filled cell (m^3/s), ``(nx, ny)``.
-        fluidity: final face fluidities (x-faces, y-faces), kept to warm-start the next solve.
-        iterations: Picard iterations used.
+        iterations: Newton iterations used.
     """
 
     p: Array
     speed: float
     force: float
     inflow: Array
-    fluidity: tuple[Array, Array]
     iterations: int
 
 
-def _linear_solve(grid: Grid, full: Mask, fx: FaceSet, fy: FaceSet, cx: Array, cy: Array) -> Array:
-    """Pressure for a unit closing speed with face conductances ``cx``, ``cy`` (m^3 s/kg)."""
-    n = grid.nx * grid.ny
-    where = np.flatnonzero(full.ravel())
-    unknown = np.full(n, -1, dtype=np.int64)
-    unknown[where] = np.arange(where.size)
-    rows, cols, vals = [], [], []
-    diag = np.zeros(where.size)
+def _matrix(size: int, unknown: NDArray[np.int64], fx: FaceSet, fy: FaceSet, cx: Array,
+            cy: Array) -> sp.csc_matrix:
+    """Finite-volume matrix of the filled cells for face conductances ``cx``, ``cy``."""
+    rows, cols, vals = [np.arange(size)], [np.arange(size)], []
+    diag = np.zeros(size)
     for fs, c in ((fx, cx), (fy, cy)):
         ua, ub = unknown[fs.a], unknown[fs.b]
         np.add.at(diag, ua[fs.full_a], c[fs.full_a])
@@ -174,21 +186,71 @@ def _linear_solve(grid: Grid, full: Mask, fx: FaceSet, fy: FaceSet, cx: Array, c
         rows += [ua[both], ub[both]]
         cols += [ub[both], ua[both]]
         vals += [-c[both], -c[both]]
-    rows.append(np.arange(where.size))
-    cols.append(np.arange(where.size))
-    vals.append(diag)
-    A = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                      shape=(where.size, where.size))
-    rhs = np.full(where.size, grid.cell_area)
-    p = np.zeros(n)
-    p[where] = spla.spsolve(A, rhs)
-    return p.reshape(grid.nx, grid.ny)
+    vals.insert(0, diag)
+    return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(size, size))
+
+
+@dataclass
+class _Linearised:
+    """Face conductances (m^3 s/kg), cell imbalances (m^3/s) and the Jacobian at one iterate."""
+
+    secant: tuple[Array, Array]
+    residual: Array
+    jacobian: sp.csc_matrix | None
+
+
+def _linearise(grid: Grid, p: Array, fx: FaceSet, fy: FaceSet, fluidity: Fluidity, speed: float,
+               unknown: NDArray[np.int64], jacobian: bool = True) -> _Linearised:
+    """Volume balance of every filled cell and, if asked, its exact Jacobian.
+
+    The flux through a face is S(G) G_n |face|; its derivative in a cell pressure is
+    S |face| [dG_n (1 + (k-1) G_n^2/G^2) + (k-1) G_n G_t / G^2 dG_t], k = d ln q / d ln G.
+    """
+    size = int((unknown >= 0).sum())
+    secant, rows, cols, vals = [], [], [], []
+    flux = np.zeros(p.size)
+    for fs in (fx, fy):
+        G, gn, gt = _face_gradient(p, fs)
+        S, k = fluidity(G)
+        secant.append(S * fs.length / fs.dist)
+        q = S * fs.length * gn
+        np.add.at(flux, fs.a, q)
+        np.add.at(flux, fs.b, -q)
+        if not jacobian:
+            continue
+        with np.errstate(invalid="ignore", divide="ignore"):
+            inv = np.where(G > 0, 1.0 / (G * G), 0.0)
+        base = S * fs.length
+        dn = base * (1.0 + (k - 1.0) * gn * gn * inv) / fs.dist
+        dt = base * (k - 1.0) * gn * gt * inv / (2.0 * fs.tangent_step)
+        terms = [(fs.a, dn), (fs.b, -dn)]
+        terms += [(fs.plus[:, c], dt) for c in range(2)] + [(fs.minus[:, c], -dt) for c in range(2)]
+        for cell, d in terms:
+            col = unknown[cell]
+            for side, sign in ((fs.a, 1.0), (fs.b, -1.0)):
+                row = unknown[side]
+                ok = (row >= 0) & (col >= 0)
+                rows.append(row[ok])
+                cols.append(col[ok])
+                vals.append(sign * d[ok])
+    where = np.flatnonzero(unknown >= 0)
+    residual = flux[where] - speed * grid.cell_area
+    jac = None
+    if jacobian:
+        jac = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                            shape=(size, size))
+    return _Linearised((secant[0], secant[1]), residual, jac)
 
 
 def solve_pressure(grid: Grid, fill: Array, fluidity: Fluidity, speed: float | None,
-                   force: float | None, guess: tuple[Array, Array] | None = None,
-                   tol: float = 1e-7, max_iter: int = 200) -> PressureSolution:
+                   force: float | None, guess: Array | None = None, speed_guess: float | None = None,
+                   tol: float = 1e-6, max_iter: int = 80) -> PressureSolution:
     """Pressure of the filled region at a given closing speed, or at a given force.
+
+    Newton iteration on the volume balance of the filled cells with step halving.  Under
+    force control the speed is a further unknown (bordered system, two solves with one
+    factorisation).
 
     Args:
         grid: the grid.
@@ -196,39 +258,85 @@ def solve_pressure(grid: Grid, fill: Array, fluidity: Fluidity, speed: float | N
         fluidity: the flux law at the current gap.
         speed: closing speed V (m/s) under speed control, else None.
         force: force (N) to hold under force control (``speed`` None).
-        guess: face fluidities (x, y) of a previous solve on the same grid, or None.
-        tol: convergence on max |ln S(G) - ln S| over the faces.
-        max_iter: Picard iteration limit (raises :class:`SolverError` past it).
+        guess: pressure field of a previous solve (Pa), ``(nx, ny)``, or None.
+        speed_guess: closing speed of a previous solve (m/s), force control only.
+        tol: convergence on the largest cell imbalance relative to V A_cell (and on the
+            force relative to ``force``).
+        max_iter: Newton iteration limit (raises :class:`SolverError` past it).
     """
     full = fill >= FULL
     fx, fy = faces(grid, full, fill)
-    size = grid.nx * grid.ny
-    if guess is None:
-        s0 = fluidity(np.array([1e-3]))[0][0]
-        sx, sy = np.full(size, s0), np.full(size, s0)
-    else:
-        sx, sy = guess[0].copy(), guess[1].copy()
+    where = np.flatnonzero(full.ravel())
+    unknown = np.full(full.size, -1, dtype=np.int64)
+    unknown[where] = np.arange(where.size)
+    weight = grid.multiplicity * grid.cell_area
+    V = speed if speed is not None else (speed_guess or 1e-6)
+    p = np.zeros(full.shape) if guess is None else np.where(full, guess, 0.0)
+    if not np.any(p):  # cold start: the solution at the zero-stress (Newtonian) fluidity
+        lin = _linearise(grid, p, fx, fy, fluidity, V, unknown, jacobian=False)
+        p.ravel()[where] = spla.spsolve(_matrix(where.size, unknown, fx, fy, *lin.secant),
+                                        np.full(where.size, V * grid.cell_area))
     for it in range(1, max_iter + 1):
-        cx, cy = sx[fx.a] * fx.length / fx.dist, sy[fy.a] * fy.length / fy.dist
-        p1 = _linear_solve(grid, full, fx, fy, cx, cy)
-        F1 = grid.multiplicity * grid.cell_area * float(p1.sum())
-        V = speed if speed is not None else force / F1
-        p = V * p1
-        worst = 0.0
-        for fs, s, axis in ((fx, sx, 0), (fy, sy, 1)):
-            target, k = fluidity(_face_gradient(grid, p, fs, axis))
-            delta = np.log(target) - np.log(s[fs.a])
-            worst = max(worst, float(np.max(np.abs(delta), initial=0.0)))
-            s[fs.a] = s[fs.a] * np.exp(delta / np.maximum(k, 1.0))
-        if worst < tol:
+        lin = _linearise(grid, p, fx, fy, fluidity, V, unknown)
+        err = np.max(np.abs(lin.residual), initial=0.0) / (V * grid.cell_area)
+        if speed is None:
+            err = max(err, abs(weight * float(p.sum()) - force) / force)
+        if err < tol:
             break
+        lu = spla.splu(lin.jacobian)
+        step = -lu.solve(lin.residual)
+        dV = 0.0
+        if speed is None:  # bordered system: d(residual)/dV = -A_cell, F(p + step + dV b) = force
+            b = lu.solve(np.full(where.size, grid.cell_area))
+            dV = (force / weight - float(p.sum()) - float(step.sum())) / float(b.sum())
+            step = step + dV * b
+        p, V = _line_search(grid, p, V, step, dV, (fx, fy), fluidity, unknown, force)
     else:
         raise SolverError(f"2-D pressure iteration did not converge in {max_iter} iterations "
-                          f"(last fluidity change {worst:.2e})")
-    inflow = np.zeros(size)
-    for fs, c in ((fx, cx), (fy, cy)):
-        q = V * c * (p1.ravel()[fs.a] - p1.ravel()[fs.b])  # volume rate a -> b (m^3/s)
+                          f"(imbalance {err:.2e})")
+    return PressureSolution(p=p, speed=V, force=weight * float(p.sum()),
+                            inflow=_inflow(p, fx, fy, lin.secant, full, V * grid.cell_area * where.size),
+                            iterations=it)
+
+
+def _line_search(grid: Grid, p: Array, V: float, step: Array, dV: float, fs: tuple[FaceSet, FaceSet],
+                 fluidity: Fluidity, unknown: NDArray[np.int64],
+                 force: float | None) -> tuple[Array, float]:
+    """Newton update, halving the step (at most 12 times) until the merit decreases.
+
+    The merit is the squared cell imbalance relative to V A_cell plus, under force control,
+    the squared relative force error: the Newton step of the bordered system descends it.
+    """
+    where = np.flatnonzero(unknown >= 0)
+    scale = V * grid.cell_area
+    weight = grid.multiplicity * grid.cell_area
+
+    def merit(pp: Array, vv: float) -> float:
+        r = _linearise(grid, pp, fs[0], fs[1], fluidity, vv, unknown, jacobian=False).residual
+        out = float(np.sum((r / scale) ** 2))
+        return out if force is None else out + (weight * float(pp.sum()) / force - 1.0) ** 2
+
+    m0, lam = merit(p, V), 1.0
+    for _ in range(12):
+        trial = p.copy()
+        trial.ravel()[where] += lam * step
+        V_new = max(V + lam * dV, 1e-3 * V)
+        if merit(trial, V_new) < m0:
+            break
+        lam *= 0.5
+    return trial, V_new
+
+
+def _inflow(p: Array, fx: FaceSet, fy: FaceSet, cond: tuple[Array, Array], full: Mask,
+            total: float) -> Array:
+    """Volume rate into each non-filled cell (m^3/s), scaled to sum to ``total`` exactly."""
+    inflow = np.zeros(p.size)
+    flat = p.ravel()
+    for fs, c in ((fx, cond[0]), (fy, cond[1])):
+        q = c * (flat[fs.a] - flat[fs.b])  # volume rate a -> b (m^3/s)
         np.add.at(inflow, fs.b[~fs.full_b], q[~fs.full_b])
         np.add.at(inflow, fs.a[~fs.full_a], -q[~fs.full_a])
-    return PressureSolution(p=p, speed=V, force=V * F1, inflow=inflow.reshape(grid.nx, grid.ny),
-                            fluidity=(sx, sy), iterations=it)
+    got = inflow.sum()
+    if got > 0:
+        inflow *= total / got  # removes the solver tolerance from the volume balance
+    return inflow.reshape(p.shape)

@@ -29,6 +29,7 @@ from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from smcbayes.config import MaterialSpec, SolverSpec
 from smcbayes.errors import ConfigError, SolverError
@@ -148,32 +149,33 @@ def whole_mould(grid: Grid, fill: Array) -> tuple[Array, Array, Array]:
 
 
 def spill(h: Array, gap: float) -> Array:
-    """Pass the content above ``gap`` on to neighbours until no cell overflows (m).
+    """Pass the content above ``gap`` on to the nearest non-filled cells (m).
 
-    Excess goes in equal shares to the non-filled neighbours, or to all neighbours when a
-    cell has none (they pass it on).  The total is conserved exactly.
+    Excess moves one cell per pass down the taxicab distance to the nearest open cell
+    (equal shares between the neighbours one step closer), so it reaches the front in as
+    many passes as it is cells away.  The total is conserved exactly.
     """
     h = h.copy()
-    for _ in range(10 * sum(h.shape)):
-        excess = np.maximum(h - gap, 0.0)
-        if excess.max() <= 1e-14 * gap:
+    nx, ny = h.shape
+    shifts = ((0, 1), (2, 1), (1, 0), (1, 2))  # neighbour (i + a - 1, j + b - 1)
+    for _ in range(4 * (nx + ny) + 10):
+        excess = np.where(h > gap * (1.0 + 1e-11), h - gap, 0.0)
+        if not excess.any():  # round-off of filled cells stays in place
             return h
-        h -= excess
-        open_ = np.pad(h < gap * FULL, 1, constant_values=False)
-        exists = np.pad(np.ones(h.shape, bool), 1, constant_values=False)
-        shifts = ((0, 1), (2, 1), (1, 0), (1, 2))
-        targets = [open_[a:a + h.shape[0], b:b + h.shape[1]] for a, b in shifts]
+        open_ = h < gap * FULL
+        if not open_.any():
+            if excess.sum() <= 1e-9 * h.sum():
+                return h - excess  # cavity full: what is left over is round-off
+            raise SolverError("2-D fill update: the charge holds more volume than the cavity")
+        dist = ndimage.distance_transform_cdt(~open_, metric="taxicab").astype(float)
+        pad = np.pad(dist, 1, constant_values=np.inf)
+        targets = [pad[a:a + nx, b:b + ny] == dist - 1.0 for a, b in shifts]
         count = sum(t.astype(float) for t in targets)
-        if np.any((count == 0) & (excess > 0)):
-            targets = [exists[a:a + h.shape[0], b:b + h.shape[1]] for a, b in shifts]
-            count = np.where(count == 0, sum(t.astype(float) for t in targets), count)
-            targets = [np.where(count > 0, t, False) for t in targets]
         share = excess / np.maximum(count, 1.0)
-        padded = np.zeros((h.shape[0] + 2, h.shape[1] + 2))
+        gained = np.zeros((nx + 2, ny + 2))
         for (a, b), t in zip(shifts, targets):
-            # a neighbour at offset (a-1, b-1) receives from the cell at the opposite side
-            padded[2 - a:2 - a + h.shape[0], 2 - b:2 - b + h.shape[1]] += np.where(t, share, 0.0)
-        h += padded[1:-1, 1:-1]
+            gained[a:a + nx, b:b + ny] += np.where(t, share, 0.0)
+        h += gained[1:-1, 1:-1] - excess
     raise SolverError("2-D fill update: overflow could not be redistributed")
 
 
@@ -252,3 +254,138 @@ class _Law:
 
     def at(self, gap: float) -> Fluidity:
         return Fluidity(self.tau, gap * self.slip + gap * gap * self.coeff, gap)
+
+
+class _Stepper:
+    """Time stepping of one parameter set through the press protocol."""
+
+    def __init__(self, case: Case, grid: Grid, law: _Law, options: HeleShaw2DOptions) -> None:
+        self.case, self.grid, self.law, self.o = case, grid, law, options
+        self.run = _Run()
+        self.guess: Array | None = None
+        self.speed_guess: float | None = None
+        area0 = case.area0 * case.gap0
+        self.snap_area = list(np.linspace(area0 / case.gap0, case.area_mould, options.snapshots))
+        self._area_full = area0 / case.gap_full
+
+    def solve(self, st: _State, speed: float | None) -> PressureSolution | None:
+        """Pressure at state ``st`` (speed or force control); None once the cavity is full."""
+        fill = st.h / st.gap
+        if np.all(fill >= FULL):
+            return None
+        sol = solve_pressure(self.grid, fill, self.law.at(st.gap), speed,
+                             None if speed is not None else self.case.force_limit,
+                             self.guess, self.speed_guess)
+        self.guess, self.speed_guess = sol.p, sol.speed
+        return sol
+
+    def record(self, st: _State, force: float) -> None:
+        """Append a node (and a fill snapshot when the filled area passes the next mark)."""
+        g, r = self.grid, self.run
+        fill = np.minimum(st.h / st.gap, 1.0)
+        area = g.multiplicity * g.cell_area * float(fill.sum())
+        r.t.append(st.t)
+        r.gap.append(st.gap)
+        r.area.append(area)
+        r.force.append(force)
+        r.volume.append(g.multiplicity * g.cell_area * float(st.h.sum()))
+        while self.snap_area and area >= self.snap_area[0] * (1.0 - 1e-9):
+            self.snap_area.pop(0)
+            r.snap_t.append(st.t)
+            r.snap_f.append(fill.copy())
+
+    def advance(self, st: _State, sol: PressureSolution, dt: float) -> _State:
+        """State after ``dt`` (s) at the speed and inflows of ``sol``."""
+        gap = max(st.gap - sol.speed * dt, self.case.gap_full)
+        full = st.h >= st.gap * FULL
+        h = np.where(full, st.h - (st.gap - gap), st.h + sol.inflow * dt / self.grid.cell_area)
+        return _State(st.t + dt, gap, spill(h, gap))
+
+    def step_size(self, st: _State, sol: PressureSolution, dt_max: float) -> float:
+        """Largest step (s) within the front Courant limit, ``dt_max`` and the fill gap."""
+        rate = float(sol.inflow.max()) / self.grid.cell_area
+        dt = dt_max if rate <= 0 else min(dt_max, self.o.courant * st.gap / rate)
+        return min(dt, (st.gap - self.case.gap_full) / sol.speed)
+
+    def speed_phase(self, st: _State) -> tuple[_State, PressureSolution | None]:
+        """Speed control until the force limit (returns the state and its solve there) or
+        until the cavity is full (returns the final state and None)."""
+        case = self.case
+        dt_max = (case.gap0 - case.gap_full) / (case.speed * self.o.closing_steps)
+        sol = self.solve(st, case.speed)
+        while sol is not None and sol.force < case.force_limit:
+            self.record(st, sol.force)
+            dt = self.step_size(st, sol, dt_max)
+            new = self.advance(st, sol, dt)
+            new_sol = self.solve(new, case.speed)
+            if new_sol is None:  # full: the force jumps to the limit
+                self.record(new, sol.force)
+                self.run.switch = new.t + self.o.jump_time_s
+                self._hold(new, self.run.switch)
+                return new, None
+            if new_sol.force >= case.force_limit:
+                st, sol = self._locate_switch(st, sol, dt, new_sol)
+                break
+            st, sol = new, new_sol
+        if sol is None:
+            raise SolverError(f"configuration '{case.id}': the charge fills the cavity at first contact")
+        self.run.switch = st.t
+        self.record(st, case.force_limit)
+        return st, sol
+
+    def _locate_switch(self, st: _State, sol: PressureSolution, dt: float,
+                       hi: PressureSolution) -> tuple[_State, PressureSolution]:
+        """Step from ``st`` that lands on the force limit (regula falsi in the step size)."""
+        F_lim = self.case.force_limit
+        lo_dt, lo_F, hi_dt, hi_F = 0.0, sol.force, dt, hi.force
+        new, new_sol = self.advance(st, sol, dt), hi
+        for _ in range(6):
+            trial = lo_dt + (F_lim - lo_F) / (hi_F - lo_F) * (hi_dt - lo_dt)
+            new = self.advance(st, sol, trial)
+            new_sol = self.solve(new, self.case.speed)
+            if new_sol is None:
+                raise SolverError(f"configuration '{self.case.id}': cavity filled while locating the force limit")
+            if abs(new_sol.force - F_lim) <= 1e-4 * F_lim:
+                break
+            if new_sol.force < F_lim:
+                lo_dt, lo_F = trial, new_sol.force
+            else:
+                hi_dt, hi_F = trial, new_sol.force
+        return new, new_sol
+
+    def force_phase(self, st: _State, sol: PressureSolution) -> None:
+        """Force control from the switch state for the hold time (or until full)."""
+        case, run = self.case, self.run
+        t_end = run.switch + case.hold
+        dH = max(st.gap - case.gap_full, 0.0) / self.o.hold_steps
+        current: PressureSolution | None = self.solve(st, None)
+        while current is not None and st.t < t_end:
+            dt = min(self.step_size(st, current, np.inf), dH / current.speed, t_end - st.t)
+            st = self.advance(st, current, dt)
+            self.record(st, case.force_limit)
+            current = self.solve(st, None)
+        self._hold(st, t_end)
+
+    def _hold(self, st: _State, t_end: float) -> None:
+        """Close the record with the force limit held until ``t_end`` (s)."""
+        end = max(t_end, self.run.t[-1])
+        self.record(_State(end, st.gap, st.h), self.case.force_limit)
+        if self.run.t[-1] < self.run.switch + self.case.hold:
+            self.record(_State(self.run.switch + self.case.hold, st.gap, st.h), self.case.force_limit)
+
+
+def _to_nodes(runs: list[_Run]) -> Nodes:
+    """Stack the node records of all rows, padding each past its end."""
+    P, S = len(runs), max(len(r.t) for r in runs)
+    out = {k: np.zeros((P, S)) for k in ("t", "gap", "area", "force")}
+    count = np.zeros(P, dtype=np.int64)
+    for i, r in enumerate(runs):
+        n = len(r.t)
+        count[i] = n
+        for key, vals in (("t", r.t), ("gap", r.gap), ("area", r.area), ("force", r.force)):
+            arr = np.asarray(vals, dtype=float)
+            out[key][i, :n] = arr
+            out[key][i, n:] = arr[-1]
+    return Nodes(time=out["t"], gap=out["gap"], area=out["area"], force=out["force"],
+                 deflection=np.zeros((P, S)), solid=np.ones((P, S)), count=count,
+                 switch=np.array([r.switch for r in runs]), status=[STATUS_OK] * P)

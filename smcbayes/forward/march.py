@@ -80,7 +80,7 @@ class _Context:
     effects: EffectStack
     table: MaterialTable
     solid0: Array
-    compressible: bool
+    compressible: NDArray[np.bool_]
     inv_k: Array
     dt_close: Array
     gap_end: Array
@@ -99,9 +99,12 @@ def _flow_table(ctx: _Context, st: _State, rows: NDArray[np.int64]) -> FlowTable
 
 
 def _compaction(ctx: _Context, st: _State) -> tuple[Array, Array]:
-    if not ctx.compressible:
+    if not ctx.compressible.any():
         return np.full(st.t.size, np.inf), np.zeros(st.t.size)
-    return ctx.effects.compaction(ctx.case, ctx.p, ctx.solid(st.gap, st.area))
+    solid = ctx.solid(st.gap, st.area)
+    pc, zeta = ctx.effects.compaction(ctx.case, ctx.p, solid)
+    # a step may end at the pore-free state to round-off; no compaction is left there
+    return np.where(solid >= 1.0 - 1e-9, np.inf, pc), zeta
 
 
 def _speed_control(ft: FlowTable, a0: Array, t0: Array, pc: Array, zeta: Array,
@@ -109,7 +112,10 @@ def _speed_control(ft: FlowTable, a0: Array, t0: Array, pc: Array, zeta: Array,
     """Speed-controlled spreading (rows of ``ft``), with compaction where it is active."""
     one, zero = np.ones(a0.size), np.zeros(a0.size)
     s0 = ft.solve(a0, one, t0)
-    force, spread = s0.force, s0.speed
+    force = s0.force
+    # the closing speed comes from the balance a0 F + V = t0, not from the table: with a
+    # stiff frame a0 F >> V and the table's interpolation error in F would swamp V
+    spread = np.maximum(t0 - a0 * force, 0.0)
     speed = spread.copy()
     comp = force > area * pc
     if np.any(comp):
@@ -117,7 +123,7 @@ def _speed_control(ft: FlowTable, a0: Array, t0: Array, pc: Array, zeta: Array,
         with np.errstate(divide="ignore", invalid="ignore"):
             r = np.where(visc, gap / (zeta * area), 0.0)
             s1 = ft.solve(a0 + r, one, t0 + np.where(visc, pc * gap / zeta, 0.0))
-            v1 = s1.speed + np.where(visc, (s1.force / area - pc) * gap / zeta, 0.0)
+            v1 = np.maximum(t0 - a0 * s1.force, s1.speed)
             f2 = np.where(comp, area * pc, 1.0)
             s2 = ft.solve(one, zero, f2)
         force = np.where(comp, np.where(visc, s1.force, f2), force)
@@ -142,7 +148,7 @@ def _evaluate(ctx: _Context, st: _State, dt: Array) -> _Rates:
     a0 = ctx.inv_k / dt + free * beta / c.force_limit
     t0 = free + st.delta / dt
     force, speed, spread = np.full(P, c.force_limit), np.zeros(P), np.zeros(P)
-    rows = np.nonzero(~full | (~fc & (not ctx.compressible)))[0]
+    rows = np.nonzero(~full | (~fc & ~ctx.compressible))[0]
     if rows.size:
         ft = _flow_table(ctx, st, rows)
         sc_rows, fc_rows = ~fc[rows], fc[rows]
@@ -157,8 +163,8 @@ def _evaluate(ctx: _Context, st: _State, dt: Array) -> _Rates:
         creep = np.where((zeta > 0) & np.isfinite(pc),
                          np.maximum(c.force_limit / st.area - pc, 0.0) * st.gap / zeta, 0.0)
     speed = np.where(fc, spread + creep, speed)
-    if ctx.compressible:
-        packing = full & ~fc
+    if ctx.compressible.any():
+        packing = full & ~fc & ctx.compressible
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             v = np.maximum((t0 - a0 * c.area_mould * pc) / (1.0 + a0 * c.area_mould * zeta / st.gap), 0.0)
         v = np.where(np.isfinite(v), v, 0.0)
@@ -172,8 +178,9 @@ def _setup(case: Case, p: dict[str, Array], effects: EffectStack, table: Materia
            steps: int) -> _Context:
     P = p["n"].shape[0]
     s0 = effects.solid_fraction0(case, p, P)
-    compressible = s0 is not None
     solid0 = np.ones(P) if s0 is None else np.minimum(np.asarray(s0, float), 1.0)
+    # a row whose charge has no pores (s0 >= 1) runs exactly as the incompressible model
+    compressible = solid0 < 1.0
     gap_end = solid0 * case.gap_full
     v_ref = case.speed if case.profile is None else case.profile.position[-1] / case.profile.time[-1]
     dt_close = (case.gap0 - gap_end) / (v_ref * steps)
@@ -219,11 +226,22 @@ def _advance(ctx: _Context, st: _State, rates: _Rates, dt: Array, active: NDArra
         gap = np.where(fills, gap_fill, gap)
         area = np.where(fills, c.area_mould, area)
         dt = np.where(fills, dt_fill, dt)
-    new.t, new.gap, new.area = st.t + dt, gap, np.minimum(area, c.area_mould)
+    area = np.minimum(area, c.area_mould)
+    # like the fill, the pore-free state (s = 1) ends a step: solve s0 H0 A0 = H' A (H/H')^r
+    dense = ctx.compressible & active & (gap * area < ctx.solid0 * c.gap0 * c.area0) & (ratio < 1.0)
+    if np.any(dense):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            gap_s1 = (ctx.solid0 * c.gap0 * c.area0 / (st.area * st.gap**ratio)) ** (1.0 / (1.0 - ratio))
+            area_s1 = np.minimum(st.area * (st.gap / gap_s1) ** ratio, c.area_mould)
+            dt_s1 = (st.gap - gap_s1) / rates.speed
+        gap, area = np.where(dense, gap_s1, gap), np.where(dense, area_s1, area)
+        dt = np.where(dense, np.clip(dt_s1, 0.0, dt), dt)
+    new.t, new.gap, new.area = st.t + dt, gap, area
     new.delta = np.where(active & (st.phase != PHASE_FORCE), rates.force * ctx.inv_k, st.delta)
     new.extra = ctx.effects.advance(c, ctx.p, st.extra, st.gap, dt)
-    if ctx.compressible:
-        new.phase = np.where(fills & (st.phase != PHASE_FORCE), PHASE_FULL, new.phase).astype(np.int8)
+    if ctx.compressible.any():
+        new.phase = np.where(fills & ctx.compressible & (st.phase != PHASE_FORCE), PHASE_FULL,
+                             new.phase).astype(np.int8)
     return new
 
 
@@ -237,7 +255,8 @@ def _switch(ctx: _Context, st: _State, prev: _State, prev_force: Array, rates: _
     if not first:
         with np.errstate(divide="ignore", invalid="ignore"):
             theta = (c.force_limit - prev_force) / (rates.force - prev_force)
-        theta = np.clip(np.nan_to_num(theta, nan=1.0), 0.0, 1.0)
+        # an infinite force is the pore-free state, where the step ended: switch there
+        theta = np.where(np.isinf(rates.force), 1.0, np.clip(np.nan_to_num(theta, nan=1.0), 0.0, 1.0))
         back = prev.copy()
         back.blend(st, theta, hit)
         for name in ("t", "gap", "area", "delta"):
@@ -270,13 +289,15 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
     done, count = np.zeros(P, dtype=bool), np.zeros(P, dtype=np.int64)
     rec: dict[str, list[Array]] = {k: [] for k in ("t", "gap", "area", "force", "delta", "solid")}
     prev, prev_force = st.copy(), np.zeros(P)
-    for it in range(4 * (steps + hold_steps) + 20):
+    # a soft frame (F_limit / (k U) up to ~6x the nominal closing time) needs a generous
+    # budget; rows that finish stop costing anything
+    for it in range(12 * (steps + hold_steps) + 20):
         rates = _evaluate(ctx, st, ctx.dt_close)
         if np.any(_switch(ctx, st, prev, prev_force, rates, it == 0) & ~done):
             rates = _evaluate(ctx, st, ctx.dt_close)
         _record(rec, ctx, st, rates.force)
         count[~done] = it + 1
-        jump = ~done & (not ctx.compressible) & (st.area >= case.area_mould * (1 - 1e-12)) & (st.phase != PHASE_FORCE)
+        jump = ~done & ~ctx.compressible & (st.area >= case.area_mould * (1 - 1e-12)) & (st.phase != PHASE_FORCE)
         if np.any(jump):
             st.t = np.where(jump, st.t + options.jump_time_s, st.t)
             st.phase = np.where(jump, PHASE_FORCE, st.phase).astype(np.int8)

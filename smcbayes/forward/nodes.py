@@ -100,8 +100,11 @@ def to_result(case: Case, nodes: Nodes, closing_points: int, hold_points: int,
     def at(y: Array) -> Array:
         return interp_rows(t, args[0], y, args[1])
 
-    gap, area, force, defl, solid = (at(v) for v in (nodes.gap, nodes.area, nodes.force,
-                                                     nodes.deflection, nodes.solid))
+    force, defl = at(nodes.force), at(nodes.deflection)
+    # gap, area and solid fraction are interpolated in log with common weights: their
+    # product (solid volume) is constant at the nodes, and so it stays between them
+    with np.errstate(divide="ignore"):
+        gap, area, solid = (np.exp(at(np.log(v))) for v in (nodes.gap, nodes.area, nodes.solid))
     fill = area / case.area_mould
     phase = np.full(t.shape, PHASE_FLOW, dtype=np.int8)
     phase[fill >= 1.0 - 1e-9] = PHASE_FULL

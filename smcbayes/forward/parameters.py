@@ -151,8 +151,9 @@ class ParameterSpace:
         log = np.array([p.log for p in free], dtype=bool)
         lo = np.array([p.lower for p in free], dtype=float)
         hi = np.array([p.upper for p in free], dtype=float)
-        lo = np.where(log, np.log10(lo), lo)
-        hi = np.where(log, np.log10(hi), hi)
+        # log10 only where log-scaled: linear parameters may have a zero bound
+        lo = np.where(log, np.log10(np.where(log, lo, 1.0)), lo)
+        hi = np.where(log, np.log10(np.where(log, hi, 1.0)), hi)
         return lo, hi, log
 
     def from_unit(self, u: ArrayLike) -> NDArray[np.float64]:
@@ -160,7 +161,7 @@ class ParameterSpace:
         u = np.atleast_2d(np.asarray(u, dtype=float))
         lo, hi, log = self._bounds_t()
         x = lo + u * (hi - lo)
-        return np.where(log, 10.0**x, x)
+        return np.where(log, 10.0 ** np.where(log, x, 0.0), x)
 
     def to_unit(self, theta: ArrayLike) -> NDArray[np.float64]:
         """Map user-unit vectors ``(P, d)`` of the free parameters to the unit cube."""

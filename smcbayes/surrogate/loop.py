@@ -164,11 +164,12 @@ class BayesOpt:
         if x.shape[0] < 2 or np.ptp(y) == 0:
             return round_rng(s.seed, rnd).random((q, self.space.dim))
         from smcbayes.surrogate.acquisition import propose
-        from smcbayes.surrogate.gp import fit_surrogate
+        from smcbayes.surrogate.gp import fit_surrogate, torch_threads
 
         seed = round_seed(s.seed, rnd)
-        self.last_surrogate = fit_surrogate(x, y, s.kernel, seed)
-        cand, _ = propose(self.last_surrogate, q, seed, s.restarts, s.raw_samples)
+        with torch_threads(1):
+            self.last_surrogate = fit_surrogate(x, y, s.kernel, seed)
+            cand, _ = propose(self.last_surrogate, q, seed, s.restarts, s.raw_samples)
         return cand
 
     def _log_round(self, rnd: int, proposed: int, unit: Array) -> dict[str, Any]:

@@ -87,7 +87,8 @@ def read_moldflow(path: str | Path, quantity: str, unit: str | None = None,
             raise DataError(f"{where}: missing <IndpVar Value=...> (time); the export is incomplete")
         if dept is None or not (dept.text or "").split():
             raise DataError(f"{where}: missing <DeptValues>; the export is incomplete")
-        for j, (text, label) in enumerate(((indp.get("Value"), "IndpVar"), (dept.text.split()[0], "DeptValues"))):
+        cells = ((indp.get("Value"), "IndpVar"), (dept.text.split()[0], "DeptValues"))
+        for j, (text, label) in enumerate(cells):
             try:
                 (t, v)[j][i] = float(text)
             except ValueError:

@@ -43,9 +43,10 @@ def _decode(path: Path) -> str:
         raise DataError(f"{path}: file not found; check the path, data_dir or --data-dir")
     raw = path.read_bytes()
     if not raw.strip(b"\x00 \r\n\t\xff\xfe"):
-        raise DataError(f"{path}: file is empty; expected a press export with header, units and data rows")
-    if len(raw) % 2:
-        raise DataError(f"{path}: odd number of bytes, not UTF-16-LE; for a plain CSV set data.format = 'csv'")
+        raise DataError(f"{path}: file is empty; expected a press export with header, units "
+                        "and data rows")
+    if len(raw) % 2 or b"\x00" not in raw[:400]:
+        raise DataError(f"{path}: not UTF-16-LE text; for a plain CSV set data.format = 'csv'")
     try:
         return raw.decode("utf-16" if raw[:2] == b"\xff\xfe" else "utf-16-le")
     except UnicodeDecodeError:
@@ -77,7 +78,8 @@ def read_press(path: str | Path, force_column: str | None = None,
     fcol, pcol = force_column or FORCE_COLUMN, position_column or POSITION_COLUMN
     lines = [(i + 1, ln) for i, ln in enumerate(_decode(path).splitlines()) if ln.strip()]
     if len(lines) < 2:
-        raise DataError(f"{path}: needs a header row, a units row and data rows; found {len(lines)} row(s)")
+        raise DataError(f"{path}: needs a header row, a units row and data rows; "
+                        f"found {len(lines)} row(s)")
     header = [h.strip() for h in lines[0][1].split(";")]
     units = [u.strip() for u in lines[1][1].split(";")]
     for col in (fcol, pcol):
@@ -104,7 +106,8 @@ def read_press(path: str | Path, force_column: str | None = None,
     check_samples(path, stamps, pos, numbers, header[0], pcol)
     t = stamps - stamps[0]
     ff = unit_factor(force_unit or _unit(units, fi, path, fcol), "force", f"{path}: column '{fcol}'")
-    pf = unit_factor(position_unit or _unit(units, pi, path, pcol), "position", f"{path}: column '{pcol}'")
+    pf = unit_factor(position_unit or _unit(units, pi, path, pcol), "position",
+                     f"{path}: column '{pcol}'")
     return PressRecord(Curve(t, force * ff, "force", "kN", path),
                        Curve(t, pos * pf, "position", "mm", path))
 

@@ -95,12 +95,13 @@ class Curing(Effect):
         shift = 1.0 if T is None else np.exp(-CURE_E / GAS_CONSTANT * (1.0 / T - 1.0 / case.T_mould))
         k1, k2 = p["k1"] * shift, p["k2"] * shift
         alpha = state["cure"]
-        # sub-steps keep the explicit midpoint rule accurate over long hold steps
-        n_sub = int(np.clip(np.ceil(np.max(dt * (k1 + k2)) / 0.05), 1, 200))
+        # sub-steps keep the explicit midpoint rule accurate over long hold steps; counted per
+        # row, so that a row's result does not depend on the other rows of its batch
+        n_sub = np.clip(np.ceil(dt * (k1 + k2) / 0.05), 1, 200)
         h = dt / n_sub
-        for _ in range(n_sub):
+        for i in range(int(np.max(n_sub))):
             mid = alpha + 0.5 * h * self._rate(alpha, k1, k2)
-            alpha = np.minimum(alpha + h * self._rate(mid, k1, k2), 1.0)
+            alpha = np.where(i < n_sub, np.minimum(alpha + h * self._rate(mid, k1, k2), 1.0), alpha)
         return {"cure": alpha}
 
     @staticmethod

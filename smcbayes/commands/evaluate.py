@@ -1,0 +1,78 @@
+"""``smcbayes evaluate``: the loss of the model at one parameter point against measured data."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from smcbayes.commands.common import add_model_options
+from smcbayes.config import load_project, parse_assignments
+from smcbayes.data.breakdown import force_breakdown
+from smcbayes.data.dataset import load_dataset
+from smcbayes.data.loss import LossResult, evaluate_loss
+from smcbayes.errors import DataError
+from smcbayes.forward.model import ForwardModel
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Register the subcommand."""
+    p = sub.add_parser(
+        "evaluate", help="loss of the model at given parameters against the measured data",
+        description="Load the measured curves, simulate the training configurations at one "
+                    "parameter point (config values, --set overrides) and print the RMSE per "
+                    "configuration (kN, mm), where the force error lies (phase; timing shift / "
+                    "amplitude / shape) and the global loss, full and clipped at the "
+                    "incompressible flow-stop time as in the thesis.")
+    p.add_argument("config", help="project TOML file (e.g. configs/thesis.toml)")
+    p.add_argument("--role", choices=("train", "validation", "all"), default="train",
+                   help="configurations to evaluate (default: train)")
+    add_model_options(p)
+    p.set_defaults(run=run)
+
+
+def _rmse(x: float) -> str:
+    return f"{np.sqrt(x):.2f}" if np.isfinite(x) else "-"
+
+
+def print_table(full: LossResult, clipped: LossResult, shift_s: np.ndarray,
+                parts: np.ndarray, phase_share: np.ndarray) -> None:
+    """Per-configuration RMSE table (row 0 of the results)."""
+    print(f"{'configuration':<16}{'force RMSE (kN)':>16}{'clipped (kN)':>14}{'hold (mm)':>11}"
+          f"{'lag (s)':>11}{'shift/amp/shape %':>20}{'  worst phase'}")
+    names = ("contact", "flow", "full", "force_control")
+    for k, cid in enumerate(full.ids):
+        e = full.force_mse_kN2[0, k]
+        split = "/".join(f"{100 * p / e:.0f}" if e > 0 else "0" for p in parts[:, k])
+        worst = names[int(np.nanargmax(phase_share[k]))] if np.any(np.isfinite(phase_share[k])) else "-"
+        print(f"{cid:<16}{_rmse(e):>16}{_rmse(clipped.force_mse_kN2[0, k]):>14}"
+              f"{_rmse(full.displacement_mse_mm2[0, k]):>11}{shift_s[k]:>11.2f}{split:>20}  {worst}")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Execute ``evaluate``."""
+    project = load_project(args.config, args.data_dir)
+    dataset = load_dataset(project)
+    role = None if args.role == "all" else args.role
+    ids = [cid for cid in dataset.ids(role) if dataset[cid].force is not None]
+    if not ids:
+        raise DataError(f"{args.config}: no {args.role} configuration has a measured force curve; "
+                        "check data_dir / --data-dir and the data tables")
+    model = ForwardModel(project, effects=args.effect, overrides=parse_assignments(args.set),
+                         fidelity=args.fidelity)
+    results = model.simulate(None, ids)
+    spec = project.loss
+    full = evaluate_loss(results, dataset, spec, ids)
+    clipped = evaluate_loss(results, dataset, spec.model_copy(update={"clip": "flow_stop"}), ids)
+    bd = force_breakdown(results, dataset, spec, ids)
+    values = ", ".join(f"{k}={v:.4g}" for k, v in model.space.defaults().items())
+    print(f"parameters: {values}; effects: {', '.join(model.effects.names) or 'none'}")
+    failed = [cid for cid in ids if not results[cid].ok[0]]
+    for cid in failed:
+        print(f"{cid}: simulation failed: {results[cid].status[0]}")
+    parts = np.stack([bd.shift_kN2[0], bd.amplitude_kN2[0], bd.shape_kN2[0]])
+    print_table(full, clipped, bd.shift_s[0], parts, bd.phase_share[0])
+    print(f"global loss L (w_F={spec.w_force:g}, w_D={spec.w_displacement:g}, {spec.grid_points} "
+          f"points): full {full.total[0]:.6g} kN^2 (RMSE {_rmse(full.total[0])} kN); clipped at "
+          f"flow stop (thesis) {clipped.total[0]:.6g} kN^2 (RMSE {_rmse(clipped.total[0])} kN)")
+    return 1 if failed else 0

@@ -1,0 +1,223 @@
+"""The loss between simulated and measured curves (thesis eq. 3.5-3.7), batched.
+
+For configuration k and parameter row p, force is compared over the closing window:
+
+* ``clip="none"``: [0, max(t_switch_sim, t_end_meas)]; the simulated force up to its
+  switch to force control, then held at its end value; the measured curve (which ends at
+  the limit) held at its last value;
+* ``clip="flow_stop"`` (the thesis's clipped loss): [0, t_flow_stop], the time at which the
+  ram reaches the incompressible flow-stop gap h_flow = A_cov/A_mould h_init (eq. 4.1) at
+  the set speed;
+* ``clip="force_limit"``: like ``none`` but both curves cut where they first reach the
+  force limit and capped at it (removes the controller's overshoot from the comparison).
+
+Both curves are linearly interpolated onto ``grid_points`` uniform points of the window.
+The hold displacement is compared over [0, max(hold_end_sim, hold_end_meas)] relative to
+the hold start (closing negative; the measurement is taken as 0 at the hold start).
+
+e_k^F = mean squared force error (kN^2), e_k^D = mean squared displacement error (mm^2),
+L = (1/p) sum_k (w_F e_k^F + w_D e_k^D).  A row whose simulation failed gives NaN.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from smcbayes.data.dataset import Dataset, Measurement
+from smcbayes.data.preprocess import crossing_time
+from smcbayes.data.specs import LossSpec
+from smcbayes.errors import DataError
+from smcbayes.forward.result import PHASE_FORCE, SimulationResult
+
+Array = NDArray[np.float64]
+
+__all__ = ["LossSpec", "LossResult", "evaluate_loss", "ForcePair", "force_pair", "interp_rows"]
+
+
+@dataclass(frozen=True)
+class LossResult:
+    """Loss of ``P`` simulated parameter rows against a dataset.
+
+    Attributes:
+        ids: configurations, the order of the columns ``K``.
+        total: global loss L, shape ``(P,)``; NaN where a simulation failed.
+        force_mse_kN2: e_k^F, shape ``(P, K)``.
+        displacement_mse_mm2: e_k^D, shape ``(P, K)``; NaN without a measured hold.
+        ok: rows whose simulations all succeeded, shape ``(P,)``.
+        w_force, w_displacement: the weights used.
+    """
+
+    ids: list[str]
+    total: Array
+    force_mse_kN2: Array
+    displacement_mse_mm2: Array
+    ok: NDArray[np.bool_]
+    w_force: float = 1.0
+    w_displacement: float = 0.0
+
+    def per_config(self) -> dict[str, Array]:
+        """Configuration id -> weighted error w_F e^F + w_D e^D, shape ``(P,)``."""
+        out = {}
+        for k, cid in enumerate(self.ids):
+            e = self.w_force * self.force_mse_kN2[:, k]
+            if self.w_displacement > 0:
+                e = e + self.w_displacement * self.displacement_mse_mm2[:, k]
+            out[cid] = e
+        return out
+
+
+def interp_rows(x: Array, xp: Array, fp: Array) -> Array:
+    """Row-wise linear interpolation holding end values (numpy.interp per row, vectorised).
+
+    Args:
+        x: query points, shape ``(P, N)``.
+        xp: sample points, strictly increasing per row, shape ``(P, T)``.
+        fp: sample values, shape ``(P, T)``.
+
+    Returns:
+        Interpolated values, shape ``(P, N)``.
+    """
+    P, T = xp.shape
+    lo, hi = xp[:, :1], xp[:, -1:]
+    span = np.where(hi > lo, hi - lo, 1.0)
+    # Rows are mapped to disjoint intervals [2p, 2p+1] so one searchsorted serves all rows.
+    offset = 2.0 * np.arange(P)[:, None]
+    xs = ((xp - lo) / span + offset).ravel()
+    q = np.clip((x - lo) / span, 0.0, 1.0) + offset
+    j = np.searchsorted(xs, q.ravel(), side="right").reshape(q.shape) - np.arange(P)[:, None] * T
+    j = np.clip(j, 1, T - 1)
+    rows = np.arange(P)[:, None]
+    x0, x1 = xp[rows, j - 1], xp[rows, j]
+    f0, f1 = fp[rows, j - 1], fp[rows, j]
+    xc = np.clip(x, lo, hi)
+    w = np.where(x1 > x0, (xc - x0) / np.where(x1 > x0, x1 - x0, 1.0), 1.0)
+    return f0 + w * (f1 - f0)
+
+
+def _safe(res: SimulationResult) -> tuple[Array, Array, Array, NDArray[np.bool_]]:
+    """Time, force, displacement with failed rows replaced by a dummy ramp (later NaN)."""
+    ok = res.ok & np.all(np.isfinite(res.time_s), axis=1) & np.all(np.isfinite(res.force_kN), axis=1)
+    t = np.where(ok[:, None], res.time_s, np.arange(res.time_s.shape[1])[None, :])
+    f = np.where(ok[:, None], res.force_kN, 0.0)
+    d = np.where(ok[:, None], res.displacement_mm, 0.0)
+    return t, f, np.nan_to_num(d), ok
+
+
+def _switch(res: SimulationResult, t: Array, ok: NDArray[np.bool_]) -> Array:
+    """Switch time per row (s); the end of the simulation where the limit was never reached."""
+    ts = np.where(ok, np.nan_to_num(res.switch_time_s, nan=0.0), 0.0)
+    return np.where(ts > 0, ts, t[:, -1])
+
+
+@dataclass(frozen=True)
+class ForcePair:
+    """Simulated and measured force of one configuration on the common grid.
+
+    Attributes:
+        time_s: grid, shape ``(P, N)``.
+        sim_kN, meas_kN: forces on the grid, shape ``(P, N)``.
+        phase: the simulation's phase code at each grid time, shape ``(P, N)``.
+        ok: rows with a usable simulation, shape ``(P,)``.
+    """
+
+    time_s: Array
+    sim_kN: Array
+    meas_kN: Array
+    phase: NDArray[np.int8]
+    ok: NDArray[np.bool_]
+
+
+def force_pair(res: SimulationResult, m: Measurement, spec: LossSpec) -> ForcePair:
+    """Resample simulated and measured closing force onto the comparison window's grid."""
+    if m.force is None:
+        raise DataError(f"configuration '{m.config_id}' has no measured force curve; "
+                        "leave it out of the loss or add data.force")
+    t, f, _, ok = _safe(res)
+    ts = _switch(res, t, ok)
+    tm, fm = m.force.time_s, m.force.values
+    if spec.clip == "force_limit":
+        t_lim = crossing_time(m.force, m.force_limit_kN)
+        if t_lim is not None:
+            tm, fm = np.append(tm[tm < t_lim], t_lim), np.append(fm[tm < t_lim], m.force_limit_kN)
+    if spec.clip == "flow_stop":
+        if m.flow_stop_s is None:
+            raise DataError(f"configuration '{m.config_id}': no flow-stop time; use clip='none'")
+        end = np.full(ts.shape, m.flow_stop_s)
+    else:
+        end = np.maximum(ts, tm[-1])
+    grid = end[:, None] * np.linspace(0.0, 1.0, spec.grid_points)[None, :]
+    sim = interp_rows(np.minimum(grid, ts[:, None]), t, f)
+    if spec.clip == "force_limit":
+        sim = np.minimum(sim, m.force_limit_kN)
+    meas = np.interp(grid, tm, fm)
+    idx = np.clip((interp_rows(grid, t, np.broadcast_to(np.arange(t.shape[1], dtype=float), t.shape))
+                   + 1e-9).astype(int), 0, t.shape[1] - 1)
+    phase = np.take_along_axis(res.phase.astype(np.int8), idx, axis=1)
+    phase = np.where(grid > ts[:, None], np.int8(PHASE_FORCE), phase).astype(np.int8)
+    return ForcePair(grid, sim, meas, phase, ok)
+
+
+def displacement_mse(res: SimulationResult, m: Measurement, spec: LossSpec) -> Array:
+    """e^D (mm^2) of the hold displacement, shape ``(P,)``; NaN without a measured hold."""
+    if m.hold is None:
+        return np.full(res.rows, np.nan)
+    t, _, d, ok = _safe(res)
+    ts = _switch(res, t, ok)
+    d_switch = interp_rows(ts[:, None], t, d)
+    hold_end = t[:, -1] - ts
+    end = np.maximum(hold_end, m.hold.end_s)
+    tau = end[:, None] * np.linspace(0.0, 1.0, spec.grid_points)[None, :]
+    sim = -(interp_rows(ts[:, None] + np.minimum(tau, hold_end[:, None]), t, d) - d_switch)
+    th, dh = m.hold.time_s, m.hold.values
+    if th[0] > 0:  # by definition the hold displacement is 0 where the hold begins
+        th, dh = np.concatenate(([0.0], th)), np.concatenate(([0.0], dh))
+    meas = np.interp(tau, th, dh)
+    out = np.mean((sim - meas) ** 2, axis=1)
+    return np.where(ok, out, np.nan)
+
+
+def evaluate_loss(results: Mapping[str, SimulationResult], dataset: Dataset,
+                  spec: LossSpec = LossSpec(), ids: Sequence[str] | None = None) -> LossResult:
+    """Loss of a batch of simulations against the measured data.
+
+    Args:
+        results: configuration id -> simulation of ``P`` parameter rows (all the same P).
+        dataset: the measured data.
+        spec: weights, grid size and clipping.
+        ids: configurations to compare (default: the dataset's training configurations).
+
+    Returns:
+        Per-configuration MSEs ``(P, K)`` and the global loss ``(P,)``.
+
+    Raises:
+        DataError: a configuration lacks a measurement or a simulation result.
+    """
+    ids = dataset.ids("train") if ids is None else list(ids)
+    if not ids:
+        raise DataError("no configurations to compare: the dataset has no training measurements")
+    missing = [cid for cid in ids if cid not in results]
+    if missing:
+        raise DataError(f"no simulation result for configuration(s) {', '.join(missing)}; "
+                        "simulate every configuration of the loss")
+    rows = {results[cid].rows for cid in ids}
+    if len(rows) != 1:
+        raise DataError(f"simulation results have different batch sizes {sorted(rows)}")
+    P, K = rows.pop(), len(ids)
+    ef, ed = np.empty((P, K)), np.empty((P, K))
+    ok = np.ones(P, dtype=bool)
+    for k, cid in enumerate(ids):
+        m = dataset[cid]
+        pair = force_pair(results[cid], m, spec)
+        ef[:, k] = np.where(pair.ok, np.mean((pair.sim_kN - pair.meas_kN) ** 2, axis=1), np.nan)
+        if spec.w_displacement > 0 and m.hold is None:
+            raise DataError(f"configuration '{cid}': w_displacement > 0 but no measured hold "
+                            "displacement; add data.hold or set w_displacement = 0")
+        ed[:, k] = displacement_mse(results[cid], m, spec)
+        ok &= pair.ok
+    per = spec.w_force * ef + (spec.w_displacement * ed if spec.w_displacement > 0 else 0.0)
+    total = np.where(ok, np.mean(per, axis=1), np.nan)
+    return LossResult(ids, total, ef, ed, ok, spec.w_force, spec.w_displacement)

@@ -1,0 +1,85 @@
+"""Refinement of the emulator where the posterior lives, and a check of the emulator.
+
+Refinement picks, among posterior draws (probable by construction), the ones where the GP
+is most uncertain, greedily and at least ``min_distance`` apart in the unit cube, runs the
+forward model there, and refits the GP on calibration + refinement data.
+
+The check runs the forward model at posterior draws and compares the emulated with the
+true log-likelihood, -(N_eff/2) log L, in nats.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from smcbayes.surrogate.gp import Surrogate
+
+Array = NDArray[np.float64]
+
+
+def refine_points(draws_unit: Array, surrogate: Surrogate, count: int,
+                  rng: np.random.Generator, min_distance: float = 0.03,
+                  pool: int = 2000) -> Array:
+    """``count`` posterior draws with the largest GP standard deviation, spread out.
+
+    Args:
+        draws_unit: posterior draws in the unit cube, ``(N, d)``.
+        count: number of points wanted.
+
+    Returns:
+        Chosen points, ``(<= count, d)``.
+    """
+    if count <= 0 or draws_unit.shape[0] == 0:
+        return np.empty((0, draws_unit.shape[1]))
+    idx = rng.choice(draws_unit.shape[0], size=min(pool, draws_unit.shape[0]), replace=False)
+    cand = draws_unit[idx]
+    _, std = surrogate.predict(cand)
+    chosen: list[Array] = []
+    for i in np.argsort(-std):
+        x = cand[i]
+        if all(np.linalg.norm(x - c) >= min_distance for c in chosen):
+            chosen.append(x)
+        if len(chosen) == count:
+            break
+    return np.array(chosen)
+
+
+@dataclass(frozen=True)
+class EmulatorCheck:
+    """Emulated vs true log-likelihood at posterior draws (nats).
+
+    Attributes:
+        points: number of draws checked (successful simulations).
+        mean_abs_error, rmse, max_abs_error: of emulated minus true log-likelihood, after
+            removing the common offset (only differences of log-likelihood matter).
+        correlation: between emulated and true log-likelihood.
+    """
+
+    points: int
+    mean_abs_error: float
+    rmse: float
+    max_abs_error: float
+    correlation: float
+
+    def as_dict(self) -> dict[str, float]:
+        return {k: getattr(self, k) for k in ("points", "mean_abs_error", "rmse", "max_abs_error", "correlation")}
+
+
+def check_emulator(draws_unit: Array, emulated_log_loss: Callable[[Array], Array],
+                   true_log_loss: Callable[[Array], Array], n_eff: float) -> EmulatorCheck:
+    """Compare emulated and true log-likelihood at ``draws_unit`` ``(D, d)``."""
+    true = true_log_loss(draws_unit)
+    ok = np.isfinite(true)
+    em = emulated_log_loss(draws_unit[ok])
+    a = 0.5 * n_eff
+    err = -a * (em - true[ok])
+    err = err - np.mean(err) if err.size else err
+    corr = float(np.corrcoef(em, true[ok])[0, 1]) if err.size > 2 and np.std(true[ok]) > 0 else float("nan")
+    if not err.size:
+        return EmulatorCheck(0, float("nan"), float("nan"), float("nan"), float("nan"))
+    return EmulatorCheck(int(ok.sum()), float(np.mean(np.abs(err))), float(np.sqrt(np.mean(err**2))),
+                         float(np.max(np.abs(err))), corr)

@@ -1,0 +1,107 @@
+"""emcee driver: burn-in, thinning and stopping from the integrated autocorrelation time."""
+
+from __future__ import annotations
+
+import sys
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SamplerSettings:
+    """emcee settings.
+
+    Attributes:
+        walkers: ensemble size (at least 2 d + 2).
+        max_steps: upper bound on the steps per chain.
+        min_steps: steps before the stopping rule is looked at.
+        check_every: steps between autocorrelation checks.
+        tau_factor: stop once steps > tau_factor * tau_max ...
+        tau_rtol: ... and tau changed by less than this fraction since the last check.
+    """
+
+    walkers: int = 32
+    max_steps: int = 6000
+    min_steps: int = 500
+    check_every: int = 250
+    tau_factor: float = 50.0
+    tau_rtol: float = 0.05
+
+
+@dataclass(frozen=True)
+class Chains:
+    """Post-processed chains of one ensemble.
+
+    Attributes:
+        samples: thinned samples after burn-in, ``(draws, walkers, d)`` (unit cube).
+        log_prob: their log densities, ``(draws, walkers)``.
+        acceptance: acceptance fraction per walker, ``(walkers,)``.
+        tau: integrated autocorrelation time per parameter (steps), ``(d,)``.
+        steps, burn, thin: steps run, discarded and the thinning interval.
+        converged: the stopping rule was met before ``max_steps``.
+    """
+
+    samples: Array
+    log_prob: Array
+    acceptance: Array
+    tau: Array
+    steps: int
+    burn: int
+    thin: int
+    converged: bool
+
+
+def _start(log_prob: Callable[[Array], Array], d: int, walkers: int, rng: np.random.Generator,
+           centre: Array | None) -> Array:
+    """Initial walkers: a small ball around ``centre`` (or uniform), all of finite density."""
+    base = np.full(d, 0.5) if centre is None else np.clip(centre, 0.02, 0.98)
+    pos = np.clip(base + 0.02 * rng.standard_normal((walkers, d)), 1e-6, 1 - 1e-6)
+    bad = ~np.isfinite(log_prob(pos))
+    if np.any(bad):
+        pos[bad] = rng.random((int(bad.sum()), d))
+    return pos
+
+
+def run_ensemble(log_prob: Callable[[Array], Array], d: int, settings: SamplerSettings,
+                 rng: np.random.Generator, centre: Array | None = None, label: str = "") -> Chains:
+    """Sample ``log_prob`` (vectorised over walkers) on the unit cube with emcee.
+
+    Stops when the chain is longer than ``tau_factor`` autocorrelation times and the
+    estimate has settled, or at ``max_steps``; discards ``2 tau_max`` as burn-in and thins
+    by ``max(1, tau_min / 2)``.
+    """
+    import emcee
+
+    walkers = max(settings.walkers, 2 * d + 2)
+    sampler = emcee.EnsembleSampler(walkers, d, log_prob, vectorize=True)
+    # emcee draws its moves from its own RandomState: seed it from our generator
+    sampler.random_state = np.random.RandomState(int(rng.integers(2**31 - 1))).get_state()
+    state = _start(log_prob, d, walkers, rng, centre)
+    old_tau, converged = np.inf, False
+    while sampler.iteration < settings.max_steps:
+        state = sampler.run_mcmc(state, settings.check_every, progress=False)
+        if sampler.iteration < settings.min_steps:
+            continue
+        tau = sampler.get_autocorr_time(tol=0)
+        ok = np.all(np.isfinite(tau)) and np.all(sampler.iteration > settings.tau_factor * tau)
+        if ok and np.all(np.abs(old_tau - tau) / tau < settings.tau_rtol):
+            converged = True
+            break
+        old_tau = tau
+        print(f"\r  sampling{label}: {sampler.iteration} steps, tau ~ {np.nanmax(tau):.0f}",
+              end="", file=sys.stderr, flush=True)
+    print("", file=sys.stderr)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        tau = sampler.get_autocorr_time(tol=0)
+    tau = np.where(np.isfinite(tau), tau, sampler.iteration / 10)
+    burn = int(min(2 * np.max(tau), sampler.iteration // 2))
+    thin = max(1, int(np.min(tau) / 2))
+    return Chains(sampler.get_chain(discard=burn, thin=thin), sampler.get_log_prob(discard=burn, thin=thin),
+                  sampler.acceptance_fraction.copy(), tau, sampler.iteration, burn, thin, converged)

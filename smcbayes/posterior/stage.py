@@ -1,0 +1,175 @@
+"""The posterior stage of a calibration run directory (``smcbayes posterior``).
+
+Reads the run (its resolved config, GP state and best point), estimates the effective
+number of independent points from the residuals at the best point, samples the emulated
+posterior (a mixture over GP sample functions), optionally refines the emulator, checks it
+against the forward model at posterior draws, and writes ``RUN_DIR/posterior/``:
+``posterior.nc`` (arviz InferenceData), ``summary.json``, ``summary.csv``, figures
+(corner, correlations, predictive bands; PNG and SVG) and, after refinement,
+``gp_refined.pt`` and ``refine.jsonl``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from smcbayes.config import ProjectConfig
+from smcbayes.errors import ConfigError
+from smcbayes.posterior.likelihood import EmulatedPosterior, effective_points
+from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PosteriorSettings:
+    """Settings of the posterior stage.
+
+    Attributes:
+        walkers, steps: emcee ensemble size and maximum steps per chain.
+        functions: GP sample functions in the mixture (0: GP mean only).
+        refine: forward evaluations added where the posterior is probable and the GP unsure.
+        draws: posterior draws pushed through the forward model (bands and emulator check).
+        seed: random seed.
+    """
+
+    walkers: int = 32
+    steps: int = 4000
+    functions: int = 8
+    refine: int = 0
+    draws: int = 100
+    seed: int = 0
+
+
+@dataclass
+class RunContext:
+    """What the posterior needs from a calibration run."""
+
+    run_dir: Path
+    problem: Any
+    summary: dict[str, Any]
+    best_theta: Array
+
+    @property
+    def space(self):  # noqa: ANN201
+        return self.problem.model.space
+
+
+def load_run(run_dir: Path) -> RunContext:
+    """Rebuild the calibration problem of ``run_dir`` from its ``config.json``."""
+    from smcbayes.surrogate.problem import ExternalSpec, build_problem
+
+    cfg, summ = run_dir / "config.json", run_dir / "summary.json"
+    if not cfg.is_file() or not summ.is_file():
+        raise ConfigError(f"{run_dir}: not a calibration run directory (config.json and "
+                          "summary.json missing); run `smcbayes calibrate` first")
+    identity = json.loads(cfg.read_text(encoding="utf-8"))
+    summary = json.loads(summ.read_text(encoding="utf-8"))
+    project = ProjectConfig.model_validate(identity["project"])
+    ext = identity.get("external")
+    problem = build_problem(project, run_dir, identity.get("effects"), identity.get("overrides") or {},
+                            identity.get("fidelity"), ExternalSpec(**ext) if ext else None)
+    if not summary.get("best_params"):
+        raise ConfigError(f"{run_dir}: the calibration has no successful evaluation")
+    best = summary["best_params"]
+    theta = np.array([[best[n]["value"] for n in problem.model.space.free_names]])
+    return RunContext(run_dir, problem, summary, theta)
+
+
+def true_log_loss(ctx: RunContext, theta: Array) -> Array:
+    """log of the global loss from the forward model at ``theta`` ``(P, d)``; NaN if failed."""
+    from smcbayes.data.loss import evaluate_loss
+
+    p = ctx.problem
+    results = p.model.simulate(theta, p.train_ids)
+    loss = evaluate_loss(results, p.objective.dataset, p.project.loss, ids=p.train_ids)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(loss.total > 0, np.log(loss.total), np.nan)
+
+
+def residual_budget(ctx: RunContext) -> dict[str, Any]:
+    """Effective points from the force residuals at the best point, per configuration."""
+    from smcbayes.data.loss import force_pair
+
+    p = ctx.problem
+    results = p.model.simulate(ctx.best_theta, p.train_ids)
+    residuals, mse = [], {}
+    for cid in p.train_ids:
+        pair = force_pair(results[cid], p.objective.dataset.measurements[cid], p.project.loss)
+        r = pair.meas_kN[0] - pair.sim_kN[0]
+        residuals.append(r)
+        mse[cid] = float(np.mean(r**2))
+    tau, n_eff = effective_points(residuals)
+    return {"config_ids": list(p.train_ids), "tau": tau.tolist(), "n_eff": n_eff.tolist(),
+            "n_eff_total": float(n_eff.sum()), "mse_kN2": mse}
+
+
+def sample(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
+           rng: np.random.Generator) -> tuple[EmulatedPosterior, list]:
+    """Run one emcee ensemble per mixture component."""
+    emul = EmulatedPosterior(surrogate, n_eff, settings.functions, settings.seed)
+    centre = ctx.space.to_unit(ctx.best_theta)[0]
+    sampler = SamplerSettings(walkers=settings.walkers, max_steps=settings.steps,
+                              min_steps=min(500, settings.steps))
+    chains = []
+    for c in range(emul.components):
+        comp = c if settings.functions > 0 else None
+        label = f" (function {c + 1}/{emul.components})"
+        chains.append(run_ensemble(emul.log_prob_fn(comp), ctx.space.dim, sampler, rng, centre, label))
+    return emul, chains
+
+
+def refine(ctx: RunContext, surrogate: Any, draws_unit: Array, count: int,
+           rng: np.random.Generator, out_dir: Path) -> Any:
+    """Evaluate the forward model at ``count`` refinement points and refit the GP."""
+    from smcbayes.posterior.refine import refine_points
+    from smcbayes.surrogate.gp import fit_surrogate, save_surrogate
+
+    pts = refine_points(draws_unit, surrogate, count, rng)
+    theta = ctx.space.from_unit(pts)
+    y = true_log_loss(ctx, theta)
+    with (out_dir / "refine.jsonl").open("a", encoding="utf-8") as fh:
+        for row, val in zip(theta, y, strict=True):
+            rec = {"params": dict(zip(ctx.space.free_names, row.tolist(), strict=True)),
+                   "log_loss": None if not np.isfinite(val) else float(val)}
+            fh.write(json.dumps(rec) + "\n")
+    ok = np.isfinite(y)
+    x_new = np.vstack([surrogate.x_unit, pts[ok]])
+    y_new = np.concatenate([surrogate.log_loss, y[ok]])
+    refitted = fit_surrogate(x_new, y_new, surrogate.kernel, int(rng.integers(2**31 - 1)))
+    save_surrogate(out_dir / "gp_refined.pt", refitted, {"refined_points": int(ok.sum())})
+    return refitted
+
+
+def run_posterior(run_dir: Path, settings: PosteriorSettings) -> dict[str, Any]:
+    """The whole stage; returns the content of ``posterior/summary.json``."""
+    from smcbayes.surrogate.gp import load_surrogate
+
+    start = time.perf_counter()
+    ctx = load_run(run_dir)
+    out_dir = run_dir / "posterior"
+    out_dir.mkdir(exist_ok=True)
+    rng = np.random.default_rng(settings.seed)
+    surrogate, _ = load_surrogate(run_dir / "gp.pt")
+    budget = residual_budget(ctx)
+    emul, chains = sample(ctx, surrogate, budget["n_eff_total"], settings, rng)
+    if settings.refine > 0:
+        pooled = np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
+        surrogate = refine(ctx, surrogate, pooled, settings.refine, rng, out_dir)
+        emul, chains = sample(ctx, surrogate, budget["n_eff_total"], settings, rng)
+    from smcbayes.posterior.report import write_outputs
+
+    info = write_outputs(ctx, emul, chains, budget, settings, rng, out_dir)
+    info["seconds"] = time.perf_counter() - start
+    info["settings"] = asdict(settings)
+    from smcbayes.surrogate.runlog import write_json
+
+    write_json(out_dir / "summary.json", info)
+    return info

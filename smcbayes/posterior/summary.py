@@ -1,0 +1,133 @@
+"""Posterior draws as arviz InferenceData: summary table, diagnostics, correlations.
+
+The mixture over GP sample functions is stored with one arviz chain per (component,
+walker).  R-hat and ESS are computed within each component (its walkers as chains, the
+usual treatment of an emcee ensemble) and the worst component is reported: components
+differ on purpose (they are different plausible emulators), so R-hat across them would
+measure emulator uncertainty, not sampler convergence.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from smcbayes.forward.parameters import ParameterSpace
+from smcbayes.posterior.sampler import Chains
+
+Array = NDArray[np.float64]
+RHAT_WARN = 1.05
+ESS_WARN = 200.0
+
+
+@dataclass(frozen=True)
+class ParameterSummary:
+    """Posterior summary of one parameter (user units; quantiles 5/50/95 %)."""
+
+    name: str
+    unit: str
+    mean: float
+    sd: float
+    q05: float
+    q50: float
+    q95: float
+    r_hat: float
+    ess: float
+
+
+def sampled_coordinates(space: ParameterSpace, theta: Array) -> tuple[Array, list[str]]:
+    """Values in the sampled coordinates (log10 of log-searched parameters) and labels."""
+    cols, labels = [], []
+    for j, p in enumerate(space.free):
+        cols.append(np.log10(theta[:, j]) if p.log else theta[:, j])
+        labels.append(f"log10 {p.name}" if p.log else p.name)
+    return np.column_stack(cols), labels
+
+
+def stack_components(chains: Sequence[Chains]) -> tuple[Array, Array]:
+    """Unit-cube draws of all components, ``(chains, draws, d)``, truncated to equal length."""
+    draws = min(c.samples.shape[0] for c in chains)
+    samples = np.concatenate([np.swapaxes(c.samples[-draws:], 0, 1) for c in chains], axis=0)
+    logp = np.concatenate([np.swapaxes(c.log_prob[-draws:], 0, 1) for c in chains], axis=0)
+    return samples, logp
+
+
+def to_inference_data(space: ParameterSpace, chains: Sequence[Chains], attrs: dict):  # noqa: ANN201
+    """arviz InferenceData with the posterior in user units and sampler statistics."""
+    import arviz as az
+
+    unit, logp = stack_components(chains)
+    n_chain, n_draw, d = unit.shape
+    theta = space.from_unit(unit.reshape(-1, d)).reshape(n_chain, n_draw, d)
+    posterior = {name: theta[..., j] for j, name in enumerate(space.free_names)}
+    acceptance = np.concatenate([c.acceptance for c in chains])
+    sample_stats = {"lp": logp, "acceptance_fraction": np.repeat(acceptance[:, None], n_draw, axis=1)}
+    component = np.repeat(np.arange(len(chains)), [c.samples.shape[1] for c in chains])
+    clean = {k: (float(v) if isinstance(v, np.floating) else v) for k, v in attrs.items()}
+    return az.from_dict(posterior=posterior, sample_stats=sample_stats,
+                        coords={"component": component}, attrs=clean)
+
+
+def summarise(space: ParameterSpace, chains: Sequence[Chains]) -> list[ParameterSummary]:
+    """Mean, sd, 5/50/95 % quantiles (pooled) and the worst per-component R-hat and ESS."""
+    import arviz as az
+
+    unit, _ = stack_components(chains)
+    d = unit.shape[2]
+    theta = space.from_unit(unit.reshape(-1, d))
+    rhat = np.zeros(d)
+    ess = np.zeros(d)
+    for c in chains:
+        arr = np.swapaxes(c.samples, 0, 1)  # (walkers, draws, d)
+        for j in range(d):
+            rhat[j] = max(rhat[j], float(az.rhat(arr[..., j])))
+            ess[j] += float(az.ess(arr[..., j]))
+    out = []
+    for j, p in enumerate(space.free):
+        col = theta[:, j]
+        q = np.quantile(col, [0.05, 0.5, 0.95])
+        out.append(ParameterSummary(p.name, p.unit, float(col.mean()), float(col.std()),
+                                    float(q[0]), float(q[1]), float(q[2]), rhat[j], ess[j]))
+    return out
+
+
+def correlations(space: ParameterSpace, theta: Array, top: int = 3,
+                 threshold: float = 0.3) -> tuple[Array, list[str], list[tuple[str, str, float]]]:
+    """Correlation matrix in sampled coordinates and the strongest pairs (|r| >= threshold).
+
+    Args:
+        theta: draws in user units, ``(N, d)``.
+
+    Returns:
+        ``(matrix (d, d), labels, [(name_i, name_j, r), ...])`` strongest first.
+    """
+    x, labels = sampled_coordinates(space, theta)
+    if x.shape[1] < 2:
+        return np.ones((1, 1)), labels, []
+    r = np.corrcoef(x, rowvar=False)
+    pairs = [(space.free_names[i], space.free_names[j], float(r[i, j]))
+             for i in range(r.shape[0]) for j in range(i + 1, r.shape[0])]
+    pairs = [pq for pq in sorted(pairs, key=lambda t: -abs(t[2])) if abs(pq[2]) >= threshold]
+    return r, labels, pairs[:top]
+
+
+def warnings_for(summary: Sequence[ParameterSummary], chains: Sequence[Chains]) -> list[str]:
+    """Plain-language warnings about convergence and sampling quality."""
+    out = []
+    for s in summary:
+        if not np.isfinite(s.r_hat) or s.r_hat > RHAT_WARN:
+            out.append(f"{s.name}: R-hat {s.r_hat:.3f} > {RHAT_WARN}: the walkers disagree; "
+                       "run longer (--steps) or refine the emulator (--refine)")
+        if s.ess < ESS_WARN:
+            out.append(f"{s.name}: only {s.ess:.0f} effective samples (< {ESS_WARN:.0f}); "
+                       "quantiles are rough, run longer (--steps)")
+    if not all(c.converged for c in chains):
+        out.append("the autocorrelation-time stopping rule was not met within --steps "
+                   "(chains shorter than 50 autocorrelation times)")
+    acc = np.concatenate([c.acceptance for c in chains])
+    if np.median(acc) < 0.1 or np.median(acc) > 0.8:
+        out.append(f"median acceptance fraction {np.median(acc):.2f} is outside 0.1-0.8")
+    return out

@@ -1,0 +1,166 @@
+"""External-simulator adapter: run the user's own solver (e.g. Moldflow) by command line.
+
+For each parameter vector and configuration the adapter makes a work folder, writes
+``params.json`` there::
+
+    {"config_id": "60-bar-07", "parameters": {"n": 0.4, "tau_star_Pa": 1e4, ...},
+     "units": {"n": "-", "tau_star_Pa": "Pa", ...}, "configuration": {...the config table...}}
+
+runs the command template with ``{params}``, ``{output}``, ``{config}`` and ``{workdir}``
+replaced (e.g. ``python run_moldflow.py {params} --out {output}``), with a timeout, and
+reads the curve the command wrote to ``{output}``: CSV with ``time_s,force_kN`` (and
+optionally ``displacement_mm``), or a Moldflow XML result file.  A non-zero exit, a
+timeout or an unreadable output fails that evaluation with the reason; the run goes on.
+Work folders are named after a hash of the parameters, so a rerun finds the same folder.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shlex
+import subprocess
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from smcbayes.config import ProjectConfig
+from smcbayes.errors import ConfigError, SmcBayesError
+from smcbayes.forward.parameters import ParameterSpace
+from smcbayes.forward.result import STATUS_OK, SimulationResult
+
+Array = NDArray[np.float64]
+FORMATS = ("csv", "moldflow")
+FIELDS = ("params", "output", "config", "workdir")
+
+
+class ExternalSimulator:
+    """Simulate by running an external command per parameter vector and configuration.
+
+    Args:
+        project: the validated project (configuration tables go into ``params.json``).
+        space: parameter space (names, units, fixed values).
+        command: template, e.g. ``"python sim.py {params} {output}"``.
+        work_dir: folder for the per-evaluation work folders.
+        timeout_s: wall-time limit of one command (s).
+        output_format: ``csv`` or ``moldflow``.
+    """
+
+    def __init__(self, project: ProjectConfig, space: ParameterSpace, command: str,
+                 work_dir: Path, timeout_s: float = 3600.0, output_format: str = "csv") -> None:
+        if output_format not in FORMATS:
+            raise ConfigError(f"--external-format {output_format!r}; accepted: {', '.join(FORMATS)}")
+        self.args = shlex.split(command)
+        if not self.args:
+            raise ConfigError("--external: the command template is empty")
+        for token in self.args:
+            try:
+                token.format(**{f: "" for f in FIELDS})
+            except (KeyError, IndexError, ValueError):
+                raise ConfigError(f"--external: placeholder in {token!r} not understood; "
+                                  f"accepted: {', '.join('{' + f + '}' for f in FIELDS)}") from None
+        self.project = project
+        self.space = space
+        self.work_dir = Path(work_dir).resolve()
+        self.timeout_s = timeout_s
+        self.output_format = output_format
+
+    def _folder(self, values: dict[str, float], config_id: str) -> Path:
+        key = json.dumps({"config": config_id, "params": values}, sort_keys=True)
+        digest = hashlib.sha1(key.encode()).hexdigest()[:12]
+        return self.work_dir / f"{config_id}-{digest}"
+
+    def run_one(self, values: dict[str, float], config_id: str) -> tuple[Array, Array, Array | None]:
+        """Run the command for one parameter set; returns time (s), force (kN), displacement (mm) or None.
+
+        Raises:
+            SmcBayesError: the command failed, timed out or wrote no readable curve.
+        """
+        folder = self._folder(values, config_id)
+        folder.mkdir(parents=True, exist_ok=True)
+        params = folder / "params.json"
+        output = folder / ("curves.csv" if self.output_format == "csv" else "curves.xml")
+        units = {p.name: p.unit for p in self.space.parameters}
+        params.write_text(json.dumps({
+            "config_id": config_id, "parameters": values, "units": units,
+            "configuration": self.project.get(config_id).model_dump(mode="json"),
+        }, indent=2), encoding="utf-8")
+        fields = {"params": str(params), "output": str(output), "config": config_id,
+                  "workdir": str(folder)}
+        argv = [token.format(**fields) for token in self.args]
+        try:
+            proc = subprocess.run(argv, cwd=folder, capture_output=True, text=True,
+                                  timeout=self.timeout_s, check=False)
+        except subprocess.TimeoutExpired:
+            raise SmcBayesError(f"external command timed out after {self.timeout_s:g} s") from None
+        except OSError as err:
+            raise SmcBayesError(f"external command could not start: {err}") from None
+        (folder / "stdout.txt").write_text(proc.stdout, encoding="utf-8")
+        (folder / "stderr.txt").write_text(proc.stderr, encoding="utf-8")
+        if proc.returncode != 0:
+            tail = proc.stderr.strip().splitlines()[-1:] or ["(no stderr)"]
+            raise SmcBayesError(f"external command exited with {proc.returncode}: {tail[0]}")
+        return self._read(output)
+
+    def _read(self, output: Path) -> tuple[Array, Array, Array | None]:
+        if self.output_format == "moldflow":
+            from smcbayes.data.readers.moldflow import read_moldflow
+
+            force = read_moldflow(output, "force")
+            return force.time_s, force.values, None
+        from smcbayes.data.readers.csv import read_csv
+
+        force = read_csv(output, "force_kN", "force")
+        header = output.read_text(encoding="utf-8").splitlines()[0].split(",")
+        disp = None
+        if "displacement_mm" in [h.strip() for h in header]:
+            disp = np.interp(force.time_s, *_xy(read_csv(output, "displacement_mm", "displacement")))
+        return force.time_s, force.values, disp
+
+    def simulate(self, theta: Array, config_ids: Sequence[str]) -> dict[str, SimulationResult]:
+        """Curves of every row of ``theta`` ``(P, d)`` on each configuration (NaN rows on failure)."""
+        batch = self.space.batch(theta)
+        rows = np.atleast_2d(theta).shape[0]
+        out: dict[str, SimulationResult] = {}
+        for cid in config_ids:
+            curves: list[tuple[Array, Array, Array | None] | None] = []
+            status: list[str] = []
+            for i in range(rows):
+                values = {k: float(v[i]) for k, v in batch.items()}
+                try:
+                    curves.append(self.run_one(values, cid))
+                    status.append(STATUS_OK)
+                except SmcBayesError as err:
+                    curves.append(None)
+                    status.append(f"failed: {err}")
+            out[cid] = _stack(cid, curves, status, self.project.get(cid).press.force_limit_kN)
+        return out
+
+
+def _xy(curve: object) -> tuple[Array, Array]:
+    return curve.time_s, curve.values  # type: ignore[attr-defined]
+
+
+def _stack(cid: str, curves: list[tuple[Array, Array, Array | None] | None], status: list[str],
+           limit_kN: float) -> SimulationResult:
+    """Pad the rows' curves to a common length (holding end values) into one result."""
+    length = max((c[0].size for c in curves if c is not None), default=2)
+    shape = (len(curves), length)
+    t, f, d = np.full(shape, np.nan), np.full(shape, np.nan), np.full(shape, np.nan)
+    switch = np.full(len(curves), np.nan)
+    for i, c in enumerate(curves):
+        if c is None:
+            continue
+        n = c[0].size
+        t[i, :n] = c[0]
+        t[i, n:] = c[0][-1] + np.arange(1, length - n + 1) * 1e-9
+        f[i] = np.concatenate([c[1], np.full(length - n, c[1][-1])])
+        if c[2] is not None:
+            d[i] = np.concatenate([c[2], np.full(length - n, c[2][-1])])
+        hit = np.nonzero(c[1] >= limit_kN)[0]
+        switch[i] = c[0][hit[0]] if hit.size else c[0][-1]
+    nan = np.full(shape, np.nan)
+    return SimulationResult(cid, t, nan.copy(), d, f, nan.copy(), nan.copy(),
+                            np.zeros(shape, dtype=np.int8), switch, status)

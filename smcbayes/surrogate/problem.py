@@ -1,0 +1,118 @@
+"""A calibration problem from a project: forward model (or external solver), data, loss.
+
+Also builds the synthetic "measured" data of a check with known truth
+(``[calibration] truth = {...}``): the truth is simulated on the training configurations
+and written as ``force/<id>.csv`` (contact to force limit) and ``hold/<id>.csv`` (ram
+travel under force control, negative = closing) in a folder of the run, which then serves
+as the project's data directory.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from smcbayes.config import DataSpec, ProjectConfig
+from smcbayes.errors import ConfigError
+from smcbayes.forward.model import ForwardModel
+from smcbayes.surrogate.objective import SimulatorObjective
+
+
+@dataclass(frozen=True)
+class ExternalSpec:
+    """How to run an external simulator (see :mod:`smcbayes.surrogate.executors.external`)."""
+
+    command: str
+    timeout_s: float = 3600.0
+    output_format: str = "csv"
+
+
+@dataclass
+class Problem:
+    """Everything a calibration needs besides its settings.
+
+    Attributes:
+        project: the project (data_dir pointing at synthetic data for a truth check).
+        model: the native forward model (parameter space, best-point curves, figures).
+        objective: what the optimiser evaluates.
+        train_ids: configurations in the loss.
+        truth: true parameter values (user units) of a synthetic check, else ``None``.
+    """
+
+    project: ProjectConfig
+    model: ForwardModel
+    objective: SimulatorObjective
+    train_ids: list[str]
+    truth: dict[str, float] | None
+
+
+def write_truth_data(model: ForwardModel, truth: Mapping[str, float], ids: Sequence[str],
+                     folder: Path) -> None:
+    """Simulate ``truth`` on ``ids`` and write force and hold curves like the press data."""
+    from smcbayes.data.readers.csv import write_csv
+
+    unknown = [k for k in truth if k not in model.space.names]
+    if unknown:
+        raise ConfigError(f"[calibration] truth: unknown parameter '{unknown[0]}'; "
+                          f"accepted: {', '.join(model.space.names)}")
+    params = {**model.space.defaults(), **{k: float(v) for k, v in truth.items()}}
+    results = model.simulate_params({k: np.array([v]) for k, v in params.items()}, ids)
+    (folder / "force").mkdir(parents=True, exist_ok=True)
+    (folder / "hold").mkdir(parents=True, exist_ok=True)
+    for cid, res in results.items():
+        if res.status[0] != "ok":
+            raise ConfigError(f"[calibration] truth: simulation of '{cid}' {res.status[0]}")
+        t, f, d = res.time_s[0], res.force_kN[0], res.displacement_mm[0]
+        t_switch = res.switch_time_s[0]
+        closing = t <= t_switch if np.isfinite(t_switch) else np.ones_like(t, dtype=bool)
+        write_csv(folder / "force" / f"{cid}.csv", t[closing], f[closing], "force_kN", digits=10)
+        if np.isfinite(t_switch) and np.count_nonzero(~closing) >= 2:
+            hold = t >= t_switch
+            d0 = np.interp(t_switch, t, d)
+            write_csv(folder / "hold" / f"{cid}.csv", t[hold] - t_switch, -(d[hold] - d0),
+                      "displacement_mm", digits=10)
+
+
+def with_data_dir(project: ProjectConfig, folder: Path, ids: Sequence[str]) -> ProjectConfig:
+    """Copy of ``project`` reading ``ids``' curves from ``folder`` (force and hold CSVs)."""
+    configs = []
+    for c in project.configuration:
+        if c.id in ids:
+            hold = folder / "hold" / f"{c.id}.csv"
+            data = DataSpec(force=f"force/{c.id}.csv", hold=f"hold/{c.id}.csv" if hold.exists() else None)
+            c = c.model_copy(update={"data": data})
+        configs.append(c)
+    return project.model_copy(update={"configuration": configs, "data_dir": str(folder.resolve())})
+
+
+def build_problem(project: ProjectConfig, run_dir: Path, effects: Sequence[str] | None = None,
+                  overrides: Mapping[str, float] | None = None, fidelity: str | None = None,
+                  external: ExternalSpec | None = None) -> Problem:
+    """Forward model, data and objective of a calibration of ``project``'s training set."""
+    from smcbayes.data.dataset import load_dataset
+
+    model = ForwardModel(project, effects=effects, overrides=overrides, fidelity=fidelity)
+    if model.space.dim == 0:
+        raise ConfigError("every parameter is fixed: free at least one ([parameters.X] fixed = false)")
+    ids = model.ids("train")
+    if not ids:
+        raise ConfigError("no configuration has role = \"train\"; calibration needs training data")
+    truth = project.calibration.truth
+    if truth is not None:
+        folder = run_dir / "truth-data"
+        write_truth_data(model, truth, ids, folder)
+        project = with_data_dir(project, folder, ids)
+        model = ForwardModel(project, effects=effects, overrides=overrides, fidelity=fidelity)
+    dataset = load_dataset(project, ids=ids, preprocess=project.preprocess)
+    simulator = model
+    if external is not None:
+        from smcbayes.surrogate.executors.external import ExternalSimulator
+
+        simulator = ExternalSimulator(project, model.space, external.command, run_dir / "work",
+                                      external.timeout_s, external.output_format)
+    objective = SimulatorObjective(simulator, dataset, ids, project.loss)
+    full_truth = None if truth is None else {**model.space.defaults(), **truth}
+    return Problem(project, model, objective, ids, full_truth)

@@ -1,0 +1,131 @@
+"""The loss (thesis eq. 3.5-3.7): hand-computed values, zero self-loss, clipping, batching."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smcbayes.data.breakdown import force_breakdown, split_error
+from smcbayes.data.dataset import load_dataset
+from smcbayes.data.loss import LossSpec, evaluate_loss, interp_rows
+from smcbayes.errors import DataError
+
+
+def _dataset(dh, tmp_path: Path):  # noqa: ANN001, ANN202
+    dh.write_text(tmp_path / "force" / "c1.csv", "time_s,force_kN\n0,0\n1,100\n2,300\n")
+    dh.write_text(tmp_path / "hold" / "c1.csv", "time_s,displacement_mm\n0.5,-0.1\n1.5,-0.2\n")
+    proj = dh.project(tmp_path, [dh.config(data={"force": "force/c1.csv", "hold": "hold/c1.csv"})])
+    return load_dataset(proj)
+
+
+def _sim(dh):  # noqa: ANN001, ANN202
+    return dh.sim_result("c1", [0, 1, 1.5, 3], [0, 150, 300, 300], [1.5],
+                      displacement_mm=[0, 1, 1.5, 1.8])
+
+
+def test_hand_computed_force_and_displacement(dh, tmp_path: Path) -> None:
+    ds = _dataset(dh, tmp_path)
+    # 8 mm stack, 50 % coverage: h_flow = 4 mm, reached after 4 mm / (4 mm/s) = 1 s.
+    assert ds["c1"].flow_stop_s == pytest.approx(1.0)
+    res = evaluate_loss({"c1": _sim(dh)}, ds, LossSpec(grid_points=5, w_displacement=2.0))
+    # grid 0, .5, 1, 1.5, 2: sim held at 300 after 1.5 s -> 0 75 150 300 300 vs 0 50 100 200 300
+    assert res.force_mse_kN2[0, 0] == pytest.approx((25**2 + 50**2 + 100**2) / 5)
+    # hold: tau 0 .375 .75 1.125 1.5; sim 0 -.075 -.15 -.225 -.3; meas (0 at start) 0 -.075 -.125 -.1625 -.2
+    e_d = (0.025**2 + 0.0625**2 + 0.1**2) / 5
+    assert res.displacement_mse_mm2[0, 0] == pytest.approx(e_d)
+    assert res.total[0] == pytest.approx(2625.0 + 2.0 * e_d)
+    assert res.per_config()["c1"][0] == pytest.approx(2625.0 + 2.0 * e_d)
+    assert res.ids == ["c1"] and bool(res.ok[0])
+
+
+def test_thesis_clipped_loss_at_flow_stop(dh, tmp_path: Path) -> None:
+    ds = _dataset(dh, tmp_path)
+    res = evaluate_loss({"c1": _sim(dh)}, ds, LossSpec(grid_points=5, clip="flow_stop"))
+    # grid 0 .25 .5 .75 1: sim 0 37.5 75 112.5 150 vs meas 0 25 50 75 100
+    assert res.total[0] == pytest.approx((12.5**2 + 25**2 + 37.5**2 + 50**2) / 5)
+
+
+def test_force_limit_clip_removes_overshoot(dh, tmp_path: Path) -> None:
+    dh.write_text(tmp_path / "force" / "c1.csv", "time_s,force_kN\n0,0\n1,100\n2,300\n2.1,330\n")
+    ds = load_dataset(dh.project(tmp_path, [dh.config(data={"force": "force/c1.csv"})]))
+    sim = {"c1": dh.sim_result("c1", [0, 1, 2, 3], [0, 100, 300, 300], [2.0])}
+    assert evaluate_loss(sim, ds, LossSpec(clip="force_limit")).total[0] == pytest.approx(0.0, abs=1e-18)
+    assert evaluate_loss(sim, ds, LossSpec(clip="none")).total[0] > 1.0
+
+
+def test_curve_against_itself_is_zero(dh, tmp_path: Path) -> None:
+    t = np.linspace(0, 5, 60)
+    f = 300 * (t / 5) ** 3
+    body = "\n".join(f"{a:.17g},{b:.17g}" for a, b in zip(t, f))
+    dh.write_text(tmp_path / "force" / "c1.csv", "time_s,force_kN\n" + body + "\n")
+    ds = load_dataset(dh.project(tmp_path, [dh.config(data={"force": "force/c1.csv"})]))
+    sim = {"c1": dh.sim_result("c1", np.append(t, 505.0), np.append(f, 300.0), [5.0])}
+    for clip in ("none", "flow_stop", "force_limit"):
+        res = evaluate_loss(sim, ds, LossSpec(clip=clip))
+        assert res.total[0] == pytest.approx(0.0, abs=1e-18)
+
+
+def test_batch_equals_rows_and_failed_rows_are_nan(dh, tmp_path: Path) -> None:
+    ds = _dataset(dh, tmp_path)
+    rng = np.random.default_rng(3)
+    P = 7
+    ts = rng.uniform(0.8, 2.5, P)
+    t = np.stack([np.array([0, 0.3 * s, s, s + 500]) for s in ts])
+    f = np.stack([[0, rng.uniform(10, 200), 300, 300] for _ in range(P)])
+    status = ["ok"] * P
+    status[4] = "failed: test"
+    t_bad = t.copy()
+    t_bad[4] = np.nan
+    batch = dh.sim_result("c1", t_bad, f, ts, status=status)
+    res = evaluate_loss({"c1": batch}, ds)
+    for p in range(P):
+        one = evaluate_loss({"c1": dh.sim_result("c1", t[p], f[p], ts[p:p + 1])}, ds).total[0]
+        if p == 4:
+            assert np.isnan(res.total[p]) and not res.ok[p]
+        else:
+            assert res.total[p] == pytest.approx(one, rel=1e-12)
+
+
+def test_interp_rows_matches_numpy() -> None:
+    rng = np.random.default_rng(0)
+    xp = np.cumsum(rng.uniform(0.01, 1, (5, 30)), axis=1)
+    fp = rng.normal(size=(5, 30))
+    x = rng.uniform(-1, 20, (5, 40))
+    out = interp_rows(x, xp, fp)
+    for p in range(5):
+        np.testing.assert_allclose(out[p], np.interp(x[p], xp[p], fp[p]), rtol=1e-12, atol=1e-12)
+
+
+def test_missing_measurement_or_result_is_an_error(dh, tmp_path: Path) -> None:
+    ds = _dataset(dh, tmp_path)
+    with pytest.raises(DataError, match="no simulation result"):
+        evaluate_loss({}, ds)
+    with pytest.raises(DataError, match="no measured data"):
+        evaluate_loss({"c2": _sim(dh)}, ds, ids=["c2"])
+
+
+def test_split_parts_add_up_and_find_a_pure_shift() -> None:
+    t = np.linspace(0, 10, 401)
+    meas = np.tanh(t - 5)[None, :]
+    shifted = np.tanh(t - 5.5)[None, :]
+    dt = np.array([t[1] - t[0]])
+    delta, e_shift, e_amp, e_shape, a = split_error(shifted, meas, dt)
+    assert delta[0] == pytest.approx(0.5, abs=0.03)  # the simulation runs 0.5 s late
+    assert e_shift[0] == pytest.approx(np.mean((shifted - meas) ** 2), rel=1e-2)
+    scaled = 1.3 * meas
+    _, e_shift, e_amp, e_shape, a = split_error(scaled, meas, dt)
+    assert a[0] == pytest.approx(1 / 1.3) and e_shape[0] == pytest.approx(0.0, abs=1e-20)
+    assert e_amp[0] == pytest.approx(np.mean((scaled - meas) ** 2))
+
+
+def test_breakdown_sums_to_force_mse(dh, tmp_path: Path) -> None:
+    ds = _dataset(dh, tmp_path)
+    sims = {"c1": _sim(dh)}
+    res = evaluate_loss(sims, ds)
+    bd = force_breakdown(sims, ds)
+    total = bd.shift_kN2 + bd.amplitude_kN2 + bd.shape_kN2
+    np.testing.assert_allclose(total, res.force_mse_kN2, rtol=1e-10)
+    np.testing.assert_allclose(np.nansum(bd.phase_share, axis=2), 1.0)
+    assert bd.phases[3] == "force_control" and bd.phase_share[0, 0, 3] > 0

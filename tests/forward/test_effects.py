@@ -1,0 +1,182 @@
+"""Effects of the 1-D solver: solid-mass conservation in every combination, the
+incompressible limit of the compressible charge, and the direction of each effect."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+
+from smcbayes.config import ProjectConfig
+from smcbayes.errors import ConfigError, SmcBayesError
+from smcbayes.forward.effects import available, get_effect
+from smcbayes.forward.effects.thermal import Curing
+from smcbayes.forward.model import ForwardModel
+from smcbayes.forward.result import PHASE_FORCE, SimulationResult
+from smcbayes.units import ZERO_C_K
+
+Array = NDArray[np.float64]
+EFFECTS = ("compressibility", "curing", "heating", "press_compliance", "speed_ramp")
+# shear flow matters here (slip starts late), so viscosity effects show in the force
+SHEAR = {"n": 0.4, "tau_star_Pa": 1e4, "B_Pa_s": 2e4, "tau_c_MPa": 1.0, "m": 1.5}
+
+
+def run(project: ProjectConfig, effects: tuple[str, ...] = (), rows: int = 1,
+        **values: float | list[float]) -> SimulationResult:
+    """Simulate the project's bar with effect defaults and ``values`` (user units)."""
+    model = ForwardModel(project, effects=list(effects))
+    batch = {k: np.full(rows, v) for k, v in model.space.defaults().items()}
+    for name, value in values.items():
+        batch[name] = np.broadcast_to(np.asarray(value, dtype=float), (rows,)).copy()
+    res = model.simulate_params(batch)["bar"]
+    assert all(s == "ok" for s in res.status), res.status
+    return res
+
+
+def closing(res: SimulationResult, row: int = 0) -> NDArray[np.bool_]:
+    """Samples before force control."""
+    return res.phase[row] != PHASE_FORCE
+
+
+def test_registry_holds_the_five_effects() -> None:
+    assert set(EFFECTS) <= set(available())
+    for name in EFFECTS:
+        effect = get_effect(name)
+        assert effect.description and effect.parameters
+        for p in effect.parameters:
+            assert p.lower < p.default <= p.upper or p.lower <= p.default < p.upper, p.name
+
+
+def test_unknown_effect_suggests_the_closest_name() -> None:
+    with pytest.raises(ConfigError, match="did you mean 'compressibility'") as err:
+        get_effect("compresibility")
+    assert isinstance(err.value, SmcBayesError)
+
+
+@pytest.mark.parametrize("subset", [s for r in range(1, 6) for s in itertools.combinations(EFFECTS, r)],
+                         ids=lambda s: "+".join(s))
+def test_solid_mass_is_conserved_in_every_combination(
+        subset: tuple[str, ...], make_project: Callable[..., ProjectConfig]) -> None:
+    """s H A over whole runs (closing, filling, force control, hold), two parameter rows; with
+    compressibility one row has a bulk viscosity, so the charge creeps under force control."""
+    project = make_project(solver={"closing_steps": 60, "hold_steps": 20})
+    extra = {"bulk_viscosity_MPa_s": [0.0, 50.0]} if "compressibility" in subset else {}
+    res = run(project, subset, rows=2, **extra)
+    solid_volume = res.solid_fraction * res.gap_mm * res.fill_fraction
+    np.testing.assert_allclose(solid_volume, solid_volume[:, :1] * np.ones_like(solid_volume), rtol=1e-6)
+    assert np.all(res.phase[:, -1] == PHASE_FORCE)
+    assert np.all((res.solid_fraction > 0) & (res.solid_fraction <= 1.0 + 1e-12))
+    assert np.all(res.fill_fraction <= 1.0)
+
+
+@pytest.mark.parametrize("values", [{}, SHEAR], ids=["defaults", "shear"])
+def test_compressibility_with_solid_fraction_one_is_the_incompressible_model(
+        values: dict[str, float], make_project: Callable[..., ProjectConfig]) -> None:
+    project = make_project()
+    case = ForwardModel(project).cases["bar"]
+    apparent_g_cm3 = case.mass / (case.area0 * case.gap0) / 1e3
+    base = run(project, **values)
+    comp = run(project, ("compressibility",), rho_solid_g_cm3=apparent_g_cm3, **values)
+    np.testing.assert_allclose(comp.force_kN, base.force_kN, rtol=1e-6)
+    np.testing.assert_allclose(comp.time_s, base.time_s, rtol=1e-6)
+    np.testing.assert_allclose(comp.solid_fraction, 1.0, rtol=1e-12)
+
+
+def test_press_compliance(make_project: Callable[..., ProjectConfig]) -> None:
+    """Ram displacement = gap change + F / k; the gap closes slower than the ram while the
+    force rises, so the limit is reached later than with a rigid press."""
+    k_kN_mm = 100.0
+    project = make_project(press={"force_limit_kN": 500.0})
+    rigid = run(project, **SHEAR)
+    soft = run(project, ("press_compliance",), k_press_kN_mm=k_kN_mm, **SHEAR)
+    gap_change = 8.0 - soft.gap_mm[0]
+    np.testing.assert_allclose(soft.displacement_mm[0] - gap_change, soft.force_kN[0] / k_kN_mm,
+                               rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(rigid.displacement_mm[0], 8.0 - rigid.gap_mm[0], atol=1e-12)
+    c = closing(soft)
+    t, gap, force = soft.time_s[0, c], soft.gap_mm[0, c], soft.force_kN[0, c]
+    rising = np.diff(force) > 0
+    gap_speed = -np.diff(gap) / np.diff(t)
+    assert rising.sum() > 0.9 * rising.size
+    assert np.all(gap_speed[rising] < 0.3)
+    # the ram keeps its set speed; the recorded frame deflection is the backward-Euler one,
+    # one step ahead, so the ram position is off by at most one step's change of F / k
+    step_change = max(force[0], np.max(np.diff(force))) / k_kN_mm
+    np.testing.assert_allclose(soft.displacement_mm[0, c], 0.3 * t, rtol=0, atol=1.01 * step_change)
+    assert np.all(gap[1:] >= np.interp(t[1:], rigid.time_s[0], rigid.gap_mm[0]) - 1e-12)
+    assert soft.switch_time_s[0] > rigid.switch_time_s[0]
+
+
+def test_heating_lowers_the_force_at_the_same_gap(make_project: Callable[..., ProjectConfig]) -> None:
+    """Against an isothermal run at the charge's start temperature, i.e. the base model with
+    B multiplied by exp(T_b (1/T_start - 1/T_mould))."""
+    T_start_C, T_b = 80.0, 5000.0
+    project = make_project(press={"force_limit_kN": 5000.0})
+    T_mould = 135.0 + ZERO_C_K
+    factor = np.exp(T_b * (1 / (T_start_C + ZERO_C_K) - 1 / T_mould))
+    iso = run(project, **{**SHEAR, "B_Pa_s": SHEAR["B_Pa_s"] * factor})
+    hot = run(project, ("heating",), T_start_C=T_start_C, T_b_K=T_b, **SHEAR)
+    c = closing(hot) & closing(iso)
+    gap = hot.gap_mm[0, c]
+    iso_force = np.interp(-gap, -iso.gap_mm[0], iso.force_kN[0])
+    np.testing.assert_allclose(hot.force_kN[0, 0], iso.force_kN[0, 0], rtol=1e-9)  # same start
+    assert np.all(hot.force_kN[0, c][1:] < iso_force[1:])
+    assert hot.force_kN[0, c][-1] < 0.6 * iso_force[-1]  # the charge has heated by then
+
+
+def test_curing_raises_the_force_once_cure_builds_up(make_project: Callable[..., ProjectConfig]) -> None:
+    project = make_project(press={"force_limit_kN": 5000.0})
+    base = run(project, **SHEAR)
+    cured = run(project, ("curing",), k1_1_s=1e-2, **SHEAR)
+    np.testing.assert_allclose(cured.force_kN[0, 0], base.force_kN[0, 0], rtol=1e-9)
+    t = cured.time_s[0, closing(cured)]
+    ratio = cured.force_kN[0, closing(cured)] / np.interp(t, base.time_s[0], base.force_kN[0])
+    assert np.all(ratio[1:] > 1.0)
+    assert ratio[-1] > 1.3 and ratio[-1] > ratio[len(ratio) // 2] > ratio[1]
+
+
+def test_degree_of_cure_is_monotone_and_bounded() -> None:
+    effect = Curing()
+    p = {"k1": np.array([1e-3, 1e-2, 1e-1]), "k2": np.array([2e-2, 0.2, 1.0])}
+    state = effect.initial_state(None, p, 3)  # type: ignore[arg-type]  # the case is unused
+    history = [state["cure"]]
+    for dt in [0.0, 0.1, 1.0, 10.0, 100.0, 1000.0]:
+        state = effect.advance(None, p, state, np.full(3, 5e-3), np.full(3, dt))  # type: ignore[arg-type]
+        history.append(state["cure"])
+    h = np.array(history)
+    np.testing.assert_array_equal(h[1], h[0])  # a zero step leaves the cure unchanged
+    assert np.all(np.diff(h[1:], axis=0) > 0) and np.all(h <= 1.0)
+    assert np.all(h[-1] > 0.9)
+
+
+def test_speed_ramp_delays_the_limit_and_lowers_the_early_force(
+        make_project: Callable[..., ProjectConfig]) -> None:
+    project = make_project(press={"force_limit_kN": 100.0})
+    base = run(project)
+    ramp = run(project, ("speed_ramp",), ramp_time_s=1.0)
+    assert ramp.switch_time_s[0] > base.switch_time_s[0]
+    early = (ramp.time_s[0] > 0) & (ramp.time_s[0] < 2.0)
+    assert early.sum() >= 5
+    base_force = np.interp(ramp.time_s[0, early], base.time_s[0], base.force_kN[0])
+    assert np.all(ramp.force_kN[0, early] < base_force)
+
+
+def test_compressible_charge_closes_past_the_fill_gap_and_creeps(
+        make_project: Callable[..., ProjectConfig]) -> None:
+    project = make_project()
+    fill_gap = ForwardModel(project).cases["bar"].gap_full / 1e-3
+    res = run(project, ("compressibility",), rows=2, bulk_viscosity_MPa_s=[0.0, 50.0])
+    for row in range(2):
+        gap_at_limit = np.interp(res.switch_time_s[row], res.time_s[row], res.gap_mm[row])
+        assert gap_at_limit < fill_gap
+    hold = res.phase[1] == PHASE_FORCE
+    creep = -np.diff(res.gap_mm[1, hold])
+    assert np.all(creep[:10] > 0) and np.all(creep >= -1e-12)
+    assert res.gap_mm[1, -1] < res.gap_mm[1, hold][0] - 0.05
+    still = res.phase[0] == PHASE_FORCE
+    assert np.ptp(res.gap_mm[0, still]) < 1e-9  # rate-independent compaction: no creep
+    # the creep tends to the same equilibrium P_c(s) = F_limit / A
+    assert res.gap_mm[1, -1] == pytest.approx(res.gap_mm[0, -1], rel=0.01)

@@ -1,0 +1,150 @@
+"""2-D thin-cavity solver: closed-form limits, the 1-D planar solution, conservation, orders."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smcbayes.config import MaterialSpec, build_project
+from smcbayes.errors import ConfigError
+from smcbayes.forward.case import Case
+from smcbayes.forward.hele_shaw2d import HeleShaw2D, HeleShaw2DOptions, make_grid, spill
+from smcbayes.forward.model import ForwardModel
+from smcbayes.forward.squeeze1d import material_table
+
+MU, V, H = 1.0e4, 1.0e-3, 8.0e-3
+NEWTONIAN = {"n": 0.5, "tau_star": 1e30, "B": MU, "tau_c": 1e30, "m": 1.0}
+"""Cross law with tau_star -> infinity and slip off: eta = eta0 (n = 1 would give eta0/2)."""
+SQUARE = 0.421731
+"""F H^3 / (mu V L^4) of a square charge: 12 x the integral of the unit-source Poisson
+solution on the unit square (0.0351442)."""
+
+
+def _case(pieces: tuple[tuple[float, float, float, float], ...], mould: float = 0.2,
+          limit: float = 1e12) -> Case:
+    area0 = sum(p[2] * p[3] for p in pieces)
+    return Case(id="test", planar=False, width=mould, mould_length=mould, area0=area0,
+                area_mould=mould * mould, gap0=H, mass=None, T_mould=400.0, T_charge=400.0,
+                speed=V, force_limit=limit, hold=5.0, pieces=pieces)
+
+
+def _first_force(cells: int, side: float = 0.1) -> float:
+    solver = HeleShaw2D(HeleShaw2DOptions(cells=cells, closing_steps=5))
+    p = {k: np.array([v]) for k, v in NEWTONIAN.items()}
+    case = _case(((0.0, 0.0, side, side),), limit=1e12)
+    run = solver.run_row(case, material_table(p, MaterialSpec(), solver.tau), MU, 0)
+    return run.force[0]
+
+
+def test_newtonian_square_first_instant_within_one_percent() -> None:
+    exact = SQUARE * MU * V * 0.1**4 / H**3
+    assert abs(_first_force(64) / exact - 1.0) < 0.01
+
+
+def test_grid_order_of_newtonian_square_is_second() -> None:
+    forces = [_first_force(c) for c in (16, 32, 64)]
+    order = np.log2((forces[0] - forces[1]) / (forces[1] - forces[2]))
+    assert 1.7 < order < 2.3
+
+
+def _project(charge: dict, speed_mm_s: float = 0.7, cells: int = 24, steps: int = 60) -> ForwardModel:
+    raw = {"solver": {"cells_2d": cells, "closing_steps_2d": steps},
+           "configuration": [{"id": "c", "charge": {"stack_height_mm": 8.0, **charge},
+                              "press": {"speed_mm_s": speed_mm_s, "hold_s": 20.0}}]}
+    return build_project(raw, "test.toml", Path("."))
+
+
+def test_full_width_bar_matches_planar_1d_over_the_closing() -> None:
+    project = _project({"shape": "bar", "coverage_pct": 60.0}, cells=48)
+    r1 = ForwardModel(project, fidelity="1d").simulate(None)["c"]
+    r2 = ForwardModel(project, fidelity="2d").simulate(None)["c"]
+    case = ForwardModel(project).cases["c"]
+    t_full = (case.gap0 - case.gap_full) / case.speed
+    t = np.linspace(0.0, 0.99 * t_full, 300)
+    f1 = np.interp(t, r1.time_s[0], r1.force_kN[0])
+    f2 = np.interp(t, r2.time_s[0], r2.force_kN[0])
+    rms = np.sqrt(np.mean((f2 - f1) ** 2)) / np.sqrt(np.mean(f1**2))
+    assert rms < 0.02
+    assert r2.switch_time_s[0] == pytest.approx(r1.switch_time_s[0], rel=1e-6)
+    assert r2.gap_mm[0, -1] == pytest.approx(r1.gap_mm[0, -1], rel=1e-9)
+
+
+def test_volume_conserved_for_an_asymmetric_multi_piece_layout() -> None:
+    pieces = [{"x_mm": -40.0, "y_mm": 20.0, "length_mm": 80.0, "width_mm": 120.0},
+              {"x_mm": 70.0, "y_mm": -60.0, "length_mm": 60.0, "width_mm": 50.0},
+              {"x_mm": -20.0, "y_mm": 50.0, "length_mm": 50.0, "width_mm": 50.0}]
+    project = _project({"shape": "layout", "pieces": pieces})
+    model = ForwardModel(project, fidelity="2d")
+    case = model.cases["c"]
+    solver = model.solver
+    p = {"n": np.array([0.4]), "tau_star": np.array([1e4]), "B": np.array([1e4]),
+         "tau_c": np.array([5e4]), "m": np.array([1.5])}
+    run = solver.run_row(case, material_table(p, MaterialSpec(), solver.tau), 1e4, 0)
+    volume = np.array(run.volume)
+    assert np.max(np.abs(volume / (case.area0 * case.gap0) - 1.0)) < 1e-6
+    assert run.area[-1] == pytest.approx(case.area_mould, rel=1e-9)
+    grid, _ = make_grid(case, 24, True)
+    assert grid.multiplicity == 1
+
+
+def test_spill_conserves_and_fills_nearest_open_cells() -> None:
+    h = np.zeros((5, 5))
+    h[:2, :2] = 1.0
+    h[0, 0] = 2.0  # a full corner cell holding one cell too much
+    out = spill(h, 1.0)
+    assert out.sum() == pytest.approx(h.sum(), rel=1e-14)
+    assert out.max() <= 1.0 + 1e-12
+    assert out[2:, 2:].sum() == 0.0  # the excess went to the cells next to the filled block
+
+
+def test_centred_layout_uses_a_quarter_and_offcentre_a_half() -> None:
+    centred = _case(((0.0, 0.0, 0.1, 0.08),))
+    assert make_grid(centred, 16, True)[0].multiplicity == 4
+    shifted = _case(((0.03, 0.0, 0.1, 0.08),))
+    assert make_grid(shifted, 16, True)[0].multiplicity == 2
+
+
+def test_time_step_order_of_the_force_impulse_is_about_first() -> None:
+    project = _project({"shape": "center", "coverage_pct": 60.0})
+    case = ForwardModel(project).cases["c"]
+    p = {"n": np.array([0.4]), "tau_star": np.array([1e4]), "B": np.array([1e4]),
+         "tau_c": np.array([5e4]), "m": np.array([1.5])}
+    t_full = (case.gap0 - case.gap_full) / case.speed
+    impulses = []
+    for steps in (20, 40, 80):
+        solver = HeleShaw2D(HeleShaw2DOptions(cells=16, closing_steps=steps, courant=100.0))
+        run = solver.run_row(case, material_table(p, MaterialSpec(), solver.tau), 1e4, 0)
+        t, f = np.array(run.t), np.array(run.force)
+        k = int(np.argmin(np.abs(t - 0.8 * t_full)))
+        impulses.append(np.trapezoid(f[: k + 1], t[: k + 1]))
+    order = np.log2(abs(impulses[0] - impulses[1]) / abs(impulses[1] - impulses[2]))
+    assert 0.7 < order < 2.0
+
+
+def test_force_control_holds_the_limit_and_closes_to_the_fill_gap() -> None:
+    project = _project({"shape": "center", "coverage_pct": 60.0}, speed_mm_s=1.1)
+    raw_limit = 20.0  # kN, reached while the charge still flows
+    project = project.model_copy(update={"configuration": [project.configuration[0].model_copy(
+        update={"press": project.configuration[0].press.model_copy(update={"force_limit_kN": raw_limit})})]})
+    res = ForwardModel(project, fidelity="2d").simulate(None)["c"]
+    case = ForwardModel(project).cases["c"]
+    after = res.time_s[0] > res.switch_time_s[0] + 1e-9
+    assert res.switch_time_s[0] < (case.gap0 - case.gap_full) / case.speed
+    assert np.allclose(res.force_kN[0, after], raw_limit)
+    assert res.force_kN[0, ~after].max() <= raw_limit * (1 + 1e-3)
+    assert np.all(np.diff(res.gap_mm[0]) <= 1e-12)
+
+
+def test_layout_pieces_outside_the_mould_are_config_errors() -> None:
+    project = _project({"shape": "layout", "pieces": [{"x_mm": 140.0, "length_mm": 60.0, "width_mm": 50.0}]})
+    with pytest.raises(ConfigError, match=r"pieces\[0\]"):
+        ForwardModel(project, fidelity="2d")
+
+
+def test_effects_are_refused_with_a_clear_message() -> None:
+    project = _project({"shape": "center", "coverage_pct": 60.0, "mass_g": 400.0})
+    model = ForwardModel(project, effects=["press_compliance"], fidelity="2d")
+    with pytest.raises(ConfigError, match="2-D solver"):
+        model.simulate(None)

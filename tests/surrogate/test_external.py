@@ -1,0 +1,99 @@
+"""External-simulator adapter with a real external command (a script on the Python API)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smcbayes.cli import main
+from smcbayes.config import load_project
+from smcbayes.surrogate.executors.external import ExternalSimulator
+from smcbayes.surrogate.objective import SimulatorObjective, Task
+from smcbayes.surrogate.problem import build_problem
+
+ROOT = Path(__file__).resolve().parents[2]
+CONFIG = ROOT / "configs" / "verify-slip-2d.toml"
+
+SCRIPT = textwrap.dedent('''
+    """A user's simulator wrapper: params.json in, curves CSV out."""
+    import json, sys
+    import numpy as np
+    from smcbayes.config import load_project
+    from smcbayes.forward.model import ForwardModel
+
+    params_file, output, config = sys.argv[1:4]
+    job = json.load(open(params_file))
+    model = ForwardModel(load_project(config))
+    cid = job["config_id"]
+    res = model.simulate_params({k: np.array([v]) for k, v in job["parameters"].items()}, [cid])[cid]
+    with open(output, "w") as fh:
+        fh.write("time_s,force_kN,displacement_mm\\n")
+        for t, f, d in zip(res.time_s[0], res.force_kN[0], res.displacement_mm[0]):
+            fh.write(f"{t:.12g},{f:.12g},{d:.12g}\\n")
+''')
+
+
+def one_config(tmp: Path) -> Path:
+    """verify-slip-2d reduced to its first configuration."""
+    text = CONFIG.read_text()
+    head, _, rest = text.partition("[[configuration]]")
+    first = "[[configuration]]" + rest.split("[[configuration]]")[0]
+    path = tmp / "one.toml"
+    path.write_text(head + first)
+    return path
+
+
+@pytest.fixture()
+def script(tmp_path: Path) -> Path:
+    path = tmp_path / "my_solver.py"
+    path.write_text(SCRIPT)
+    return path
+
+
+def test_external_matches_native(tmp_path: Path, script: Path) -> None:
+    config = one_config(tmp_path)
+    problem = build_problem(load_project(config), tmp_path / "run")
+    cmd = f"{sys.executable} {script} {{params}} {{output}} {config}"
+    ext = ExternalSimulator(problem.project, problem.model.space, cmd, tmp_path / "work", 120.0)
+    obj = SimulatorObjective(ext, problem.objective.dataset, problem.train_ids, problem.project.loss)
+    theta = np.array([[0.02, 1.2], [0.3, 1.8]])
+    cid = problem.train_ids[0]
+    native = problem.objective.evaluate(Task((0, 1), theta, cid))
+    external = obj.evaluate(Task((0, 1), theta, cid))
+    assert external.status == ["ok", "ok"]
+    np.testing.assert_allclose(external.error, native.error, rtol=1e-3)
+    job = json.loads(next((tmp_path / "work").glob("*/params.json")).read_text())
+    assert job["units"]["tau_c_MPa"] == "MPa" and job["parameters"]["n"] == 0.4
+
+
+def test_external_failures_have_reasons(tmp_path: Path) -> None:
+    config = one_config(tmp_path)
+    problem = build_problem(load_project(config), tmp_path / "run")
+    cid = problem.train_ids[0]
+    space = problem.model.space
+    fail = ExternalSimulator(problem.project, space, f"{sys.executable} -c \"import sys; sys.exit(3)\"",
+                             tmp_path / "w1", 30.0)
+    slow = ExternalSimulator(problem.project, space, f"{sys.executable} -c \"import time; time.sleep(20)\"",
+                             tmp_path / "w2", 0.5)
+    for sim, reason in ((fail, "exited with 3"), (slow, "timed out after 0.5 s")):
+        obj = SimulatorObjective(sim, problem.objective.dataset, problem.train_ids)
+        res = obj.evaluate(Task((0,), np.array([[0.02, 1.2]]), cid))
+        assert res.status[0].startswith("failed") and reason in res.status[0]
+        assert np.isnan(res.error[0])
+
+
+def test_calibrate_with_external_command(tmp_path: Path, script: Path) -> None:
+    config = one_config(tmp_path)
+    out = tmp_path / "run"
+    cmd = f"{sys.executable} {script} {{params}} {{output}} {config}"
+    code = main(["calibrate", str(config), "--out", str(out), "--budget", "3", "--init", "2",
+                 "--external", cmd, "--no-figures"])
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["evaluations"] == 3 and summary["failures"] == 0
+    assert len(list((out / "work").glob("*/curves.csv"))) == 3

@@ -1,0 +1,76 @@
+"""Project configuration: the thesis file, defaults, data directory, validation errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from smcbayes.config import build_project, load_project, parse_assignments
+from smcbayes.errors import ConfigError, InputError, SmcBayesError
+
+TRIAL = {"id": "a", "charge": {"shape": "bar", "coverage_pct": 60.0}, "press": {"speed_mm_s": 0.3}}
+
+
+def test_thesis_config(thesis_config: Path) -> None:
+    project = load_project(thesis_config)
+    ids = [c.id for c in project.configuration]
+    assert len(ids) == 12 and len(set(ids)) == 12
+    train = [c for c in project.configuration if c.role == "train"]
+    assert len(train) == 9 and all(c.data is not None and c.data.force for c in train)
+    for c in project.configuration:
+        assert c.mould.length_mm == 305.0 and c.mould.temperature_C == 135.0  # from [defaults]
+        assert c.charge.stack_height_mm == 8.0 and c.press.force_limit_kN == 1400.0
+        assert c.press.speed_mm_s in (0.3, 0.7, 1.1)
+        assert c.charge.mass_g is not None
+    assert project.parameters["tau_c_MPa"].bounds == (0.005, 1.0)
+    assert project.data_path() == (thesis_config.parent / "../../shared/data/thesis-press").resolve()
+
+
+def test_data_dir_override(thesis_config: Path, tmp_path: Path) -> None:
+    project = load_project(thesis_config, data_dir=tmp_path)
+    assert project.data_path() == tmp_path.resolve()
+
+
+def test_defaults_merge_and_trial_overrides() -> None:
+    raw = {"defaults": {"press": {"force_limit_kN": 900.0, "hold_s": 10.0}},
+           "configuration": [TRIAL, {**TRIAL, "id": "b", "press": {"speed_mm_s": 1.1, "hold_s": 5.0}}]}
+    project = build_project(raw, "<raw>", Path("."))
+    a, b = project.configuration
+    assert (a.press.force_limit_kN, a.press.hold_s) == (900.0, 10.0)
+    assert (b.press.force_limit_kN, b.press.hold_s, b.press.speed_mm_s) == (900.0, 5.0, 1.1)
+
+
+@pytest.mark.parametrize(("raw", "expected"), [
+    ({"configuration": [TRIAL, TRIAL]}, "unique"),
+    ({"configuration": []}, "configuration"),
+    ({"configuration": [TRIAL], "solvr": {}}, "did you mean 'solver'"),
+    ({"defaults": {"pres": {}}, "configuration": [TRIAL]}, "did you mean 'press'"),
+    ({"configuration": [{**TRIAL, "charge": {"shape": "bar"}}]}, "give coverage_pct or length_mm"),
+    ({"configuration": [{**TRIAL, "role": "test"}]}, "'train' or 'validation'"),
+    ({"configuration": [TRIAL], "solver": {"closing_steps": 5}}, "closing_steps"),
+])
+def test_invalid_projects_raise_one_line_config_errors(raw: dict, expected: str) -> None:
+    with pytest.raises(ConfigError) as err:
+        build_project(raw, "<raw>", Path("."))
+    message = str(err.value)
+    assert expected in message and "\n" not in message
+    assert message.startswith("<raw>")
+    assert isinstance(err.value, InputError) and isinstance(err.value, SmcBayesError)
+
+
+def test_bad_toml_and_missing_file(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = \n", encoding="utf-8")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_project(bad)
+    with pytest.raises(ConfigError, match="not found"):
+        load_project(tmp_path / "missing.toml")
+
+
+def test_parse_assignments() -> None:
+    assert parse_assignments(["n=0.4", " tau_c_MPa = 0.05"]) == {"n": 0.4, "tau_c_MPa": 0.05}
+    assert parse_assignments(None) == {}
+    for bad in ("n", "=1", "n=x"):
+        with pytest.raises(ConfigError, match="--set"):
+            parse_assignments([bad])
