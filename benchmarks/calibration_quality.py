@@ -70,7 +70,9 @@ def part_slip2d(seeds: int) -> dict:
         problem = build_problem(project, Path(tmp))
     rows = []
     for seed in range(seeds):
-        settings = BOSettings(budget=30, init=5, batch=1, kernel=project.calibration.kernel, seed=seed)
+        c = project.calibration
+        settings = BOSettings(budget=30, init=5, batch=1, kernel=c.kernel, seed=seed,
+                              local_evaluations=c.local_evaluations, local_radius=c.local_radius)
         loss, params, seconds = run_bo(problem, settings)
         err = unit_error(problem, params, problem.truth)
         ok = bool(np.all(err <= 0.02))
@@ -134,7 +136,8 @@ def part_five(seeds: int, budget: int = 60) -> dict:
     truth = problem.truth
     out: dict[str, list] = {"bo": [], "random": [], "de": []}
     for seed in range(seeds):
-        settings = BOSettings(budget=budget, init=20, batch=1, kernel="matern52", seed=seed)
+        settings = BOSettings(budget=budget, init=20, batch=1, kernel="matern52", seed=seed,
+                              local_evaluations=15, local_radius=0.1)
         start = time.perf_counter()
         loss, params, _ = run_bo(problem, settings)
         out["bo"].append((loss, float(unit_error(problem, params, truth).max()), time.perf_counter() - start))

@@ -136,6 +136,8 @@ class SolverSpec(Strict):
     stress_points_per_decade: int = Field(12, ge=4, le=400)
     output_closing_points: int = Field(200, ge=10, le=100000)
     output_hold_points: int = Field(50, ge=2, le=100000)
+    shape_correction: bool = Field(True, description="1-D: correct the equal-area disc of a centred "
+                                   "square charge towards the 2-D force")
     cells_2d: int = Field(48, ge=4, le=4096, description="2-D grid: cells along the longer mould side")
     courant_2d: float = Field(0.5, gt=0, le=1.0, description="2-D front: largest cell share filled per step")
     closing_steps_2d: int = Field(100, ge=5, le=100000, description="2-D: minimum steps over the closing")
@@ -160,6 +162,13 @@ class CalibrationSpec(Strict):
         None, description="synthetic check: 'measured' curves simulated at these values")
     restarts: int = Field(8, ge=1, le=1000, description="acquisition optimiser restarts")
     raw_samples: int = Field(256, ge=8, le=100000, description="acquisition optimiser raw samples")
+    noise: float | Literal["fit"] = Field(
+        1e-6, description="GP noise variance of log(loss): a small fixed value for a "
+                          "deterministic simulator, or 'fit' to fit a noise term (thesis)")
+    local_evaluations: int = Field(
+        0, ge=0, description="final evaluations searched in a box around the best point")
+    local_radius: float = Field(0.1, gt=0, le=0.5,
+                                description="half-width of that box in unit-cube coordinates")
 
 
 class ProjectConfig(Strict):

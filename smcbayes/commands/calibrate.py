@@ -52,7 +52,9 @@ def settings_from(project: ProjectConfig, args: argparse.Namespace) -> Any:
     c = project.calibration
     pick = {k: getattr(args, k) if getattr(args, k) is not None else getattr(c, k)
             for k in ("budget", "init", "batch", "kernel", "tolerance", "patience", "seed")}
-    settings = BOSettings(**pick, failed=c.failed, restarts=c.restarts, raw_samples=c.raw_samples)
+    settings = BOSettings(**pick, failed=c.failed, restarts=c.restarts, raw_samples=c.raw_samples,
+                          noise=None if c.noise == "fit" else float(c.noise),
+                          local_evaluations=c.local_evaluations, local_radius=c.local_radius)
     settings.check()
     return settings
 

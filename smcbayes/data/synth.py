@@ -149,6 +149,9 @@ def synthetic_project(project: ProjectConfig, ids: Sequence[str], name: str) -> 
     """The source project's document with data_dir '.' and data files of the synthetic curves."""
     doc = project.model_dump(mode="json", exclude_none=True, exclude={"base_dir"})
     doc["name"], doc["data_dir"] = name, "."
+    # the written curves are the measurements now: a calibration of this project must not
+    # regenerate noiseless truth data in their place
+    doc.get("calibration", {}).pop("truth", None)
     base = Path(project.base_dir)
     for c in doc["configuration"]:
         profile = c["press"].get("profile")

@@ -28,7 +28,7 @@ with tau, so speed -> force and force -> speed are both one monotone table look-
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -216,6 +216,10 @@ class FlowTable:
         force = np.maximum(phi, 0.0, out=phi)
         force *= scale[:, None]
         return cls(tau, q, cum, force, power, scale, kin)
+
+    def scaled(self, factor: Array) -> FlowTable:
+        """The same tables with every force multiplied by ``factor`` ``(P,)``."""
+        return replace(self, force=self.force * factor[:, None], force_scale=self.force_scale * factor)
 
     @property
     def speed(self) -> Array:

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy import ndimage
 from numpy.typing import NDArray
 
 from smcbayes.errors import SolverError
@@ -152,6 +153,37 @@ def _face_gradient(p: Array, fs: FaceSet) -> tuple[Array, Array, Array]:
     gn = (flat[fs.a] - flat[fs.b]) / fs.dist
     gt = (flat[fs.plus] - flat[fs.minus]).sum(axis=1) / (2.0 * fs.tangent_step)
     return np.sqrt(gn * gn + gt * gt), gn, gt
+
+
+def spill(h: Array, gap: float) -> Array:
+    """Pass the content above ``gap`` on to the nearest non-filled cells (m).
+
+    Excess moves one cell per pass down the taxicab distance to the nearest open cell
+    (equal shares between the neighbours one step closer), so it reaches the front in as
+    many passes as it is cells away.  The total is conserved exactly.
+    """
+    h = h.copy()
+    nx, ny = h.shape
+    shifts = ((0, 1), (2, 1), (1, 0), (1, 2))  # neighbour (i + a - 1, j + b - 1)
+    for _ in range(4 * (nx + ny) + 10):
+        excess = np.where(h > gap * (1.0 + 1e-11), h - gap, 0.0)
+        if not excess.any():  # round-off of filled cells stays in place
+            return h
+        open_ = h < gap * FULL
+        if not open_.any():
+            if excess.sum() <= 1e-9 * h.sum():
+                return h - excess  # cavity full: what is left over is round-off
+            raise SolverError("2-D fill update: the charge holds more volume than the cavity")
+        dist = ndimage.distance_transform_cdt(~open_, metric="taxicab").astype(float)
+        pad = np.pad(dist, 1, constant_values=np.inf)
+        targets = [pad[a:a + nx, b:b + ny] == dist - 1.0 for a, b in shifts]
+        count = sum(t.astype(float) for t in targets)
+        share = excess / np.maximum(count, 1.0)
+        gained = np.zeros((nx + 2, ny + 2))
+        for (a, b), t in zip(shifts, targets):
+            gained[a:a + nx, b:b + ny] += np.where(t, share, 0.0)
+        h += gained[1:-1, 1:-1] - excess
+    raise SolverError("2-D fill update: overflow could not be redistributed")
 
 
 @dataclass

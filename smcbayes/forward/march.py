@@ -29,6 +29,7 @@ from smcbayes.forward.case import Case
 from smcbayes.forward.effects.base import EffectStack
 from smcbayes.forward.flux import FlowTable, MaterialTable
 from smcbayes.forward.nodes import Nodes
+from smcbayes.forward.squeeze1d import shape_factor
 from smcbayes.forward.result import PHASE_FLOW, PHASE_FORCE, PHASE_FULL, STATUS_OK
 
 Array = NDArray[np.float64]
@@ -84,6 +85,7 @@ class _Context:
     inv_k: Array
     dt_close: Array
     gap_end: Array
+    shape_correction: bool = True
 
     def solid(self, gap: Array, area: Array) -> Array:
         c = self.case
@@ -95,7 +97,9 @@ def _flow_table(ctx: _Context, st: _State, rows: NDArray[np.int64]) -> FlowTable
     table = ctx.table.take(rows)
     q = table.flux(st.gap[rows], (ctx.p["B"] * eta_f)[rows], cure[rows])
     c = ctx.case
-    return FlowTable.build(q, table.tau, c.planar, c.front(st.area[rows]), st.gap[rows], c.width)
+    ft = FlowTable.build(q, table.tau, c.planar, c.front(st.area[rows]), st.gap[rows], c.width)
+    factor = shape_factor(c, st.area[rows]) if ctx.shape_correction else None
+    return ft if factor is None else ft.scaled(factor)
 
 
 def _compaction(ctx: _Context, st: _State) -> tuple[Array, Array]:
@@ -175,7 +179,7 @@ def _evaluate(ctx: _Context, st: _State, dt: Array) -> _Rates:
 
 
 def _setup(case: Case, p: dict[str, Array], effects: EffectStack, table: MaterialTable,
-           steps: int) -> _Context:
+           steps: int, shape_correction: bool = True) -> _Context:
     P = p["n"].shape[0]
     s0 = effects.solid_fraction0(case, p, P)
     solid0 = np.ones(P) if s0 is None else np.minimum(np.asarray(s0, float), 1.0)
@@ -185,7 +189,7 @@ def _setup(case: Case, p: dict[str, Array], effects: EffectStack, table: Materia
     v_ref = case.speed if case.profile is None else case.profile.position[-1] / case.profile.time[-1]
     dt_close = (case.gap0 - gap_end) / (v_ref * steps)
     return _Context(case, p, effects, table, solid0, compressible,
-                    effects.compliance(case, p, P), dt_close, gap_end)
+                    effects.compliance(case, p, P), dt_close, gap_end, shape_correction)
 
 
 def _step_size(ctx: _Context, st: _State, speed: Array, hold_steps: int, steps: int) -> Array:
@@ -281,7 +285,7 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
         options: :class:`~smcbayes.forward.squeeze1d.Squeeze1DOptions`.
     """
     steps, hold_steps = options.closing_steps, options.hold_steps
-    ctx = _setup(case, p, effects, table, steps)
+    ctx = _setup(case, p, effects, table, steps, getattr(options, "shape_correction", True))
     P = p["n"].shape[0]
     st = _State(np.zeros(P), np.full(P, case.gap0), np.full(P, case.area0), np.zeros(P),
                 np.full(P, PHASE_FLOW, dtype=np.int8), np.full(P, np.nan),

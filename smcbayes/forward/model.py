@@ -44,7 +44,7 @@ def make_solver(spec: SolverSpec, fidelity: str | None = None) -> Solver:
             closing_steps=spec.closing_steps, hold_steps=spec.hold_steps,
             per_decade=spec.stress_points_per_decade,
             output_closing_points=spec.output_closing_points,
-            output_hold_points=spec.output_hold_points))
+            output_hold_points=spec.output_hold_points, shape_correction=spec.shape_correction))
     if kind == "2d":
         try:
             from smcbayes.forward.hele_shaw2d import HeleShaw2D

@@ -49,6 +49,9 @@ class Squeeze1DOptions:
         output_closing_points, output_hold_points: samples per output curve.
         jump_time_s: time for the force to reach the limit once an incompressible charge
             fills the cavity.
+        shape_correction: multiply the axisymmetric force of a centred square charge in a
+            square mould by :func:`~smcbayes.forward.layout.square_charge_factor`.
+        chunk_rows: parameter sets per batched table solve (cache-sized blocks).
     """
 
     closing_steps: int = 300
@@ -59,6 +62,8 @@ class Squeeze1DOptions:
     output_closing_points: int = 200
     output_hold_points: int = 50
     jump_time_s: float = 0.05
+    shape_correction: bool = True
+    chunk_rows: int = 12
 
 
 def material_table(p: dict[str, Array], material: MaterialSpec, tau: Array) -> MaterialTable:
@@ -66,6 +71,23 @@ def material_table(p: dict[str, Array], material: MaterialSpec, tau: Array) -> M
     rows = p["n"].shape[0]
     return MaterialTable.build(tau, p["n"], p["tau_star"], np.full(rows, material.slip_coefficient),
                                p["tau_c"], p["m"], material.slip_threshold_exponent)
+
+
+def shape_factor(case: Case, area: Array) -> Array | None:
+    """Force factor of the equal-area disc of a centred square charge, or None.
+
+    Applies to a single centred piece in a square mould (see
+    :func:`~smcbayes.forward.layout.square_charge_factor`; measured against the 2-D solver).
+    """
+    pieces = getattr(case, "pieces", ())
+    if case.planar or abs(case.mould_length - case.width) > 1e-12 or len(pieces) != 1:
+        return None
+    piece = pieces[0]
+    if abs(piece[0]) > 1e-12 or abs(piece[1]) > 1e-12 or abs(piece[2] - piece[3]) > 1e-12:
+        return None
+    from smcbayes.forward.layout import square_charge_factor
+
+    return square_charge_factor(area / case.area_mould, case.area0 / case.area_mould)
 
 
 class Squeeze1D:
@@ -104,8 +126,32 @@ class Squeeze1D:
         """Flow tables for ``P x N`` states; ``gap`` and ``area`` have shape ``(P, N)``."""
         q = table.flux(gap, eta0)
         rows = gap.size
-        return FlowTable.build(q.reshape(rows, -1), self.tau, case.planar,
-                               case.front(area).reshape(rows), gap.reshape(rows), case.width)
+        ft = FlowTable.build(q.reshape(rows, -1), self.tau, case.planar,
+                             case.front(area).reshape(rows), gap.reshape(rows), case.width)
+        factor = shape_factor(case, area.reshape(rows)) if self.options.shape_correction else None
+        return ft if factor is None else ft.scaled(factor)
+
+    def _solve_chunked(self, case: Case, table: MaterialTable, eta0: Array, gap: Array,
+                       area: Array, by_force: bool) -> Array:
+        """Force at the set speed (or speed at the force limit) for ``(P, N)`` states.
+
+        Rows are processed in blocks of ``chunk_rows`` parameter sets so that the
+        ``(rows x N, M)`` tables stay cache-sized.
+        """
+        P, N = gap.shape
+        out = np.empty((P, N))
+        step = max(1, self.options.chunk_rows)
+        for lo in range(0, P, step):
+            sl = slice(lo, min(lo + step, P))
+            idx = np.arange(sl.start, sl.stop)
+            ft = self.flow_table(case, table.take(idx), eta0[sl], gap[sl], area[sl])
+            n = ft.q.shape[0]
+            if by_force:
+                sol = ft.solve(np.ones(n), np.zeros(n), np.full(n, case.force_limit)).speed
+            else:
+                sol = ft.solve(np.zeros(n), np.ones(n), np.full(n, case.speed)).force
+            out[sl] = sol.reshape(-1, N)
+        return out
 
     def _kinematic(self, case: Case, p: dict[str, Array], table: MaterialTable) -> Nodes:
         o = self.options
@@ -117,9 +163,7 @@ class Squeeze1D:
         H[:, -1] = H_end
         A = case.area0 * H0 / H
         eta0 = p["B"]
-        ft = self.flow_table(case, table, eta0, H, A)
-        F = ft.solve(np.zeros(P * (N + 1)), np.ones(P * (N + 1)),
-                     np.full(P * (N + 1), V)).force.reshape(P, N + 1)
+        F = self._solve_chunked(case, table, eta0, H, A, by_force=False)
         over = F >= F_lim
         hit = over.any(axis=1)
         first = np.argmax(over, axis=1)
@@ -145,9 +189,7 @@ class Squeeze1D:
         u = np.linspace(0.0, 1.0, K)
         H = gap_switch[:, None] + u[None, :] * (case.gap_full - gap_switch[:, None])
         A = case.area0 * case.gap0 / H
-        ft = self.flow_table(case, table, eta0, H, A)
-        v = ft.solve(np.ones(P * K), np.zeros(P * K), np.full(P * K, case.force_limit)).speed
-        inv_v = 1.0 / v.reshape(P, K)
+        inv_v = 1.0 / self._solve_chunked(case, table, eta0, H, A, by_force=True)
         dH = -np.diff(H, axis=1)
         elapsed = np.concatenate([np.zeros((P, 1)),
                                   np.cumsum(0.5 * (inv_v[:, 1:] + inv_v[:, :-1]) * dH, axis=1)], axis=1)

@@ -37,11 +37,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 from numpy.typing import NDArray
 
 from smcbayes.errors import SurrogateError
-from smcbayes.surrogate.gp import DTYPE, Surrogate
+from smcbayes.posterior.emulator import NumpyGP
+from smcbayes.surrogate.gp import Surrogate
 
 Array = NDArray[np.float64]
 
@@ -100,14 +100,10 @@ class EmulatedPosterior:
     def __post_init__(self) -> None:
         if not np.isfinite(self.n_eff) or self.n_eff <= 0:
             raise SurrogateError(f"effective number of points must be > 0, got {self.n_eff}")
+        self.gp = NumpyGP.from_botorch(self.surrogate.model)
         self._paths = None
         if self.functions > 0:
-            from botorch.sampling.pathwise import draw_matheron_paths
-
-            torch.manual_seed(self.seed)
-            self.surrogate.model.eval()
-            self._paths = draw_matheron_paths(self.surrogate.model,
-                                              sample_shape=torch.Size([self.functions]))
+            self._paths = self.gp.sample_functions(self.functions, np.random.default_rng(self.seed))
 
     @property
     def components(self) -> int:
@@ -118,10 +114,8 @@ class EmulatedPosterior:
         """Emulated log(loss) at ``u`` ``(W, d)``: sample function ``component`` or the mean."""
         u = np.atleast_2d(u)
         if self._paths is None or component is None:
-            return self.surrogate.predict(u)[0]
-        with torch.no_grad():
-            out = self._paths(torch.as_tensor(u, dtype=DTYPE))
-        return out[component].numpy().astype(float)
+            return self.gp.mean(u)
+        return self._paths(u, component)
 
     def log_prob_fn(self, component: int | None) -> Callable[[Array], Array]:
         """Vectorised log posterior ``(W, d) -> (W,)`` of one mixture component."""

@@ -48,6 +48,26 @@ def refine_points(draws_unit: Array, surrogate: Surrogate, count: int,
     return np.array(chosen)
 
 
+def local_box(draws_unit: Array, widen: float = 0.5, min_width: float = 0.02) -> tuple[Array, Array]:
+    """Box around the bulk of the draws: 1-99 % quantiles widened by ``widen`` of their range."""
+    lo, hi = np.quantile(draws_unit, [0.01, 0.99], axis=0)
+    pad = np.maximum(widen * (hi - lo), 0.5 * min_width)
+    return np.clip(lo - pad, 0.0, 1.0), np.clip(hi + pad, 0.0, 1.0)
+
+
+def local_design(draws_unit: Array, surrogate: Surrogate, count: int,
+                 rng: np.random.Generator) -> Array:
+    """Refinement points: half a Latin hypercube over :func:`local_box`, half the most
+    uncertain posterior draws (:func:`refine_points`)."""
+    from scipy.stats import qmc
+
+    n_lhs = count // 2
+    lo, hi = local_box(draws_unit)
+    lhs = qmc.LatinHypercube(d=draws_unit.shape[1], seed=int(rng.integers(2**31 - 1))).random(n_lhs)
+    picks = refine_points(draws_unit, surrogate, count - n_lhs, rng)
+    return np.vstack([lo + lhs * (hi - lo), picks])
+
+
 @dataclass(frozen=True)
 class EmulatorCheck:
     """Emulated vs true log-likelihood at posterior draws (nats).

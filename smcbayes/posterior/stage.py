@@ -12,6 +12,7 @@ against the forward model at posterior draws, and writes ``RUN_DIR/posterior/``:
 from __future__ import annotations
 
 import json
+import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -80,7 +81,19 @@ def load_run(run_dir: Path) -> RunContext:
         raise ConfigError(f"{run_dir}: the calibration has no successful evaluation")
     best = summary["best_params"]
     theta = np.array([[best[n]["value"] for n in problem.model.space.free_names]])
+    if problem.truth is None:
+        problem.truth = synthetic_truth(problem.project, problem.model.space.defaults())
     return RunContext(run_dir, problem, summary, theta)
+
+
+def synthetic_truth(project: ProjectConfig, defaults: dict[str, float]) -> dict[str, float] | None:
+    """True parameters of a dataset written by ``smcbayes synth`` (its truth.json), if any."""
+    root = project.data_path()
+    path = None if root is None else root / "truth.json"
+    if path is None or not path.is_file():
+        return None
+    params = json.loads(path.read_text(encoding="utf-8")).get("parameters", {})
+    return {**defaults, **{k: float(v) for k, v in params.items() if k in defaults}}
 
 
 def true_log_loss(ctx: RunContext, theta: Array) -> Array:
@@ -126,26 +139,53 @@ def sample(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSet
     return emul, chains
 
 
-def refine(ctx: RunContext, surrogate: Any, draws_unit: Array, count: int,
-           rng: np.random.Generator, out_dir: Path) -> Any:
-    """Evaluate the forward model at ``count`` refinement points and refit the GP."""
-    from smcbayes.posterior.refine import refine_points
-    from smcbayes.surrogate.gp import fit_surrogate, save_surrogate
+CAP_NATS = 30.0
+"""Targets more than this many nats of log-likelihood above the best are capped."""
 
-    pts = refine_points(draws_unit, surrogate, count, rng)
-    theta = ctx.space.from_unit(pts)
-    y = true_log_loss(ctx, theta)
-    with (out_dir / "refine.jsonl").open("a", encoding="utf-8") as fh:
-        for row, val in zip(theta, y, strict=True):
-            rec = {"params": dict(zip(ctx.space.free_names, row.tolist(), strict=True)),
-                   "log_loss": None if not np.isfinite(val) else float(val)}
-            fh.write(json.dumps(rec) + "\n")
-    ok = np.isfinite(y)
-    x_new = np.vstack([surrogate.x_unit, pts[ok]])
-    y_new = np.concatenate([surrogate.log_loss, y[ok]])
-    refitted = fit_surrogate(x_new, y_new, surrogate.kernel, int(rng.integers(2**31 - 1)))
-    save_surrogate(out_dir / "gp_refined.pt", refitted, {"refined_points": int(ok.sum())})
-    return refitted
+
+def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int) -> Any:
+    """GP of log(loss) with targets capped at min + CAP_NATS / (N_eff / 2).
+
+    Where the true log-likelihood is CAP_NATS below the best the posterior density is
+    below e^-30 of its peak whatever the emulator says, so capping loses nothing and lets
+    the GP spend its flexibility where the posterior lives instead of on the far landscape.
+    """
+    from smcbayes.surrogate.gp import fit_surrogate
+
+    cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
+    return fit_surrogate(x, np.minimum(y, cap), kernel, seed)
+
+
+def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
+           settings: PosteriorSettings, rng: np.random.Generator, out_dir: Path) -> tuple[Any, tuple[Array, Array]]:
+    """Rounds of: sample, evaluate the forward model where the GP is unsure, refit.
+
+    Returns the refitted surrogate and the enlarged training data ``(x_unit, log_loss)``.
+    """
+    from smcbayes.posterior.refine import local_design
+
+    x, y = data
+    remaining = settings.refine
+    per_round = max(4, min(20, settings.refine // 4))
+    quick = PosteriorSettings(walkers=settings.walkers, steps=min(settings.steps, 1000), functions=0,
+                              seed=int(rng.integers(2**31 - 1)))
+    while remaining > 0:
+        _, chains = sample(ctx, surrogate, n_eff, quick, rng)
+        pooled = np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
+        pts = local_design(pooled, surrogate, min(per_round, remaining), rng)
+        remaining -= max(len(pts), 1)
+        theta = ctx.space.from_unit(pts)
+        vals = true_log_loss(ctx, theta)
+        with (out_dir / "refine.jsonl").open("a", encoding="utf-8") as fh:
+            for row, val in zip(theta, vals, strict=True):
+                rec = {"params": dict(zip(ctx.space.free_names, row.tolist(), strict=True)),
+                       "log_loss": None if not np.isfinite(val) else float(val)}
+                fh.write(json.dumps(rec) + "\n")
+        ok = np.isfinite(vals)
+        x, y = np.vstack([x, pts[ok]]), np.concatenate([y, vals[ok]])
+        surrogate = fit_local(x, y, n_eff, surrogate.kernel, int(rng.integers(2**31 - 1)))
+        print(f"  refined: {x.shape[0]} training points, best log-loss {np.min(y):.4f}", file=sys.stderr)
+    return surrogate, (x, y)
 
 
 def run_posterior(run_dir: Path, settings: PosteriorSettings) -> dict[str, Any]:
@@ -157,13 +197,18 @@ def run_posterior(run_dir: Path, settings: PosteriorSettings) -> dict[str, Any]:
     out_dir = run_dir / "posterior"
     out_dir.mkdir(exist_ok=True)
     rng = np.random.default_rng(settings.seed)
-    surrogate, _ = load_surrogate(run_dir / "gp.pt")
+    calibration_gp, _ = load_surrogate(run_dir / "gp.pt")
     budget = residual_budget(ctx)
-    emul, chains = sample(ctx, surrogate, budget["n_eff_total"], settings, rng)
+    n_eff = budget["n_eff_total"]
+    data = (calibration_gp.x_unit, calibration_gp.log_loss)
+    surrogate = fit_local(*data, n_eff, calibration_gp.kernel, settings.seed)
     if settings.refine > 0:
-        pooled = np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
-        surrogate = refine(ctx, surrogate, pooled, settings.refine, rng, out_dir)
-        emul, chains = sample(ctx, surrogate, budget["n_eff_total"], settings, rng)
+        (out_dir / "refine.jsonl").unlink(missing_ok=True)
+        surrogate, data = refine(ctx, data, surrogate, n_eff, settings, rng, out_dir)
+        from smcbayes.surrogate.gp import save_surrogate
+
+        save_surrogate(out_dir / "gp_refined.pt", surrogate, {"training_points": int(data[0].shape[0])})
+    emul, chains = sample(ctx, surrogate, n_eff, settings, rng)
     from smcbayes.posterior.report import write_outputs
 
     info = write_outputs(ctx, emul, chains, budget, settings, rng, out_dir)

@@ -22,7 +22,7 @@ def _negate(samples: torch.Tensor, X: torch.Tensor | None = None) -> torch.Tenso
 
 
 def propose(surrogate: Surrogate, q: int, seed: int, restarts: int = 8,
-            raw_samples: int = 256) -> tuple[Array, float]:
+            raw_samples: int = 256, box: tuple[Array, Array] | None = None) -> tuple[Array, float]:
     """Maximise the log expected improvement below the best observed log(loss).
 
     Args:
@@ -31,6 +31,8 @@ def propose(surrogate: Surrogate, q: int, seed: int, restarts: int = 8,
         seed: seeds the optimiser's raw samples and the quasi-Monte-Carlo sampler.
         restarts: gradient-based restarts of the optimiser.
         raw_samples: random points screened for the restarts.
+        box: lower and upper corners ``(d,)`` of a sub-box of the unit cube to search in
+            (a trust region); the whole cube if ``None``.
 
     Returns:
         candidates ``(q, d)`` in the unit cube, and the acquisition value (log scale).
@@ -44,7 +46,8 @@ def propose(surrogate: Surrogate, q: int, seed: int, restarts: int = 8,
         sampler = SobolQMCNormalSampler(sample_shape=torch.Size([256]), seed=seed)
         acq = qLogExpectedImprovement(surrogate.model, best_f=-best, sampler=sampler,
                                       objective=GenericMCObjective(_negate))
-    bounds = torch.stack([torch.zeros(d, dtype=DTYPE), torch.ones(d, dtype=DTYPE)])
+    lo, hi = (np.zeros(d), np.ones(d)) if box is None else box
+    bounds = torch.as_tensor(np.stack([lo, hi]), dtype=DTYPE)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         x, value = optimize_acqf(acq, bounds=bounds, q=q, num_restarts=restarts,

@@ -58,6 +58,7 @@ class Surrogate:
         log_loss: training targets, shape ``(N,)``, natural log of the loss (kN^2).
         kernel: ``rbf`` or ``matern52``.
         fitted: False if hyperparameter fitting failed and priors' modes were kept.
+        noise: the fixed noise variance, or ``None`` if the noise was fitted.
     """
 
     model: SingleTaskGP
@@ -65,6 +66,7 @@ class Surrogate:
     log_loss: Array
     kernel: str
     fitted: bool = True
+    noise: float | None = None
 
     def predict(self, x_unit: Array) -> tuple[Array, Array]:
         """Posterior mean and standard deviation of log(loss) at ``x_unit`` ``(M, d)``; ``(M,)`` each."""
@@ -77,18 +79,24 @@ class Surrogate:
         return mean.astype(float), std.astype(float)
 
 
-def build_model(x_unit: Array, log_loss: Array, kernel: str) -> SingleTaskGP:
-    """An unfitted SingleTaskGP on the given data with the chosen kernel."""
+def build_model(x_unit: Array, log_loss: Array, kernel: str, noise: float | None = None) -> SingleTaskGP:
+    """An unfitted SingleTaskGP on the given data with the chosen kernel.
+
+    Args:
+        noise: fixed observation-noise variance of log(loss); ``None`` fits a noise term.
+    """
     if kernel not in KERNELS:
         raise SurrogateError(f"unknown kernel '{kernel}'; accepted: {', '.join(KERNELS)}")
     x = torch.as_tensor(x_unit, dtype=DTYPE)
     y = torch.as_tensor(log_loss, dtype=DTYPE).reshape(-1, 1)
     covar = get_covar_module_with_dim_scaled_prior(ard_num_dims=x.shape[-1],
                                                    use_rbf_kernel=kernel == "rbf")
-    return SingleTaskGP(x, y, covar_module=covar, outcome_transform=Standardize(m=1))
+    yvar = None if noise is None else torch.full_like(y, noise)
+    return SingleTaskGP(x, y, train_Yvar=yvar, covar_module=covar, outcome_transform=Standardize(m=1))
 
 
-def fit_surrogate(x_unit: Array, log_loss: Array, kernel: str, seed: int) -> Surrogate:
+def fit_surrogate(x_unit: Array, log_loss: Array, kernel: str, seed: int,
+                  noise: float | None = None) -> Surrogate:
     """Fit the GP's hyperparameters by maximum marginal likelihood.
 
     Args:
@@ -96,11 +104,13 @@ def fit_surrogate(x_unit: Array, log_loss: Array, kernel: str, seed: int) -> Sur
         log_loss: targets ``(N,)``, finite.
         kernel: ``rbf`` (squared exponential, as in the thesis) or ``matern52``.
         seed: torch seed for the fitting restarts.
+        noise: fixed noise variance of log(loss) (deterministic simulators: small, e.g.
+            1e-6); ``None`` fits a noise term as the thesis did.
     """
     if x_unit.shape[0] < 2 or not np.all(np.isfinite(log_loss)):
         raise SurrogateError("the GP needs at least 2 finite training targets")
     torch.manual_seed(seed)
-    model = build_model(x_unit, log_loss, kernel)
+    model = build_model(x_unit, log_loss, kernel, noise)
     mll = ExactMarginalLogLikelihood(model.likelihood, model)
     fitted = True
     with warnings.catch_warnings():
@@ -109,9 +119,10 @@ def fit_surrogate(x_unit: Array, log_loss: Array, kernel: str, seed: int) -> Sur
             fit_gpytorch_mll(mll)
         except ModelFittingError:
             fitted = False
-            model = build_model(x_unit, log_loss, kernel)
+            model = build_model(x_unit, log_loss, kernel, noise)
     model.eval()
-    return Surrogate(model, np.asarray(x_unit, float), np.asarray(log_loss, float), kernel, fitted)
+    return Surrogate(model, np.asarray(x_unit, float), np.asarray(log_loss, float), kernel, fitted,
+                     noise)
 
 
 def save_surrogate(path: Path, surrogate: Surrogate, meta: dict[str, Any]) -> None:
@@ -123,6 +134,7 @@ def save_surrogate(path: Path, surrogate: Surrogate, meta: dict[str, Any]) -> No
         "train_log_loss": torch.as_tensor(surrogate.log_loss, dtype=DTYPE),
         "kernel": surrogate.kernel,
         "fitted": surrogate.fitted,
+        "noise": surrogate.noise,
         "target": "natural log of the loss (kN^2)",
         "meta": meta,
     }, tmp)
@@ -137,7 +149,9 @@ def load_surrogate(path: str | Path) -> tuple[Surrogate, dict[str, Any]]:
     state = torch.load(path, weights_only=False)
     x = state["train_x_unit"].numpy()
     y = state["train_log_loss"].numpy()
-    model = build_model(x, y, state["kernel"])
+    noise = state.get("noise")
+    model = build_model(x, y, state["kernel"], noise)
     model.load_state_dict(state["state_dict"])
     model.eval()
-    return Surrogate(model, x, y, state["kernel"], bool(state.get("fitted", True))), state["meta"]
+    surrogate = Surrogate(model, x, y, state["kernel"], bool(state.get("fitted", True)), noise)
+    return surrogate, state["meta"]

@@ -42,6 +42,9 @@ class BOSettings:
     failed: str = "impute"
     restarts: int = 8
     raw_samples: int = 256
+    noise: float | None = 1e-6
+    local_evaluations: int = 0
+    local_radius: float = 0.05
 
     def check(self) -> None:
         """Raise :class:`ConfigError` for inconsistent settings."""
@@ -49,6 +52,8 @@ class BOSettings:
             raise ConfigError(f"calibration: need 2 <= init ({self.init}) <= budget ({self.budget})")
         if self.batch < 1:
             raise ConfigError(f"calibration: batch = {self.batch} must be at least 1")
+        if not 0 < self.local_radius <= 0.5 or self.local_evaluations < 0:
+            raise ConfigError("calibration: need local_evaluations >= 0 and 0 < local_radius <= 0.5")
         if self.failed not in ("impute", "exclude"):
             raise ConfigError(f"calibration: failed = {self.failed!r}; accepted: impute, exclude")
 
@@ -116,7 +121,6 @@ class BayesOpt:
         self.stop_reason = ""
         self._start = time.perf_counter()
         self._evaluated_now = 0
-        self._seconds_now = 0.0
         self.last_surrogate: Any = None
         self.last_candidate: Array | None = None
 
@@ -168,9 +172,20 @@ class BayesOpt:
 
         seed = round_seed(s.seed, rnd)
         with torch_threads(1):
-            self.last_surrogate = fit_surrogate(x, y, s.kernel, seed)
-            cand, _ = propose(self.last_surrogate, q, seed, s.restarts, s.raw_samples)
+            self.last_surrogate = fit_surrogate(x, y, s.kernel, seed, s.noise)
+            cand, _ = propose(self.last_surrogate, q, seed, s.restarts, s.raw_samples,
+                              self._local_box(proposed))
         return cand
+
+    def _local_box(self, proposed: int) -> tuple[Array, Array] | None:
+        """Trust region around the best point for the final ``local_evaluations``."""
+        s = self.settings
+        best = self.best()
+        if best is None or s.local_evaluations <= 0 or s.budget - proposed > s.local_evaluations:
+            return None
+        u = self.space.to_unit(np.array([[best["params"][n] for n in self.space.free_names]]))[0]
+        lo = np.clip(u - s.local_radius, 0.0, 1.0)
+        return lo, np.clip(lo + 2 * s.local_radius, 0.0, 1.0)
 
     def _log_round(self, rnd: int, proposed: int, unit: Array) -> dict[str, Any]:
         theta = self.space.from_unit(unit)
@@ -228,7 +243,6 @@ class BayesOpt:
                     self.log.append(rec)
                     self.state.evaluations[i] = rec
                     self._evaluated_now += 1
-                    self._seconds_now += time.perf_counter() - self._start
                     self._report()
 
     def _report(self) -> None:

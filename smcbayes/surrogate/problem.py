@@ -107,6 +107,10 @@ def build_problem(project: ProjectConfig, run_dir: Path, effects: Sequence[str] 
         project = with_data_dir(project, folder, ids)
         model = ForwardModel(project, effects=effects, overrides=overrides, fidelity=fidelity)
     dataset = load_dataset(project, ids=ids, preprocess=project.preprocess)
+    bare = [cid for cid in ids if cid not in dataset.measurements or dataset.measurements[cid].force is None]
+    if bare and external is None:
+        raise ConfigError(f"training configuration(s) {', '.join(bare)} have no measured force "
+                          "curve: add data.force or set role = \"validation\"")
     simulator = model
     if external is not None:
         from smcbayes.surrogate.executors.external import ExternalSimulator

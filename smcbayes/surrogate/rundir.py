@@ -32,7 +32,8 @@ from smcbayes.surrogate.problem import Problem
 from smcbayes.surrogate.runlog import LOG_NAME, RunLog, write_json
 
 IDENTITY_KEYS = ("project", "effects", "overrides", "fidelity", "external", "seed", "init",
-                 "batch", "kernel", "failed", "restarts", "raw_samples")
+                 "batch", "kernel", "failed", "restarts", "raw_samples", "noise",
+                 "local_evaluations", "local_radius")
 """Settings that must match for ``--resume`` (the budget and tolerance may change)."""
 
 
@@ -103,7 +104,7 @@ def finish(bo: BayesOpt, problem: Problem, run_dir: Path, wall_s: float,
     seed = round_seed(s.seed, len(bo.state.rounds))
     if x.shape[0] >= 2 and np.ptp(y) > 0:
         with torch_threads(1):
-            surrogate = fit_surrogate(x, y, s.kernel, seed)
+            surrogate = fit_surrogate(x, y, s.kernel, seed, s.noise)
         save_surrogate(run_dir / "gp.pt", surrogate, {
             "free_parameters": space.free_names, "fixed": dict(space.fixed),
             "lower": [p.lower for p in space.free], "upper": [p.upper for p in space.free],

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from smcbayes.config import ProjectConfig
+from smcbayes.config import ProjectConfig, load_project
 from smcbayes.errors import ConfigError, SmcBayesError
 from smcbayes.forward.effects import available, get_effect
 from smcbayes.forward.effects.thermal import Curing
@@ -180,3 +181,19 @@ def test_compressible_charge_closes_past_the_fill_gap_and_creeps(
     assert np.ptp(res.gap_mm[0, still]) < 1e-9  # rate-independent compaction: no creep
     # the creep tends to the same equilibrium P_c(s) = F_limit / A
     assert res.gap_mm[1, -1] == pytest.approx(res.gap_mm[0, -1], rel=0.01)
+
+
+def test_compressible_60_bar_closes_below_4_mm_with_a_late_steep_rise(thesis_config: Path) -> None:
+    """Hand-chosen parameters inside the thesis's bounds (benchmarks/compressible_60bar.py)."""
+    values = {"n": 0.45, "tau_star_Pa": 1e5, "B_Pa_s": 1e5, "tau_c_MPa": 0.5, "m": 1.2,
+              "rho_solid_g_cm3": 1.8, "compaction_modulus_MPa": 0.2, "compaction_exponent": 2.0,
+              "bulk_viscosity_MPa_s": 0.0}
+    model = ForwardModel(load_project(thesis_config), effects=["compressibility"])
+    for p in model.space.parameters:
+        assert p.lower <= values[p.name] <= p.upper, p.name
+    res = model.simulate_params({k: [v] for k, v in values.items()}, ["60-bar-03"])["60-bar-03"]
+    t_limit = res.switch_time_s[0]
+    assert np.interp(t_limit, res.time_s[0], res.gap_mm[0]) < 4.0
+    assert 15.0 < t_limit < 21.0  # measured 17.9 s
+    force = lambda share: np.interp(share * t_limit, res.time_s[0], res.force_kN[0])  # noqa: E731
+    assert force(0.6) < 0.1 * 1400.0 < force(0.9)

@@ -18,7 +18,7 @@ from smcbayes.surrogate.gp import load_surrogate
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "configs" / "verify-slip-2d.toml"
-ARGS = ["--budget", "12", "--init", "5", "--seed", "3"]
+ARGS = ["--budget", "10", "--init", "5", "--seed", "3"]
 
 
 def cli(out: Path, *extra: str) -> list[str]:
@@ -43,7 +43,7 @@ def full_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_run_directory_contents(full_run: Path) -> None:
     summary = json.loads((full_run / "summary.json").read_text())
-    assert summary["evaluations"] == 12 and summary["failures"] == 0
+    assert summary["evaluations"] == 10 and summary["failures"] == 0
     assert summary["stop_reason"].startswith("budget")
     assert summary["free_parameters"] == ["tau_c_MPa", "m"]
     best = json.loads((full_run / "best_params.json").read_text())
@@ -68,13 +68,13 @@ def test_sigkill_then_resume_equals_uninterrupted(full_run: Path, tmp_path: Path
     log = out / "evaluations.jsonl"
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
-        if log.exists() and log.read_text().count('"evaluation"') >= 7:
+        if log.exists() and log.read_text().count('"evaluation"') >= 6:
             break
         time.sleep(0.02)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     done = len(evaluations(out))
-    assert 7 <= done < 12, "the run must be killed part-way"
+    assert 6 <= done < 10, "the run must be killed part-way"
     with log.open("a") as fh:  # a record cut short by the kill
         fh.write('{"type":"evaluation","index":99,"loss":1')
     res = subprocess.run(cli(out, "--no-figures", "--resume"), cwd=ROOT, env=env,
@@ -82,7 +82,7 @@ def test_sigkill_then_resume_equals_uninterrupted(full_run: Path, tmp_path: Path
     assert res.returncode == 0, res.stderr
     recs = evaluations(out)
     indices = [r["index"] for r in recs]
-    assert sorted(indices) == list(range(12)) and len(set(indices)) == 12
+    assert sorted(indices) == list(range(10)) and len(set(indices)) == 10
     assert strip(recs) == strip(evaluations(full_run))
     a = json.loads((out / "summary.json").read_text())
     b = json.loads((full_run / "summary.json").read_text())
@@ -92,6 +92,6 @@ def test_sigkill_then_resume_equals_uninterrupted(full_run: Path, tmp_path: Path
 def test_existing_run_needs_resume_and_same_settings(full_run: Path, capsys: pytest.CaptureFixture) -> None:
     assert main(["calibrate", str(CONFIG), "--out", str(full_run), *ARGS]) == 2
     assert "--resume" in capsys.readouterr().err
-    assert main(["calibrate", str(CONFIG), "--out", str(full_run), "--budget", "12", "--init", "5",
+    assert main(["calibrate", str(CONFIG), "--out", str(full_run), "--budget", "10", "--init", "5",
                  "--seed", "4", "--resume"]) == 2
     assert "'seed'" in capsys.readouterr().err

@@ -1,0 +1,213 @@
+"""The whole diagnosis of a calibration: where, which effect, how far it shrinks; on disk.
+
+Outputs in ``DIR``: ``summary.json`` (machine-readable: settings, where, signatures,
+ranking, decision, shrink tables), ``ranking.csv`` and ``figures/`` (``heatmap``,
+``phase_rmse``, ``before_after``; PNG and SVG).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from smcbayes.diagnose.fit import DiagnosisContext, Fit, FitSettings, refit
+from smcbayes.diagnose.shrink import shrink_summary
+from smcbayes.diagnose.where import WhereReport, analyse
+from smcbayes.diagnose.which import held_out_test, n_eff_of, score_row, signature
+from smcbayes.errors import ConfigError
+
+RANKING_COLUMNS = ("rank", "effect", "extra_parameters", "sensitivity_kN", "most_sensitive",
+                   "absorbable_share", "fit_loss_kN2", "holdout_loss_kN2", "holdout_loss_base_kN2",
+                   "holdout_shrink_pct", "n_eff_holdout", "dm_z", "delta_bic_fit", "score",
+                   "significant")
+
+
+@dataclass(frozen=True)
+class DiagnoseSettings:
+    """Settings of a diagnosis.
+
+    Attributes:
+        candidates: effects to try (not already on in the calibration).
+        holdout: held-out configurations (default: :func:`default_holdout`).
+        pair: also re-calibrate the best two effects together.
+        seed: random seed (same seed, same ranking).
+        fit: budget of each re-calibration.
+        min_score: penalised held-out score needed to name an effect (a log Bayes factor).
+        figures: write the figures.
+    """
+
+    candidates: tuple[str, ...]
+    holdout: tuple[str, ...] | None = None
+    pair: bool = False
+    seed: int = 0
+    fit: FitSettings = field(default_factory=FitSettings)
+    min_score: float = 3.0
+    figures: bool = True
+
+
+def default_holdout(ctx: DiagnosisContext) -> list[str]:
+    """The middle speed of each group (same charge shape and coverage) of >= 3 configurations.
+
+    Holding out an interior speed tests whether an effect fitted on the other speeds
+    predicts a new one, without extrapolating beyond the fitted speed range.
+    """
+    groups: dict[tuple, list[tuple[float, str]]] = {}
+    for cid in ctx.ids:
+        spec = ctx.project.get(cid)
+        groups.setdefault((spec.charge.shape, spec.charge.coverage_pct), []).append(
+            (spec.press.speed_mm_s, cid))
+    out = []
+    for members in groups.values():
+        if len(members) >= 3:
+            members.sort()
+            out.append(members[len(members) // 2][1])
+    if not out:
+        out = [sorted(ctx.ids)[len(ctx.ids) // 2]]
+    return [c for c in ctx.ids if c in out]
+
+
+def check_holdout(ctx: DiagnosisContext, holdout: Sequence[str]) -> list[str]:
+    """Validated held-out ids; at least one held out and one left to fit."""
+    from smcbayes.forward.parameters import closest
+
+    for cid in holdout:
+        if cid not in ctx.ids:
+            raise ConfigError(f"--holdout: '{cid}' is not a configuration with measurements"
+                              f"{closest(cid, ctx.ids)}; choose from {', '.join(ctx.ids)}")
+    fit_ids = [c for c in ctx.ids if c not in holdout]
+    if not holdout or not fit_ids:
+        raise ConfigError("--holdout: hold out at least one configuration and keep at least one "
+                          f"to fit (configurations with data: {', '.join(ctx.ids)})")
+    return [c for c in ctx.ids if c in holdout]
+
+
+def _rank(rows: list[dict], sigs: dict) -> list[dict]:
+    rows = sorted(rows, key=lambda r: -r["score"] if np.isfinite(r["score"]) else np.inf)
+    for i, r in enumerate(rows, 1):
+        r["rank"] = i
+        s = sigs.get(r["effect"])
+        r["sensitivity_kN"] = s.sensitivity_kN if s else None
+        r["most_sensitive"] = s.most_sensitive if s else None
+        r["absorbable_share"] = s.absorbable_share if s else None
+    return rows
+
+
+def which_effect(ctx: DiagnosisContext, settings: DiagnoseSettings, fit_ids: list[str],
+                 holdout: list[str], rng: np.random.Generator,
+                 log: Callable[[str], None]) -> tuple[Fit, dict[str, Fit], list[dict], dict]:
+    """Re-fit the base and every candidate; rank them; returns base, fits, rows, evidence."""
+    # twice the generations: an effect must not win because the base search stopped early
+    base_fit = replace(settings.fit, generations=2 * settings.fit.generations)
+    base = refit(ctx, (), fit_ids, ctx.start(()), base_fit, rng)
+    log(f"base model re-fitted on {len(fit_ids)} configuration(s): loss {base.loss:.4g} kN^2")
+    sigs, fits, tests = {}, {}, {}
+    for name in settings.candidates:
+        t0 = time.perf_counter()
+        sigs[name] = signature(ctx, name, base, fit_ids, rng)
+        fits[name] = refit(ctx, (name,), fit_ids, ctx.start((name,), base.params), settings.fit, rng)
+        tests[name] = held_out_test(ctx, base, fits[name], holdout)
+        log(f"{name}: absorbable {100 * sigs[name].absorbable_share:.0f} %, held-out loss "
+            f"{tests[name].loss_kN2:.4g} vs {tests[name].loss_base_kN2:.4g} kN^2, "
+            f"z {tests[name].z:.2f} ({time.perf_counter() - t0:.0f} s)")
+    n_eff_fit, n_eff_ho = common_n_eff(ctx, base, fits, tests, fit_ids, holdout)
+    rows = _rank([score_row(ctx, base, fits[n], tests[n], n_eff_fit, n_eff_ho, settings.min_score)
+                  for n in settings.candidates], sigs)
+    if settings.pair and len(rows) >= 2:
+        a, b = rows[0]["effect"], rows[1]["effect"]
+        start = ctx.start((a, b), {**fits[a].params, **fits[b].params})
+        fits[f"{a}+{b}"] = refit(ctx, (a, b), fit_ids, start, settings.fit, rng)
+        test = held_out_test(ctx, base, fits[f"{a}+{b}"], holdout)
+        pair_row = score_row(ctx, base, fits[f"{a}+{b}"], test, n_eff_fit, n_eff_ho, settings.min_score)
+        rows = _rank(rows + [pair_row], sigs)
+        log(f"pair {a}+{b}: held-out loss {test.loss_kN2:.4g} kN^2, z {test.z:.2f}")
+    evidence = {"n_eff_fit": n_eff_fit, "n_eff_holdout": n_eff_ho,
+                "signatures": {k: asdict(v) for k, v in sigs.items()}}
+    return base, fits, rows, evidence
+
+
+def common_n_eff(ctx: DiagnosisContext, base: Fit, fits: dict[str, Fit], tests: dict,
+                 fit_ids: list[str], holdout: list[str]) -> tuple[float, float]:
+    """N_eff on the fitting and held-out sets, each from the best model there (see which)."""
+    def finite(x: float) -> float:
+        return x if np.isfinite(x) else np.inf
+
+    best_fit = min([base, *fits.values()], key=lambda f: finite(f.loss))
+    base_ho = next(iter(tests.values())).loss_base_kN2
+    name = min(tests, key=lambda n: finite(tests[n].loss_kN2))
+    best_ho = fits[name] if finite(tests[name].loss_kN2) < finite(base_ho) else base
+    return n_eff_of(ctx, best_fit, fit_ids), n_eff_of(ctx, best_ho, holdout)
+
+
+def decide(rows: list[dict], min_score: float) -> dict:
+    """The decision: the top-ranked single effect if significant, else none."""
+    singles = [r for r in rows if "+" not in r["effect"]]
+    top = singles[0] if singles else None
+    if top is None or not top["significant"]:
+        why = ("no candidate" if top is None else
+               f"the best candidate, {top['effect']}, improves the held-out loss by "
+               f"{top['holdout_shrink_pct']:.1f} %, penalised score {top['score']:.3g} < {min_score:g}")
+        return {"best": None, "statement": f"no effect explains the gap beyond noise: {why}"}
+    return {"best": top["effect"],
+            "statement": (f"{top['effect']} explains the gap: held-out loss "
+                          f"{top['holdout_loss_base_kN2']:.4g} -> {top['holdout_loss_kN2']:.4g} kN^2 "
+                          f"({top['holdout_shrink_pct']:.1f} % shrink, z = {top['dm_z']:.1f}, "
+                          f"penalised score {top['score']:.3g})")}
+
+
+def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None,
+             log: Callable[[str], None] | None = None) -> dict:
+    """Run the diagnosis; write ``out`` (if given) and return the summary dictionary."""
+    log = log or (lambda msg: print(msg, file=sys.stderr))
+    rng = np.random.default_rng(settings.seed)
+    holdout = check_holdout(ctx, settings.holdout or default_holdout(ctx))
+    fit_ids = [c for c in ctx.ids if c not in holdout]
+    t0 = time.perf_counter()
+    base0 = Fit((), ctx.base_params, ctx.start(()), float("nan"), 0)
+    where = analyse(ctx, (), base0.theta, ctx.ids)
+    log(f"where: {where.verdict}")
+    base, fits, rows, evidence = which_effect(ctx, settings, fit_ids, holdout, rng, log)
+    decision = decide(rows, settings.min_score)
+    log(decision["statement"])
+    shown = {"base": base}
+    pick = decision["best"] or (rows[0]["effect"] if rows else None)
+    if pick is not None:
+        shown[pick] = fits[pick]
+    pair = next((r["effect"] for r in rows if "+" in r["effect"]), None)
+    if pair is not None:
+        shown[pair] = fits[pair]
+    shrink = shrink_summary(ctx, shown, fit_ids, holdout)
+    summary = {"holdout": holdout, "fit_configurations": fit_ids, "seed": settings.seed,
+               "candidates": list(settings.candidates), "fit_settings": asdict(settings.fit),
+               "min_score": settings.min_score, "where": where.to_json(), "ranking": rows,
+               "decision": decision, "shrink": shrink, **evidence,
+               "base_calibrated_params": ctx.base_params, "truth": ctx.truth,
+               "seconds": time.perf_counter() - t0}
+    if out is not None:
+        write_outputs(ctx, summary, where, shown, out, settings.figures)
+    return summary
+
+
+def write_outputs(ctx: DiagnosisContext, summary: dict, where: WhereReport, shown: dict[str, Fit],
+                  out: Path, with_figures: bool = True) -> None:
+    """summary.json, ranking.csv and (unless ``with_figures`` is off) the figures."""
+    from smcbayes.diagnose import figures
+
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n", encoding="utf-8")
+    with (out / "ranking.csv").open("w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=RANKING_COLUMNS, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(summary["ranking"])
+    if not with_figures:
+        return
+    fig_dir = out / "figures"
+    figures.heat_map(where, fig_dir / "heatmap")
+    figures.phase_bars(summary["shrink"], fig_dir / "phase_rmse")
+    figures.before_after(ctx, shown, ctx.ids, summary["holdout"], fig_dir / "before_after")

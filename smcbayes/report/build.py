@@ -1,0 +1,73 @@
+"""Assemble and write the report of a run directory (``report.html`` and ``report.md``)."""
+
+from __future__ import annotations
+
+import datetime as dt
+from collections.abc import Sequence
+from pathlib import Path
+
+from smcbayes import __version__
+from smcbayes.errors import ConfigError
+from smcbayes.report.collect import RunFiles, load_run_files
+from smcbayes.report.document import Section
+from smcbayes.report.measured import load_measured, plot_measured, project_of, validation_errors
+from smcbayes.report.render import to_html, to_markdown
+from smcbayes.report.sections_run import calibration_section, data_section, reproducibility_section
+from smcbayes.report.sections_stages import bands_section, diagnosis_section, posterior_section
+
+FORMATS = ("html", "md")
+FIGURE_DIR = "report_figures"
+"""Folder (inside the run directory) of the figures the report draws itself."""
+
+
+def build_sections(run: RunFiles) -> list[Section]:
+    """Every section whose stage was run, in reading order."""
+    project = project_of(run.config)
+    dataset = load_measured(project) if project is not None else None
+    measured_png = None
+    validation: dict[str, dict[str, float]] = {}
+    if dataset is not None:
+        paths = plot_measured(dataset, run.run_dir / FIGURE_DIR / "measured")
+        measured_png = paths[0] if paths else None
+        validation = validation_errors(run.config, run.calibration, project, dataset)
+    sections = [data_section(run, dataset, measured_png), calibration_section(run, validation)]
+    for make in (posterior_section, bands_section, diagnosis_section):
+        sec = make(run)
+        if sec is not None:
+            sections.append(sec)
+    sections.append(reproducibility_section(run))
+    return sections
+
+
+def write_report(run_dir: Path, formats: Sequence[str] = FORMATS,
+                 diagnosis_dir: Path | None = None) -> list[Path]:
+    """Write the report of ``run_dir`` in ``formats``; returns the written files.
+
+    Args:
+        run_dir: a calibration run directory (posterior and diagnosis optional).
+        formats: any of ``"html"`` (self-contained) and ``"md"``.
+        diagnosis_dir: folder of ``smcbayes diagnose --out`` (default ``run_dir/diagnose``).
+
+    Raises:
+        ConfigError: not a run directory, or an unknown format.
+    """
+    unknown = [f for f in formats if f not in FORMATS]
+    if unknown:
+        raise ConfigError(f"report format '{unknown[0]}' unknown; accepted: {', '.join(FORMATS)}")
+    run = load_run_files(run_dir, diagnosis_dir)
+    sections = build_sections(run)
+    name = (run.config.get("project") or {}).get("name", "run")
+    title = f"smcbayes report: {name}"
+    now = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    stages = ", ".join(s.title.lower() for s in sections if s.key not in ("data", "reproducibility"))
+    subtitle = f"Run directory {run_dir.resolve()}; stages: {stages}; smcbayes {__version__}; written {now}."
+    out = []
+    if "html" in formats:
+        path = run_dir / "report.html"
+        path.write_text(to_html(title, subtitle, sections), encoding="utf-8")
+        out.append(path)
+    if "md" in formats:
+        path = run_dir / "report.md"
+        path.write_text(to_markdown(title, subtitle, sections, run_dir), encoding="utf-8")
+        out.append(path)
+    return out

@@ -1,0 +1,98 @@
+"""Measured data and best-point errors of a run, recomputed from its project.
+
+The run directory stores the training errors of the best point; the report adds the
+validation configurations (held out of the calibration) by simulating the best point on
+them, and draws the measured curves.  Both need the project's data folder; without it
+they are skipped (``None``), never fatal.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from smcbayes.config import ProjectConfig
+from smcbayes.errors import SmcBayesError
+from smcbayes.plotting import MEASURED, grid_shape, pyplot, save
+
+
+def project_of(config: Mapping[str, Any]) -> ProjectConfig | None:
+    """The run's validated project, or ``None`` if ``config.json`` does not hold one."""
+    try:
+        return ProjectConfig.model_validate(config["project"])
+    except (KeyError, ValueError):
+        return None
+
+
+def load_measured(project: ProjectConfig) -> Any:
+    """The project's dataset (all configurations with data), or ``None`` if unreadable."""
+    from smcbayes.data.dataset import load_dataset
+
+    root = project.data_path()
+    if root is None or not root.is_dir():
+        return None
+    try:
+        return load_dataset(project)
+    except SmcBayesError:
+        return None
+
+
+def plot_measured(dataset: Any, path: Path) -> list[Path] | None:
+    """Measured closing force (black) vs time, one panel per configuration named in its title.
+
+    Args:
+        dataset: :class:`smcbayes.data.dataset.Dataset`.
+        path: output path without suffix (PNG and SVG are written).
+    """
+    ids = [cid for cid, m in dataset.measurements.items() if m.force is not None]
+    if not ids:
+        return None
+    plt = pyplot()
+    nrows, ncols = grid_shape(len(ids), cols=4)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(3.4 * ncols, 2.6 * nrows), squeeze=False,
+                             sharey=True)
+    for k, cid in enumerate(ids):
+        ax = axes[k // ncols][k % ncols]
+        m = dataset.measurements[cid]
+        ax.plot(m.force.time_s, m.force.values, color=MEASURED, lw=1.1, label=f"{cid} measured")
+        ax.set_title(f"{cid} ({m.role})", fontsize=9)
+        ax.set_xlabel("time from contact (s)")
+        ax.set_ylabel("force (kN)")
+        ax.legend(fontsize=7, loc="upper left")
+    for k in range(len(ids), nrows * ncols):
+        axes[k // ncols][k % ncols].set_visible(False)
+    fig.suptitle("measured closing force per configuration", fontsize=10)
+    fig.tight_layout()
+    return save(fig, path)
+
+
+def validation_errors(config: Mapping[str, Any], calibration: Mapping[str, Any],
+                      project: ProjectConfig, dataset: Any) -> dict[str, dict[str, float]]:
+    """Force MSE (kN^2) and RMSE (kN) of the best point on validation configurations with data.
+
+    Uses the run's effects and fixed values; empty when there is nothing to compare or the
+    simulation fails.
+    """
+    from smcbayes.data.loss import evaluate_loss
+    from smcbayes.forward.model import ForwardModel
+
+    ids = [cid for cid in dataset.ids("validation")]
+    best = calibration.get("best_params") or {}
+    if not ids or not best:
+        return {}
+    try:
+        model = ForwardModel(project, effects=config.get("effects"),
+                             overrides=config.get("overrides") or {}, fidelity=config.get("fidelity"))
+        params = {k: np.array([float(v["value"])]) for k, v in best.items()}
+        results = model.simulate_params(params, ids)
+        loss = evaluate_loss(results, dataset, project.loss, ids=ids)
+    except (SmcBayesError, KeyError, TypeError, ValueError):
+        return {}
+    out = {}
+    for k, cid in enumerate(ids):
+        mse = float(loss.force_mse_kN2[0, k])
+        out[cid] = {"mse_kN2": mse, "rmse_kN": float(np.sqrt(mse)) if np.isfinite(mse) else float("nan")}
+    return out

@@ -1,0 +1,100 @@
+"""Effective points, the NumPy GP copy and the emcee driver."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from smcbayes.posterior.emulator import NumpyGP
+from smcbayes.posterior.likelihood import EmulatedPosterior, effective_points, integrated_autocorr_time
+from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
+from smcbayes.surrogate.gp import fit_surrogate
+
+
+def ar1(phi: float, n: int, rng: np.random.Generator) -> np.ndarray:
+    x = np.zeros(n)
+    e = rng.standard_normal(n)
+    for i in range(1, n):
+        x[i] = phi * x[i - 1] + e[i]
+    return x
+
+
+@pytest.mark.parametrize("phi", [0.0, 0.5, 0.8])
+def test_autocorrelation_time_of_ar1(phi: float) -> None:
+    # integrated autocorrelation time of AR(1) is (1 + phi) / (1 - phi)
+    rng = np.random.default_rng(1)
+    taus = [integrated_autocorr_time(ar1(phi, 4000, rng)) for _ in range(5)]
+    expected = (1 + phi) / (1 - phi)
+    assert np.mean(taus) == pytest.approx(expected, rel=0.2)
+
+
+def test_effective_points_count_independent_samples() -> None:
+    rng = np.random.default_rng(2)
+    white, smooth = rng.standard_normal(1000), ar1(0.9, 1000, rng)
+    tau, n_eff = effective_points([white, smooth])
+    assert n_eff[0] > 5 * n_eff[1]
+    assert n_eff[0] == pytest.approx(1000 / tau[0])
+
+
+@pytest.fixture(scope="module")
+def surrogates() -> dict:
+    rng = np.random.default_rng(0)
+    x = rng.random((40, 3))
+    y = np.log(1 + ((x - 0.4) ** 2).sum(1) * 50) + 1e-3 * rng.standard_normal(40)
+    return {k: fit_surrogate(x, y, k, 0) for k in ("rbf", "matern52")}
+
+
+@pytest.mark.parametrize("kernel", ["rbf", "matern52"])
+def test_numpy_gp_equals_botorch(surrogates: dict, kernel: str) -> None:
+    s = surrogates[kernel]
+    g = NumpyGP.from_botorch(s.model)
+    u = np.random.default_rng(3).random((50, 3))
+    mean, std = s.predict(u)
+    np.testing.assert_allclose(g.mean(u), mean, atol=1e-7)
+    np.testing.assert_allclose(g.std(u), std, rtol=1e-5)
+
+
+@pytest.mark.parametrize("kernel", ["rbf", "matern52"])
+def test_sample_functions_have_posterior_moments(surrogates: dict, kernel: str) -> None:
+    s = surrogates[kernel]
+    g = NumpyGP.from_botorch(s.model)
+    u = np.array([[0.9, 0.9, 0.1], [0.4, 0.4, 0.4]])
+    paths = g.sample_functions(300, np.random.default_rng(4), features=1024)
+    values = np.stack([paths(u, i) for i in range(paths.count)])
+    mean, std = s.predict(u)
+    assert np.all(np.abs(values.mean(0) - mean) < 4 * std / np.sqrt(300) + 1e-6)
+    np.testing.assert_allclose(values.std(0), std, rtol=0.2)
+
+
+def test_sampler_recovers_a_gaussian() -> None:
+    centre, sd = np.array([0.3, 0.6]), np.array([0.05, 0.1])
+
+    def log_prob(u: np.ndarray) -> np.ndarray:
+        inside = np.all((u >= 0) & (u <= 1), axis=1)
+        lp = -0.5 * np.sum(((u - centre) / sd) ** 2, axis=1)
+        return np.where(inside, lp, -np.inf)
+
+    chains = run_ensemble(log_prob, 2, SamplerSettings(walkers=16, max_steps=3000, min_steps=500),
+                          np.random.default_rng(5))
+    flat = chains.samples.reshape(-1, 2)
+    np.testing.assert_allclose(flat.mean(0), centre, atol=0.02)
+    np.testing.assert_allclose(flat.std(0), sd, rtol=0.15)
+    assert 0.2 < np.median(chains.acceptance) < 0.9
+
+
+def test_same_seed_same_chains() -> None:
+    def log_prob(u: np.ndarray) -> np.ndarray:
+        return -0.5 * np.sum(((u - 0.5) / 0.1) ** 2, axis=1)
+
+    s = SamplerSettings(walkers=8, max_steps=600, min_steps=600)
+    a = run_ensemble(log_prob, 2, s, np.random.default_rng(9))
+    b = run_ensemble(log_prob, 2, s, np.random.default_rng(9))
+    np.testing.assert_array_equal(a.samples, b.samples)
+
+
+def test_likelihood_is_minus_half_n_eff_log_loss(surrogates: dict) -> None:
+    post = EmulatedPosterior(surrogates["rbf"], n_eff=40.0, functions=0)
+    u = np.array([[0.4, 0.4, 0.4], [0.9, 0.1, 0.5], [1.2, 0.5, 0.5]])
+    lp = post.log_prob_fn(None)(u)
+    np.testing.assert_allclose(lp[:2], -20.0 * surrogates["rbf"].predict(u[:2])[0], atol=1e-5)
+    assert lp[2] == -np.inf  # outside the prior box

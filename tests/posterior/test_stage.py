@@ -1,0 +1,74 @@
+"""The posterior stage end to end on a small synthetic two-parameter problem."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smcbayes.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Noisy synthetic data at tau_c = 0.01 MPa, m = 1.5; a short calibration."""
+    base = tmp_path_factory.mktemp("posterior")
+    cfg = ROOT / "configs" / "verify-slip-2d.toml"
+    assert main(["synth", str(cfg), "--truth", "tau_c_MPa=0.01", "--truth", "m=1.5",
+                 "--noise-kN", "5",
+                 "--correlated-kN", "3", "--correlation-s", "0.5", "--seed", "3",
+                 "--out", str(base / "data")]) == 0
+    assert main(["calibrate", str(base / "data" / "project.toml"), "--out", str(base / "run"),
+                 "--budget", "20", "--init", "6", "--seed", "0", "--no-figures"]) == 0
+    assert main(["posterior", str(base / "run"), "--walkers", "16", "--steps", "1500",
+                 "--functions", "4", "--refine", "16", "--draws", "30", "--seed", "1"]) == 0
+    return base / "run"
+
+
+def test_posterior_contains_truth(run_dir: Path) -> None:
+    info = json.loads((run_dir / "posterior" / "summary.json").read_text())
+    truth = {"tau_c_MPa": 0.01, "m": 1.5}
+    for p in info["parameters"]:
+        lo, hi = p["q05"], p["q95"]
+        width = hi - lo
+        # the 90 % interval (widened by a tenth of its width for the short chains) holds the truth
+        assert lo - 0.1 * width <= truth[p["name"]] <= hi + 0.1 * width, p
+
+
+def test_degenerate_pair_correlation_sign(run_dir: Path) -> None:
+    # a later slip onset (larger tau_c) is compensated by faster slip (larger m)
+    info = json.loads((run_dir / "posterior" / "summary.json").read_text())
+    labels = info["correlation"]["labels"]
+    r = np.array(info["correlation"]["matrix"])
+    i, j = labels.index("log10 tau_c_MPa"), labels.index("m")
+    assert r[i, j] > 0.2
+
+
+def test_netcdf_opens_with_arviz(run_dir: Path) -> None:
+    import arviz as az
+
+    idata = az.from_netcdf(str(run_dir / "posterior" / "posterior.nc"))
+    assert set(idata.posterior.data_vars) == {"tau_c_MPa", "m"}
+    assert "acceptance_fraction" in idata.sample_stats
+    summary = az.summary(idata)
+    assert np.all(np.isfinite(summary["mean"]))
+
+
+def test_outputs_written(run_dir: Path) -> None:
+    out = run_dir / "posterior"
+    for name in ("summary.csv", "refine.jsonl", "gp_refined.pt", "figures/corner.png",
+                 "figures/correlations.svg", "figures/bands.png"):
+        assert (out / name).is_file(), name
+    info = json.loads((out / "summary.json").read_text())
+    assert info["emulator_check"]["points"] > 0
+    assert info["effective_points"]["n_eff_total"] > 0
+
+
+def test_missing_run_dir_is_input_error(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    assert main(["posterior", str(tmp_path / "nowhere")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "calibrate" in err[0]

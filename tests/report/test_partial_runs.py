@@ -1,0 +1,93 @@
+"""Reports of partial or damaged run directories: missing stages are omitted, never fatal."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from smcbayes.cli import main
+from smcbayes.errors import ConfigError
+from smcbayes.report import write_report
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the shared HTML checker of these tests
+from htmlcheck import PLACEHOLDER, external_references, parse_page  # noqa: E402
+
+PROJECT = {"name": "tiny", "configuration": [{
+    "id": "bar-03", "role": "train", "charge": {"shape": "bar", "coverage_pct": 60.0, "mass_g": 388.0},
+    "press": {"speed_mm_s": 0.3}}]}
+
+
+def fake_run(tmp_path: Path) -> Path:
+    """A run directory with the calibration's config.json and summary.json only (no figures)."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"project": PROJECT, "seed": 3, "budget": 5}), encoding="utf-8")
+    summary = {"best_loss_kN2": 12.5, "best_index": 2, "evaluations": 5, "failures": 0,
+               "best_params": {"n": {"value": 0.31, "unit": "-", "fixed": False},
+                               "B_Pa_s": {"value": 2.0e4, "unit": "Pa s", "fixed": True}},
+               "best_errors_kN2": {"bar-03": 12.5}, "settings": {"seed": 3, "budget": 5},
+               "loss": {"w_force": 1.0, "w_displacement": 0.0, "clip": "none"}}
+    (run / "summary.json").write_text(json.dumps(summary), encoding="utf-8")
+    return run
+
+
+def sections_of(run: Path) -> list[str]:
+    return parse_page((run / "report.html").read_text(encoding="utf-8")).sections
+
+
+def test_calibration_only_run_has_no_posterior_or_diagnosis(tmp_path: Path) -> None:
+    run = fake_run(tmp_path)
+    paths = write_report(run)
+    assert [p.name for p in paths] == ["report.html", "report.md"]
+    assert sections_of(run) == ["data", "calibration", "reproducibility"]
+    page = (run / "report.html").read_text(encoding="utf-8")
+    assert "RMSE" in page and ">3.54<" in page  # sqrt(12.5) kN from the recorded error
+    assert "Pa s" in page and "B_Pa_s" in page
+    md = (run / "report.md").read_text(encoding="utf-8")
+    assert "## Posterior" not in md and "## Sim-to-real" not in md
+    assert not PLACEHOLDER.search(md)
+
+
+def test_damaged_stage_summaries_are_skipped_or_tolerated(tmp_path: Path) -> None:
+    run = fake_run(tmp_path)
+    (run / "posterior").mkdir()
+    (run / "posterior" / "summary.json").write_text('{"parameters": [{"name": "n"}]}', encoding="utf-8")
+    (run / "diagnose").mkdir()
+    (run / "diagnose" / "summary.json").write_text("{ not json", encoding="utf-8")
+    write_report(run)
+    assert sections_of(run) == ["data", "calibration", "posterior", "reproducibility"]
+    facts = parse_page((run / "report.html").read_text(encoding="utf-8"))
+    assert external_references(facts) == [] and facts.img_src == []
+
+
+def test_diagnosis_in_another_folder(tmp_path: Path) -> None:
+    run = fake_run(tmp_path)
+    other = tmp_path / "diag"
+    other.mkdir()
+    (other / "summary.json").write_text(json.dumps({
+        "where": {"verdict": "the misfit is late in the closing"}, "seed": 4,
+        "decision": {"best": None, "statement": "no effect explains the gap beyond noise"}}),
+        encoding="utf-8")
+    write_report(run, ("html",), other)
+    assert sections_of(run) == ["data", "calibration", "diagnosis", "reproducibility"]
+    assert not (run / "report.md").exists()
+    text = (run / "report.html").read_text(encoding="utf-8")
+    assert "the misfit is late in the closing" in text and "diagnosis 4" in text
+
+
+def test_not_a_run_directory(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(ConfigError, match="not a calibration run directory"):
+        write_report(tmp_path)
+    assert main(["report", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "smcbayes calibrate" in err
+
+
+def test_cli_markdown_only(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    run = fake_run(tmp_path)
+    assert main(["report", str(run), "--format", "md"]) == 0
+    assert (run / "report.md").is_file() and not (run / "report.html").exists()
+    assert "report.md" in capsys.readouterr().out
