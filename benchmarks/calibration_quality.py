@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 FIVE_TRUTH = {"n": 0.35, "tau_star_Pa": 5.0e3, "B_Pa_s": 2.0e4, "tau_c_MPa": 0.03, "m": 1.4}
 
 
-def loss_of(problem, theta: np.ndarray) -> np.ndarray:  # noqa: ANN001
+def loss_of(problem, theta: np.ndarray) -> np.ndarray:
     """Loss of each row of ``theta`` ``(P, d)`` (NaN where failed)."""
     obj = problem.objective
     idx = tuple(range(theta.shape[0]))
@@ -47,7 +47,7 @@ def loss_of(problem, theta: np.ndarray) -> np.ndarray:  # noqa: ANN001
                      for i in idx])
 
 
-def unit_error(problem, params: dict[str, float], truth: dict[str, float]) -> np.ndarray:  # noqa: ANN001
+def unit_error(problem, params: dict[str, float], truth: dict[str, float]) -> np.ndarray:
     """Absolute error per free parameter as a share of its (log) search range."""
     space = problem.model.space
     names = space.free_names
@@ -56,7 +56,7 @@ def unit_error(problem, params: dict[str, float], truth: dict[str, float]) -> np
     return np.abs(a - b)
 
 
-def run_bo(problem, settings: BOSettings) -> tuple[float, dict[str, float], float]:  # noqa: ANN001
+def run_bo(problem, settings: BOSettings) -> tuple[float, dict[str, float], float]:
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         bo = BayesOpt(problem.objective, settings, RunLog(Path(tmp) / "log.jsonl"), LocalExecutor(1)).run()
@@ -87,7 +87,7 @@ def part_slip2d(seeds: int) -> dict:
     return {"seeds": rows, "hits": hits, "truth": problem.truth}
 
 
-def five_problem(tmp: Path):  # noqa: ANN201
+def five_problem(tmp: Path):
     project = load_project(ROOT / "configs" / "verify-slip-2d.toml")
     params = {k: v.model_copy(update={"fixed": False}) for k, v in project.parameters.items()}
     bounds = {"n": (0.2, 0.6), "tau_star_Pa": (1e3, 1e5), "B_Pa_s": (1e3, 1e5)}
@@ -97,7 +97,7 @@ def five_problem(tmp: Path):  # noqa: ANN201
     return build_problem(project, tmp)
 
 
-def run_random(problem, budget: int, seed: int) -> tuple[float, dict[str, float]]:  # noqa: ANN001
+def run_random(problem, budget: int, seed: int) -> tuple[float, dict[str, float]]:
     space = problem.model.space
     theta = space.from_unit(latin_hypercube(budget, space.dim, round_rng(seed, 0)))
     losses = loss_of(problem, theta)
@@ -109,7 +109,7 @@ class _Budget(Exception):
     pass
 
 
-def run_de(problem, budget: int, seed: int) -> tuple[float, dict[str, float]]:  # noqa: ANN001
+def run_de(problem, budget: int, seed: int) -> tuple[float, dict[str, float]]:
     space = problem.model.space
     seen: list[tuple[float, np.ndarray]] = []
 

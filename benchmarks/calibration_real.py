@@ -29,7 +29,6 @@ from pathlib import Path
 import numpy as np
 
 from smcbayes.config import load_project
-from smcbayes.data.specs import LossSpec
 from smcbayes.surrogate.executors.local import LocalExecutor
 from smcbayes.surrogate.loop import BOSettings
 from smcbayes.surrogate.objective import SimulatorObjective, Task, combine
@@ -46,7 +45,7 @@ VARIANTS = {
 }
 
 
-def loss_at(problem, theta: np.ndarray, clip: str) -> tuple[float, dict[str, float]]:  # noqa: ANN001
+def loss_at(problem, theta: np.ndarray, clip: str) -> tuple[float, dict[str, float]]:
     """Loss (mean over configurations, kN^2) and per-configuration errors at one vector."""
     obj = SimulatorObjective(problem.model, problem.objective.dataset, problem.train_ids,
                              problem.project.loss.model_copy(update={"clip": clip}))

@@ -2,11 +2,12 @@
 
 For each effect of the library (values: ``smcbayes.diagnose.synthetic.EFFECT_TRUTH``, each
 clearly present and physically plausible) and for no effect, synthetic "measured" curves of
-six thesis configurations (60 % and 80 % bar at 0.3 / 0.7 / 1.1 mm/s) are generated with
-noise (white 2 kN + correlated 3 kN over 0.5 s) for several noise seeds.  The base model is
-calibrated on all six (batched differential evolution from a Latin hypercube, see
-``smcbayes.diagnose.synthetic``), then diagnosed with all five candidates; the held-out
-configurations are the 0.7 mm/s ones (the diagnosis's default: the middle speed per group).
+the nine thesis training configurations (60 % bar, 60 % centre, 80 % bar at 0.3 / 0.7 /
+1.1 mm/s) are generated with noise (white 2 kN + correlated 3 kN over 0.5 s) for several
+noise seeds.  The base model is calibrated on all nine (batched differential evolution from
+a Latin hypercube, see ``smcbayes.diagnose.synthetic``), then diagnosed with all five
+candidates; the held-out configurations are the three 0.7 mm/s ones (the diagnosis's
+default: the middle speed per group), the effects are re-fitted on the other six.
 
 Printed: the confusion matrix (true effect vs top-ranked effect, "none" when no effect is
 significant), the held-out shrink per case and the held-out loss of the named effect
@@ -39,7 +40,8 @@ from smcbayes.diagnose.synthetic import (  # noqa: E402
     BASE_TRUTH, EFFECT_TRUTH, calibrate_base, make_case,
 )
 
-IDS = ["60-bar-03", "60-bar-07", "60-bar-11", "80-bar-03", "80-bar-07", "80-bar-11"]
+IDS = ["60-bar-03", "60-bar-07", "60-bar-11", "60-center-03", "60-center-07", "60-center-11",
+       "80-bar-03", "80-bar-07", "80-bar-11"]
 NOISE = NoiseSpec(white_kN=2.0, correlated_kN=3.0, correlation_s=0.5)
 EFFECTS = tuple(EFFECT_TRUTH)
 
@@ -97,11 +99,13 @@ def main() -> int:
         for effect, seed in cases:
             print(f"case {effect or 'none'} seed {seed}", flush=True)
             out.append(run_case(project, effect, seed, args, Path(tmp)))
+            write(out, args, partial=True)
             r = out[-1]
             print(f"  -> {r['top']} (held-out shrink {r['holdout_shrink_pct']:.1f} %, "
                   f"{r['ratio_to_floor']:.2f} x noise floor, {r['seconds']:.0f} s)", flush=True)
     labels = list(EFFECTS) + ["none"]
-    matrix = {t: {p: sum(1 for r in out if r["true"] == t and r["top"] == p) for p in labels} for t in labels}
+    matrix = {t: {p: sum(1 for r in out if r["true"] == t and r["top"] == p) for p in labels}
+              for t in labels}
     print("\nconfusion matrix (rows: true effect, columns: named effect)")
     print(f"{'':>17}" + "".join(f"{p[:10]:>11}" for p in labels))
     for t in labels:
@@ -117,16 +121,22 @@ def main() -> int:
     for r in out:
         print(f"{r['true'] + ' #' + str(r['seed']):>22} {r['top']:>17} {r['holdout_shrink_pct']:>9.1f} "
               f"{r['ratio_to_floor']:>11.2f}")
-    result = {"configurations": IDS, "noise": asdict(NOISE),
-              "effect_truth": EFFECT_TRUTH, "base_truth": BASE_TRUTH, "settings": vars(args),
-              "matrix": matrix, "cases": out, "effect_hits": hit, "effect_cases": len(eff_cases),
-              "none_hits": sum(r["top"] == "none" for r in none_cases), "none_cases": len(none_cases),
-              "within_2x_floor": within}
+    summary = {"matrix": matrix, "effect_hits": hit, "effect_cases": len(eff_cases),
+               "none_hits": sum(r["top"] == "none" for r in none_cases),
+               "none_cases": len(none_cases), "within_2x_floor": within}
+    print(f"written {write(out, args, partial=False, **summary)}")
+    return 0
+
+
+def write(cases: list[dict], args: argparse.Namespace, partial: bool, **summary: object) -> Path:
+    """Write the results so far (``partial``) or the final ones to the results folder."""
+    result = {"configurations": IDS, "noise": asdict(NOISE), "effect_truth": EFFECT_TRUTH,
+              "base_truth": BASE_TRUTH, "settings": vars(args), "partial": partial,
+              "cases": cases, **summary}
     path = ROOT / "benchmarks" / "results" / "diagnosis_confusion.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(result, indent=2, default=float) + "\n", encoding="utf-8")
-    print(f"written {path}")
-    return 0
+    return path
 
 
 if __name__ == "__main__":

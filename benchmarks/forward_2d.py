@@ -41,7 +41,7 @@ PROGRESS = np.concatenate([np.linspace(0.0, 0.9, 46), 1.0 - np.logspace(-1.0, -3
 NEWTONIAN = {"n": 0.5, "tau_star": 1e30, "B": 1e4, "tau_c": 1e30, "m": 1.0}
 
 
-def _run(case: Case, si: dict, cells: int, steps: int = 100, courant: float = 0.5):  # noqa: ANN202
+def _run(case: Case, si: dict, cells: int, steps: int = 100, courant: float = 0.5):
     solver = HeleShaw2D(HeleShaw2DOptions(cells=cells, closing_steps=steps, courant=courant))
     table = material_table(si, MaterialSpec(), solver.tau)
     return solver.run_row(case, table, float(si["B"][0]), 0)
@@ -92,7 +92,7 @@ def convergence(model: ForwardModel, si: dict, quick: bool) -> dict:
     return out
 
 
-def _closing_curves(model: ForwardModel, cid: str, run) -> tuple[np.ndarray, ...]:  # noqa: ANN001
+def _closing_curves(model: ForwardModel, cid: str, run) -> tuple[np.ndarray, ...]:
     """Times, fill fraction, 1-D and 2-D force (kN) over the common closing window."""
     case = model.cases[cid]
     r1 = model.simulate(None, [cid])[cid]
@@ -201,7 +201,7 @@ def main() -> None:
               f"{row['corrected_rms_pct']:>9.1f}{err['leave_one_out_rms_pct'][cid]:>19.1f}")
     print("fitted F_2D/F_1D table: progress u =", np.array2string(np.array(err["progress"]), precision=5,
                                                                 separator=", ", max_line_width=100))
-    for c, row in zip(err["coverages"], err["fitted_ratio"]):
+    for c, row in zip(err["coverages"], err["fitted_ratio"], strict=False):
         print(f"  coverage {c:.2f}:", np.array2string(np.array(row), precision=4, separator=", ",
                                                      max_line_width=100))
     out = ROOT / "benchmarks" / "results" / "forward_2d.json"

@@ -19,7 +19,7 @@ Array = NDArray[np.float64]
 MEASURED = "black"
 
 
-def pyplot():  # noqa: ANN201  (matplotlib is typed loosely)
+def pyplot():
     """matplotlib.pyplot on the Agg backend (no display needed)."""
     import matplotlib
 
@@ -29,7 +29,7 @@ def pyplot():  # noqa: ANN201  (matplotlib is typed loosely)
     return plt
 
 
-def save(fig, path: str | Path) -> list[Path]:  # noqa: ANN001
+def save(fig, path: str | Path) -> list[Path]:
     """Write ``fig`` as ``path`` with .png and .svg suffixes; returns both paths."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

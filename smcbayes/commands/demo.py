@@ -15,7 +15,6 @@ import argparse
 import contextlib
 import json
 import shlex
-import sys
 import time
 import tomllib
 from collections.abc import Callable
@@ -24,8 +23,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from smcbayes.config import ProjectConfig, build_project
-from smcbayes.errors import ConfigError
+from smcbayes.config import build_project
+from smcbayes.errors import ConfigError, SmcBayesError
 
 DEMO_FILE = "demo.toml"
 STAGES = ("synth", "calibrate", "posterior", "diagnose", "report")
@@ -34,13 +33,6 @@ STAGES = ("synth", "calibrate", "posterior", "diagnose", "report")
 def embedded_text(name: str = DEMO_FILE) -> str:
     """Text of a project file shipped inside the package (works from a wheel)."""
     return resources.files("smcbayes.resources").joinpath(name).read_text(encoding="utf-8")
-
-
-def embedded_project(name: str = "thesis.toml") -> ProjectConfig:
-    """An embedded project file, validated (without any ``[demo]`` table)."""
-    raw = tomllib.loads(embedded_text(name))
-    raw.pop("demo", None)
-    return build_project(raw, f"<embedded {name}>", Path.cwd())
 
 
 @dataclass(frozen=True)
@@ -73,33 +65,37 @@ def load_plan(quick: bool) -> DemoPlan:
     ids = stage.pop("configurations")
     raw["configuration"] = [c for c in raw["configuration"] if c["id"] in ids]
     build_project(raw, f"<embedded {DEMO_FILE}>", Path.cwd())  # validate before any work
-    return DemoPlan(raw, str(demo["effect"]), {k: float(v) for k, v in demo["truth"].items()},
-                    dict(demo["noise"]), int(demo["seed"]), stage)
+    return DemoPlan(
+        raw,
+        str(demo["effect"]),
+        {k: float(v) for k, v in demo["truth"].items()},
+        dict(demo["noise"]),
+        int(demo["seed"]),
+        stage,
+    )
 
 
 def command_lines(plan: DemoPlan, out: Path) -> dict[str, list[str]]:
     """The argument lists of every stage (``smcbayes`` omitted)."""
-    s, o = plan.stage, str(out)
-    data, run = f"{o}/data", f"{o}/run"
-    synth = ["synth", f"{o}/demo-project.toml", "--effect", plan.effect, "--seed", str(plan.seed),
-             "--noise-kN", str(plan.noise.get("white_kN", 0.0)),
-             "--correlated-kN", str(plan.noise.get("correlated_kN", 0.0)),
-             "--correlation-s", str(plan.noise.get("correlation_s", 1.0)), "--out", data]
-    for k, v in plan.truth.items():
-        synth += ["--truth", f"{k}={v:g}"]
-    diagnose = ["diagnose", run, "--seed", "0", "--population", str(s["population"]),
-                "--generations", str(s["generations"]), "--out", f"{run}/diagnose"]
-    if s.get("candidates"):
-        diagnose += ["--effects", ",".join(s["candidates"])]
-    return {
-        "synth": synth,
-        "calibrate": ["calibrate", f"{data}/project.toml", "--out", run, "--budget", str(s["budget"]),
-                      "--init", str(s["init"]), "--seed", "0"],
-        "posterior": ["posterior", run, "--walkers", str(s["walkers"]), "--steps", str(s["steps"]),
-                      "--functions", str(s["functions"]), "--draws", str(s["draws"]), "--seed", "0"],
-        "diagnose": diagnose,
-        "report": ["report", run],
+    s, n, q = plan.stage, plan.noise, shlex.quote
+    data, run = q(str(out / "data")), q(str(out / "run"))
+    truth = " ".join(f"--truth {k}={v:g}" for k, v in plan.truth.items())
+    lines = {
+        "synth": f"synth {q(str(out / 'demo-project.toml'))} --effect {plan.effect} "
+        f"--seed {plan.seed} --noise-kN {n.get('white_kN', 0.0)} "
+        f"--correlated-kN {n.get('correlated_kN', 0.0)} "
+        f"--correlation-s {n.get('correlation_s', 1.0)} {truth} --out {data}",
+        "calibrate": f"calibrate {q(str(out / 'data' / 'project.toml'))} --out {run} "
+        f"--budget {s['budget']} --init {s['init']} --seed 0",
+        "posterior": f"posterior {run} --walkers {s['walkers']} --steps {s['steps']} "
+        f"--functions {s['functions']} --draws {s['draws']} --seed 0",
+        "diagnose": f"diagnose {run} --seed 0 --population {s['population']} "
+        f"--generations {s['generations']} --out {q(str(out / 'run' / 'diagnose'))}",
+        "report": f"report {run}",
     }
+    if s.get("candidates"):
+        lines["diagnose"] += f" --effects {','.join(s['candidates'])}"
+    return {stage: shlex.split(line) for stage, line in lines.items()}
 
 
 def run_stage(argv: list[str], log: Path) -> None:
@@ -107,8 +103,15 @@ def run_stage(argv: list[str], log: Path) -> None:
     from smcbayes.cli import build_parser
 
     args = build_parser().parse_args(argv)
-    with log.open("w", encoding="utf-8") as fh, contextlib.redirect_stdout(fh), contextlib.redirect_stderr(fh):
-        code = int(args.run(args) or 0)
+    try:
+        with (
+            log.open("w", encoding="utf-8") as fh,
+            contextlib.redirect_stdout(fh),
+            contextlib.redirect_stderr(fh),
+        ):
+            code = int(args.run(args) or 0)
+    except SmcBayesError as err:  # same class (exit code), with the stage and its log named
+        raise type(err)(f"demo stage '{argv[0]}': {err} (log: {log})") from err
     if code != 0:
         raise ConfigError(f"demo stage '{argv[0]}' exited with code {code}; see {log}")
 
@@ -117,8 +120,10 @@ def write_source(plan: DemoPlan, out: Path) -> None:
     """The demo's project file, so that ``synth`` can be re-run from the command line."""
     from smcbayes.data.synth import to_toml
 
-    header = ("# Project of `smcbayes demo` (from the embedded demo.toml); the synthetic truth is\n"
-              "# given on the synth command line recorded in run/demo.json.\n")
+    header = (
+        "# Project of `smcbayes demo` (from the embedded demo.toml); the synthetic truth is\n"
+        "# given on the synth command line recorded in run/demo.json.\n"
+    )
     (out / "demo-project.toml").write_text(header + to_toml(plan.project), encoding="utf-8")
 
 
@@ -135,20 +140,29 @@ def run_demo(out: Path, quick: bool, echo: Callable[[str], None] = print) -> Pat
     write_source(plan, out)
     commands = command_lines(plan, out)
     ids = [c["id"] for c in plan.project["configuration"]]
-    echo(f"smcbayes demo ({'quick' if quick else 'full'}): {len(ids)} configurations, truth with "
-         f"{plan.effect} on, calibrated model without it; output in {out}")
+    echo(
+        f"smcbayes demo ({'quick' if quick else 'full'}): {len(ids)} configurations, truth with "
+        f"{plan.effect} on, calibrated model without it; output in {out}"
+    )
     timings: dict[str, float] = {}
-    record = {"mode": "quick" if quick else "full", "effect_withheld": plan.effect,
-              "commands": ["smcbayes " + shlex.join(c) for c in commands.values()], "timings_s": timings}
+    record = {
+        "mode": "quick" if quick else "full",
+        "effect_withheld": plan.effect,
+        "commands": ["smcbayes " + shlex.join(c) for c in commands.values()],
+        "timings_s": timings,
+    }
     start = time.perf_counter()
     for k, stage in enumerate(STAGES, 1):
         if stage == "report":  # the report shows the commands and the times of the stages
-            (out / "run" / "demo.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+            (out / "run" / "demo.json").write_text(
+                json.dumps(record, indent=2) + "\n", encoding="utf-8"
+            )
         t0 = time.perf_counter()
         echo(f"[{k}/{len(STAGES)}] {stage:<9} ...")
         run_stage(commands[stage], out / "logs" / f"{stage}.log")
         timings[stage] = time.perf_counter() - t0
-        echo(f"[{k}/{len(STAGES)}] {stage:<9} done in {timings[stage]:.1f} s{_stage_note(stage, out)}")
+        note = _stage_note(stage, out)
+        echo(f"[{k}/{len(STAGES)}] {stage:<9} done in {timings[stage]:.1f} s{note}")
     timings["total"] = time.perf_counter() - start
     (out / "run" / "demo.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
     return out / "run" / "report.html"
@@ -157,14 +171,14 @@ def run_demo(out: Path, quick: bool, echo: Callable[[str], None] = print) -> Pat
 def _stage_note(stage: str, out: Path) -> str:
     """A short result of the stage for the progress line."""
     from smcbayes.report.collect import read_json
+    from smcbayes.report.document import fmt, pct
 
     run = out / "run"
     if stage == "calibrate" and (s := read_json(run / "summary.json")):
-        return f": best loss {s.get('best_loss_kN2', float('nan')):.4g} kN^2"
+        return f": best loss {fmt(s.get('best_loss_kN2'))} kN^2"
     if stage == "posterior" and (s := read_json(run / "posterior" / "summary.json")):
-        cov = [b.get("coverage90") for b in (s.get("bands") or {}).values()]
-        return f": {len(s.get('warnings') or [])} warning(s), 90 % band coverage " + \
-            ", ".join(f"{c:.0%}" for c in cov if isinstance(c, float))
+        cov = ", ".join(pct(b.get("coverage90")) for b in (s.get("bands") or {}).values())
+        return f": {len(s.get('warnings') or [])} warning(s), 90 % band coverage {cov or '-'}"
     if stage == "diagnose" and (s := read_json(run / "diagnose" / "summary.json")):
         best = (s.get("decision") or {}).get("best")
         return f": names {best or 'no effect'}"
@@ -174,17 +188,26 @@ def _stage_note(stage: str, out: Path) -> str:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the subcommand."""
     p = sub.add_parser(
-        "demo", help="run the whole chain on an embedded synthetic case and write a report",
+        "demo",
+        help="run the whole chain on an embedded synthetic case and write a report",
         description="Write synthetic press data from the embedded demo project (thesis-like "
-                    "bar and centre charges at 0.3/0.7/1.1 mm/s, an effect on in the truth and "
-                    "withheld from the calibrated model), then calibrate, sample the posterior "
-                    "with predictive bands on the held-out configurations, diagnose the gap "
-                    "and write the report (OUT/run/report.html). About 3 minutes; --quick "
-                    "about 1 minute.")
-    p.add_argument("--out", default="smcbayes-demo", metavar="DIR",
-                   help="output directory, new or empty (default: ./smcbayes-demo)")
-    p.add_argument("--quick", action="store_true",
-                   help="4 configurations and small budgets (a smoke test of the chain)")
+        "bar and centre charges at 0.3/0.7/1.1 mm/s, an effect on in the truth and "
+        "withheld from the calibrated model), then calibrate, sample the posterior "
+        "with predictive bands on the held-out configurations, diagnose the gap "
+        "and write the report (OUT/run/report.html). About 2 minutes; --quick "
+        "under a minute.",
+    )
+    p.add_argument(
+        "--out",
+        default="smcbayes-demo",
+        metavar="DIR",
+        help="output directory, new or empty (default: ./smcbayes-demo)",
+    )
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="4 configurations and small budgets (a smoke test of the chain)",
+    )
     p.set_defaults(run=run)
 
 
@@ -192,6 +215,8 @@ def run(args: argparse.Namespace) -> int:
     """Execute ``demo``."""
     start = time.perf_counter()
     report = run_demo(Path(args.out), args.quick)
-    print(f"report: {report} (Markdown twin: {report.with_suffix('.md')}); "
-          f"total {time.perf_counter() - start:.1f} s")
+    print(
+        f"report: {report} (Markdown twin: {report.with_suffix('.md')}); "
+        f"total {time.perf_counter() - start:.1f} s"
+    )
     return 0

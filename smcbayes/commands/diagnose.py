@@ -1,4 +1,5 @@
-"""``smcbayes diagnose``: where the sim-to-real gap lies, which effect causes it, how far it shrinks."""
+"""``smcbayes diagnose``: where the sim-to-real gap lies, which effect causes it, how far it
+shrinks."""
 
 from __future__ import annotations
 
@@ -26,10 +27,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--holdout", metavar="ID,...", default=None,
                    help="held-out configurations, comma-separated (default: the middle speed of "
                         "each charge group)")
-    p.add_argument("--pair", action="store_true", help="also re-calibrate the best two effects together")
+    p.add_argument("--pair", action="store_true",
+                   help="also re-calibrate the best two effects together")
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same ranking)")
     p.add_argument("--population", type=int, default=24, help="parameter sets per generation")
-    p.add_argument("--generations", type=int, default=12, help="optimiser generations per re-calibration")
+    p.add_argument("--generations", type=int, default=12,
+                   help="optimiser generations per re-calibration")
     p.add_argument("--min-score", type=float, default=3.0,
                    help="penalised held-out score (log Bayes factor) needed to name an effect "
                         "(default 3)")
@@ -85,14 +88,17 @@ def run(args: argparse.Namespace) -> int:
     chosen = candidates(args.effects)
     fit = FitSettings(population=args.population, generations=args.generations)
     fit.check()
-    holdout = None if args.holdout is None else tuple(s.strip() for s in args.holdout.split(",") if s.strip())
+    holdout = None
+    if args.holdout is not None:
+        holdout = tuple(s.strip() for s in args.holdout.split(",") if s.strip())
     ctx = context_from_run(run_dir)
     settings = DiagnoseSettings(candidates=not_on(chosen, ctx.base_effects), holdout=holdout,
                                 pair=args.pair, seed=args.seed, fit=fit, min_score=args.min_score,
                                 figures=not args.no_figures)
     summary = diagnose(ctx, settings, Path(args.out))
     print(f"where: {summary['where']['verdict']}")
-    print(f"{'rank':>4}  {'effect':<34} {'held-out loss kN2':>18} {'shrink %':>9} {'z':>7} {'score':>9}")
+    print(f"{'rank':>4}  {'effect':<34} {'held-out loss kN2':>18} {'shrink %':>9} {'z':>7} "
+          f"{'score':>9}")
     for r in summary["ranking"]:
         print(f"{r['rank']:>4}  {r['effect']:<34} {r['holdout_loss_kN2']:>18.4g} "
               f"{r['holdout_shrink_pct']:>9.1f} {r['dm_z']:>7.2f} {r['score']:>9.3g}"

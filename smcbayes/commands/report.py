@@ -9,16 +9,26 @@ from pathlib import Path
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the subcommand."""
     p = sub.add_parser(
-        "report", help="write the report of a run (self-contained HTML and Markdown)",
+        "report",
+        help="write the report of a run (self-contained HTML and Markdown)",
         description="Write RUN_DIR/report.html (one self-contained file: figures embedded, no "
-                    "network needed, printable) and RUN_DIR/report.md (figures by relative path): "
-                    "data, calibration, posterior, predictive bands, gap diagnosis and a "
-                    "reproducibility block. Sections of stages that were not run are left out.")
+        "network needed, printable) and RUN_DIR/report.md (figures by relative path): "
+        "data, calibration, posterior, predictive bands, gap diagnosis and a "
+        "reproducibility block. Sections of stages that were not run are left out.",
+    )
     p.add_argument("run_dir", metavar="RUN_DIR", help="run directory of `smcbayes calibrate`")
-    p.add_argument("--format", choices=("html", "md", "both"), default="both",
-                   help="what to write (default: both)")
-    p.add_argument("--diagnosis", metavar="DIR", default=None,
-                   help="output folder of `smcbayes diagnose` (default: RUN_DIR/diagnose)")
+    p.add_argument(
+        "--format",
+        choices=("html", "md", "both"),
+        default="both",
+        help="what to write (default: both)",
+    )
+    p.add_argument(
+        "--diagnosis",
+        metavar="DIR",
+        default=None,
+        help="output folder of `smcbayes diagnose` (default: RUN_DIR/diagnose)",
+    )
     p.set_defaults(run=run)
 
 

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from smcbayes.config import load_project, parse_assignments
-from smcbayes.data.synth import NoiseSpec, TRUTH_FILE, write_synthetic
+from smcbayes.data.synth import TRUTH_FILE, NoiseSpec, write_synthetic
 from smcbayes.forward.model import ForwardModel
 
 

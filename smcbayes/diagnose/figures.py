@@ -34,8 +34,8 @@ def phase_bars(shrink: dict, path: Path) -> list[Path]:
     plt = pyplot()
     models = shrink["models"]
     ids = shrink["sets"]["fit"] + shrink["sets"]["holdout"]
-    fig, axes = plt.subplots(1, len(PHASE_NAMES), figsize=(4.0 * len(PHASE_NAMES), 0.35 * len(ids) + 2.0),
-                             sharey=True)
+    size = (4.0 * len(PHASE_NAMES), 0.35 * len(ids) + 2.0)
+    fig, axes = plt.subplots(1, len(PHASE_NAMES), figsize=size, sharey=True)
     y = np.arange(len(ids))
     h = 0.8 / max(len(models), 1)
     for a, (ax, phase) in enumerate(zip(axes, PHASE_NAMES, strict=True)):
@@ -69,7 +69,8 @@ def before_after(ctx: DiagnosisContext, fits: dict[str, Fit], ids: Sequence[str]
             r = res[cid]
             ts = r.switch_time_s[0] if np.isfinite(r.switch_time_s[0]) else r.time_s[0, -1]
             keep = r.time_s[0] <= ts
-            ax.plot(r.time_s[0, keep], r.force_kN[0, keep], color=COLOURS[i % 3], lw=1.1, label=label)
+            ax.plot(r.time_s[0, keep], r.force_kN[0, keep], color=COLOURS[i % 3], lw=1.1,
+                    label=label)
         ax.set_title(cid + (" (held out)" if cid in holdout else ""), fontsize=9)
         ax.set_xlabel("time from contact (s)")
         ax.set_ylabel("force (kN)")

@@ -111,7 +111,8 @@ def which_effect(ctx: DiagnosisContext, settings: DiagnoseSettings, fit_ids: lis
     for name in settings.candidates:
         t0 = time.perf_counter()
         sigs[name] = signature(ctx, name, base, fit_ids, rng)
-        fits[name] = refit(ctx, (name,), fit_ids, ctx.start((name,), base.params), settings.fit, rng)
+        start = ctx.start((name,), base.params)
+        fits[name] = refit(ctx, (name,), fit_ids, start, settings.fit, rng)
         tests[name] = held_out_test(ctx, base, fits[name], holdout)
         log(f"{name}: absorbable {100 * sigs[name].absorbable_share:.0f} %, held-out loss "
             f"{tests[name].loss_kN2:.4g} vs {tests[name].loss_base_kN2:.4g} kN^2, "
@@ -124,7 +125,8 @@ def which_effect(ctx: DiagnosisContext, settings: DiagnoseSettings, fit_ids: lis
         start = ctx.start((a, b), {**fits[a].params, **fits[b].params})
         fits[f"{a}+{b}"] = refit(ctx, (a, b), fit_ids, start, settings.fit, rng)
         test = held_out_test(ctx, base, fits[f"{a}+{b}"], holdout)
-        pair_row = score_row(ctx, base, fits[f"{a}+{b}"], test, n_eff_fit, n_eff_ho, settings.min_score)
+        pair_row = score_row(ctx, base, fits[f"{a}+{b}"], test, n_eff_fit, n_eff_ho,
+                             settings.min_score)
         rows = _rank(rows + [pair_row], sigs)
         log(f"pair {a}+{b}: held-out loss {test.loss_kN2:.4g} kN^2, z {test.z:.2f}")
     evidence = {"n_eff_fit": n_eff_fit, "n_eff_holdout": n_eff_ho,
@@ -152,11 +154,13 @@ def decide(rows: list[dict], min_score: float) -> dict:
     if top is None or not top["significant"]:
         why = ("no candidate" if top is None else
                f"the best candidate, {top['effect']}, improves the held-out loss by "
-               f"{top['holdout_shrink_pct']:.1f} %, penalised score {top['score']:.3g} < {min_score:g}")
+               f"{top['holdout_shrink_pct']:.1f} %, penalised score {top['score']:.3g} "
+               f"< {min_score:g}")
         return {"best": None, "statement": f"no effect explains the gap beyond noise: {why}"}
     return {"best": top["effect"],
             "statement": (f"{top['effect']} explains the gap: held-out loss "
-                          f"{top['holdout_loss_base_kN2']:.4g} -> {top['holdout_loss_kN2']:.4g} kN^2 "
+                          f"{top['holdout_loss_base_kN2']:.4g} -> "
+                          f"{top['holdout_loss_kN2']:.4g} kN^2 "
                           f"({top['holdout_shrink_pct']:.1f} % shrink, z = {top['dm_z']:.1f}, "
                           f"penalised score {top['score']:.3g})")}
 
@@ -200,7 +204,8 @@ def write_outputs(ctx: DiagnosisContext, summary: dict, where: WhereReport, show
     from smcbayes.diagnose import figures
 
     out.mkdir(parents=True, exist_ok=True)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n", encoding="utf-8")
+    text = json.dumps(summary, indent=2, default=float) + "\n"
+    (out / "summary.json").write_text(text, encoding="utf-8")
     with (out / "ranking.csv").open("w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=RANKING_COLUMNS, extrasaction="ignore")
         w.writeheader()

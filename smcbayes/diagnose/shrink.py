@@ -23,8 +23,9 @@ def model_table(ctx: DiagnosisContext, fit: Fit, ids: Sequence[str]) -> dict[str
     out = {}
     for k, cid in enumerate(ids):
         mse = float(bd.shift_kN2[0, k] + bd.amplitude_kN2[0, k] + bd.shape_kN2[0, k])
-        phases = {p: (None if not np.isfinite(bd.phase_mse_kN2[0, k, i])
-                      else float(np.sqrt(bd.phase_mse_kN2[0, k, i]))) for i, p in enumerate(PHASE_NAMES)}
+        pm = bd.phase_mse_kN2[0, k]
+        phases = {p: (float(np.sqrt(pm[i])) if np.isfinite(pm[i]) else None)
+                  for i, p in enumerate(PHASE_NAMES)}
         out[cid] = {"mse_kN2": mse, "rmse_kN": float(np.sqrt(mse)) if np.isfinite(mse) else None,
                     "phase_rmse_kN": phases}
     return out
@@ -47,7 +48,8 @@ def shrink_summary(ctx: DiagnosisContext, fits: dict[str, Fit], fit_ids: Sequenc
     for label in labels[1:]:
         for name in sets:
             before, after = ref[name]["loss_kN2"], models[label][name]["loss_kN2"]
-            models[label][name]["shrink_pct"] = 100.0 * (1.0 - after / before) if before > 0 else 0.0
+            shrink = 100.0 * (1.0 - after / before) if before > 0 else 0.0
+            models[label][name]["shrink_pct"] = shrink
             for cid, row in models[label][name]["per_config"].items():
                 b = ref[name]["per_config"][cid]["mse_kN2"]
                 row["shrink_pct"] = 100.0 * (1.0 - row["mse_kN2"] / b) if b > 0 else 0.0

@@ -70,7 +70,8 @@ def make_case(project: ProjectConfig, ids: Sequence[str], effect: str | None,
 
 
 def calibrate_base(project: ProjectConfig, population: int, generations: int,
-                   rng: np.random.Generator, truth: Mapping[str, float] | None = None) -> DiagnosisContext:
+                   rng: np.random.Generator,
+                   truth: Mapping[str, float] | None = None) -> DiagnosisContext:
     """Calibrate the base model on every configuration of ``project``; the diagnosis context."""
     ids = [c.id for c in project.configuration if c.role == "train"]
     dataset = load_dataset(project, ids=ids, preprocess=project.preprocess)
@@ -83,9 +84,10 @@ def calibrate_base(project: ProjectConfig, population: int, generations: int,
         total = np.mean(ctx.losses((), space.from_unit(np.clip(u.T, 0.0, 1.0)), ids), axis=1)
         return np.where(np.isfinite(total), total, FAILED_LOSS)
 
-    out = differential_evolution(objective, [(0.0, 1.0)] * space.dim, init=init, maxiter=generations,
-                                 tol=0.0, atol=0.0, polish=False, vectorized=True,
-                                 updating="deferred", rng=int(rng.integers(2**31 - 1)))
+    out = differential_evolution(objective, [(0.0, 1.0)] * space.dim, init=init,
+                                 maxiter=generations, tol=0.0, atol=0.0, polish=False,
+                                 vectorized=True, updating="deferred",
+                                 rng=int(rng.integers(2**31 - 1)))
     batch = space.batch(space.from_unit(np.clip(out.x, 0.0, 1.0)[None, :]))
     ctx.base_params = {k: float(v[0]) for k, v in batch.items()}
     return ctx

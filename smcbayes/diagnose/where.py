@@ -68,9 +68,12 @@ class WhereReport:
         """JSON-ready dictionary (per configuration entries keyed by id)."""
         per = {}
         for k, cid in enumerate(self.ids):
-            per[cid] = {"mse_kN2": float(self.mse_kN2[k]), "rmse_kN": float(np.sqrt(self.mse_kN2[k])),
-                        "phase_rmse_kN": {p: _num(self.phase_rmse_kN[k, i]) for i, p in enumerate(PHASE_NAMES)},
-                        "phase_share": {p: _num(self.phase_share[k, i]) for i, p in enumerate(PHASE_NAMES)},
+            per[cid] = {"mse_kN2": float(self.mse_kN2[k]),
+                        "rmse_kN": float(np.sqrt(self.mse_kN2[k])),
+                        "phase_rmse_kN": {p: _num(self.phase_rmse_kN[k, i])
+                                          for i, p in enumerate(PHASE_NAMES)},
+                        "phase_share": {p: _num(self.phase_share[k, i])
+                                        for i, p in enumerate(PHASE_NAMES)},
                         "lag_s": float(self.lag_s[k]), "limit_lag_s": _num(self.limit_lag_s[k]),
                         "split_kN2": dict(zip(("timing", "amplitude", "shape"),
                                               map(float, self.split_kN2[k]), strict=True))}
@@ -187,7 +190,7 @@ def make_verdict(ctx: DiagnosisContext, rep: WhereReport, share: float) -> tuple
                 if abs(mean_lag) >= 0.05 else "on time (within 0.05 s)")
         lag_txt = f": the simulation reaches the force limit {when}"
     rmse = float(np.sqrt(np.mean(rep.mse_kN2)))
-    verdict = (f"the misfit is concentrated in {window_words(i, j, rep.bins.size)} of "
+    verdict = (f"the misfit is concentrated in {window_words(i, j, rep.bins.size)} in "
                f"{describe_group(ctx, focus_ids, rep.ids)} ({100 * in_window:.0f} % of the squared "
                f"error, mostly in the {PHASE_WORDS[phase]} phase){lag_txt}; there the measured "
                f"force lies {sign} the simulated one by {_kn(abs(mean_r))} kN on average; "
@@ -196,5 +199,6 @@ def make_verdict(ctx: DiagnosisContext, rep: WhereReport, share: float) -> tuple
     focus = {"configurations": focus_ids, "window": [i / rep.bins.size, j / rep.bins.size],
              "share_in_focus": float(in_window), "phase": phase, "mean_residual_kN": mean_r,
              "limit_lag_s": None if not np.any(np.isfinite(lag)) else float(np.nanmean(lag)),
-             "split_share": dict(zip(("timing", "amplitude", "shape"), map(float, split), strict=True))}
+             "split_share": dict(zip(("timing", "amplitude", "shape"), map(float, split),
+                                     strict=True))}
     return verdict, focus

@@ -21,7 +21,8 @@ pure noise; one common value, so that the scores of all candidates are comparabl
     score = (N_eff_ho / 2) ln(L_ho_base / L_ho_effect) - (k / 2) ln(N_eff_fit)
 
 with ``k`` the effect's extra free parameters (a BIC penalty, ``N_eff_fit`` likewise from the
-residuals of the best-fitting model on the fitting configurations).  Candidates are ranked by it.  The score is a log
+residuals of the best-fitting model on the fitting configurations).  Candidates are ranked
+by it.  The score is a log
 Bayes factor in BIC approximation evaluated out of sample.
 
 **Decision** ("no effect explains the gap beyond noise" otherwise): the top candidate is
@@ -45,7 +46,7 @@ from numpy.typing import NDArray
 from scipy.optimize import lsq_linear
 
 from smcbayes.diagnose.fit import (
-    DiagnosisContext, Fit, FitSettings, initial_population, residuals_on, window_end,
+    DiagnosisContext, Fit, FitSettings, initial_population, residual_stack,
 )
 from smcbayes.posterior.likelihood import effective_points, integrated_autocorr_time
 
@@ -66,22 +67,6 @@ class Signature:
     predicted_loss_kN2: float
 
 
-def residual_stack(ctx: DiagnosisContext, extra: Sequence[str], theta: Array, ids: Sequence[str],
-                   ends: dict[str, float] | None = None) -> tuple[dict[str, Array], dict[str, float]]:
-    """Residuals ``(P, N)`` per configuration on fixed windows (row 0's window by default)."""
-    results = ctx.simulate(extra, theta, ids)
-    clip, points = ctx.project.loss.clip, ctx.project.loss.grid_points
-    out, used = {}, {}
-    for cid in ids:
-        m = ctx.dataset[cid]
-        end = ends[cid] if ends else float(window_end(results[cid], m, clip)[0])
-        if not np.isfinite(end):
-            end = float(m.force.time_s[-1])
-        out[cid] = residuals_on(results[cid], m, clip, end, points)[1]
-        used[cid] = end
-    return out, used
-
-
 def signature(ctx: DiagnosisContext, effect: str, base: Fit, ids: Sequence[str],
               rng: np.random.Generator, probes: int = 8) -> Signature:
     """Sensitivity and absorbable share of ``effect`` at the base optimum (module docstring).
@@ -94,7 +79,8 @@ def signature(ctx: DiagnosisContext, effect: str, base: Fit, ids: Sequence[str],
     space = model.space
     u0 = np.clip(space.to_unit(ctx.start([effect], base.params))[0], 0.0, 1.0)
     cols_e = effect_columns(ctx, (effect,))
-    starts = initial_population(u0, cols_e, FitSettings(population=probes + 1, lhs_starts=probes), rng)
+    probe = FitSettings(population=probes + 1, lhs_starts=probes)
+    starts = initial_population(u0, cols_e, probe, rng)
     loss0 = np.mean(ctx.losses([effect], space.from_unit(starts), ids), axis=1)
     u0 = starts[int(np.nanargmin(np.where(np.isfinite(loss0), loss0, np.inf)))]
     d = u0.size
@@ -109,7 +95,8 @@ def signature(ctx: DiagnosisContext, effect: str, base: Fit, ids: Sequence[str],
     ok = np.all(np.isfinite(cols), axis=0)
     r0 = np.nan_to_num(r0)
     sol = lsq_linear(cols[:, ok], r0, bounds=(-u0[ok], 1.0 - u0[ok])) if ok.any() else None
-    pred = float(np.sum((r0 - cols[:, ok] @ sol.x) ** 2)) if sol is not None else float(np.sum(r0**2))
+    left = r0 - cols[:, ok] @ sol.x if sol is not None else r0
+    pred = float(np.sum(left**2))
     # RMS over all points of one column = sqrt(sum of squares * K) after the 1/sqrt(N K) scaling
     rms = [float(np.sqrt(np.sum(np.nan_to_num(cols[:, j]) ** 2) * K)) for j in cols_e]
     j_best = int(np.argmax(rms)) if rms else 0

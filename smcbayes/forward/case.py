@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from smcbayes.config import ConfigurationSpec
 from smcbayes.errors import ConfigError
 from smcbayes.forward.layout import union_area
-from smcbayes.units import G, KN, MM, celsius_to_kelvin
+from smcbayes.units import KN, MM, G, celsius_to_kelvin
 
 Array = NDArray[np.float64]
 

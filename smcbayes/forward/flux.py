@@ -113,7 +113,9 @@ class MaterialTable:
     def build(cls, tau: Array, n: Array, tau_star: Array, a_s: Array, tau_c: Array,
               m: Array, threshold_exponent: float = 10.0) -> MaterialTable:
         """Tabulate slip and shear laws; all parameters SI, shape ``(P,)``."""
-        col = (lambda v: np.asarray(v, dtype=float)[:, None])
+        def col(v: Array) -> Array:
+            return np.asarray(v, dtype=float)[:, None]
+
         rate = cross_shear_rate(tau[None, :], 1.0, col(tau_star), col(n))  # eta0 * gdot
         shear = cumulative_power_integral(rate * tau[None, :], tau, 1.0)
         slip = slip_velocity(tau[None, :], col(a_s), col(tau_c), col(m), threshold_exponent)

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from scipy import ndimage
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from smcbayes.errors import SolverError
 
@@ -180,7 +180,7 @@ def spill(h: Array, gap: float) -> Array:
         count = sum(t.astype(float) for t in targets)
         share = excess / np.maximum(count, 1.0)
         gained = np.zeros((nx + 2, ny + 2))
-        for (a, b), t in zip(shifts, targets):
+        for (a, b), t in zip(shifts, targets, strict=False):
             gained[a:a + nx, b:b + ny] += np.where(t, share, 0.0)
         h += gained[1:-1, 1:-1] - excess
     raise SolverError("2-D fill update: overflow could not be redistributed")
@@ -308,7 +308,7 @@ def solve_pressure(grid: Grid, fill: Array, fluidity: Fluidity, speed: float | N
         lin = _linearise(grid, p, fx, fy, fluidity, V, unknown, jacobian=False)
         p.ravel()[where] = spla.spsolve(_matrix(where.size, unknown, fx, fy, *lin.secant),
                                         np.full(where.size, V * grid.cell_area))
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007  (the count is returned below)
         lin = _linearise(grid, p, fx, fy, fluidity, V, unknown)
         err = np.max(np.abs(lin.residual), initial=0.0) / (V * grid.cell_area)
         if speed is None:

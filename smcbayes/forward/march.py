@@ -29,8 +29,8 @@ from smcbayes.forward.case import Case
 from smcbayes.forward.effects.base import EffectStack
 from smcbayes.forward.flux import FlowTable, MaterialTable
 from smcbayes.forward.nodes import Nodes
-from smcbayes.forward.squeeze1d import shape_factor
 from smcbayes.forward.result import PHASE_FLOW, PHASE_FORCE, PHASE_FULL, STATUS_OK
+from smcbayes.forward.squeeze1d import shape_factor
 
 Array = NDArray[np.float64]
 

@@ -19,7 +19,12 @@ from smcbayes.errors import ConfigError, SolverError
 from smcbayes.forward.case import Case
 from smcbayes.forward.effects.base import EffectStack, get_effect
 from smcbayes.forward.parameters import (
-    BASE_PARAMETERS, Parameter, ParameterSpace, closest, to_si, validate_batch,
+    BASE_PARAMETERS,
+    Parameter,
+    ParameterSpace,
+    closest,
+    to_si,
+    validate_batch,
 )
 from smcbayes.forward.result import SimulationResult
 from smcbayes.forward.squeeze1d import Squeeze1D, Squeeze1DOptions

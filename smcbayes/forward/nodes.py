@@ -15,7 +15,12 @@ from numpy.typing import NDArray
 
 from smcbayes.forward.case import Case
 from smcbayes.forward.result import (
-    PHASE_CONTACT, PHASE_FLOW, PHASE_FORCE, PHASE_FULL, STATUS_OK, SimulationResult,
+    PHASE_CONTACT,
+    PHASE_FLOW,
+    PHASE_FORCE,
+    PHASE_FULL,
+    STATUS_OK,
+    SimulationResult,
 )
 from smcbayes.units import KN, MM
 

@@ -1,8 +1,16 @@
 """Refinement of the emulator where the posterior lives, and a check of the emulator.
 
-Refinement picks, among posterior draws (probable by construction), the ones where the GP
-is most uncertain, greedily and at least ``min_distance`` apart in the unit cube, runs the
-forward model there, and refits the GP on calibration + refinement data.
+A refinement round evaluates the forward model at three kinds of points (:func:`round_design`):
+
+* random posterior draws of the current emulator: unbiased test points; the emulator's
+  error there, *before* they join the training data, is the round's out-of-sample check
+  (:func:`check_values`) and drives the stopping rule of the stage;
+* the posterior draws where the GP is most uncertain, greedily and at least
+  ``min_distance`` apart in the unit cube (:func:`refine_points`);
+* a Latin hypercube over the box of the bulk of the draws (:func:`local_box`), which
+  fills the posterior's region evenly, tails included, where draws are sparse.
+
+The GP is then refitted on calibration + refinement data.
 
 The check runs the forward model at posterior draws and compares the emulated with the
 true log-likelihood, -(N_eff/2) log L, in nats.
@@ -55,17 +63,32 @@ def local_box(draws_unit: Array, widen: float = 0.5, min_width: float = 0.02) ->
     return np.clip(lo - pad, 0.0, 1.0), np.clip(hi + pad, 0.0, 1.0)
 
 
-def local_design(draws_unit: Array, surrogate: Surrogate, count: int,
-                 rng: np.random.Generator) -> Array:
-    """Refinement points: half a Latin hypercube over :func:`local_box`, half the most
-    uncertain posterior draws (:func:`refine_points`)."""
+def round_design(draws_unit: Array, surrogate: Surrogate, count: int,
+                 rng: np.random.Generator) -> tuple[Array, int]:
+    """Points of one refinement round: a third random posterior draws (first), a third a
+    Latin hypercube over :func:`local_box`, the rest the most uncertain draws.
+
+    Returns:
+        ``(points (<= count, d), number of leading random draws)``.
+    """
     from scipy.stats import qmc
 
-    n_lhs = count // 2
+    n_rand = count // 3
+    n_lhs = count // 3
+    rand = draws_unit[rng.choice(draws_unit.shape[0], size=min(n_rand, draws_unit.shape[0]), replace=False)]
     lo, hi = local_box(draws_unit)
     lhs = qmc.LatinHypercube(d=draws_unit.shape[1], seed=int(rng.integers(2**31 - 1))).random(n_lhs)
-    picks = refine_points(draws_unit, surrogate, count - n_lhs, rng)
-    return np.vstack([lo + lhs * (hi - lo), picks])
+    picks = refine_points(draws_unit, surrogate, count - rand.shape[0] - n_lhs, rng)
+    return np.vstack([rand, lo + lhs * (hi - lo), picks]), rand.shape[0]
+
+
+def check_values(emulated: Array, true: Array, n_eff: float) -> float:
+    """Mean absolute error (nats, common offset removed) of emulated vs true log(loss)."""
+    ok = np.isfinite(true) & np.isfinite(emulated)
+    if ok.sum() < 2:
+        return float("nan")
+    err = -0.5 * n_eff * (emulated[ok] - true[ok])
+    return float(np.mean(np.abs(err - np.mean(err))))
 
 
 @dataclass(frozen=True)

@@ -2,8 +2,11 @@
 
 Reads the run (its resolved config, GP state and best point), estimates the effective
 number of independent points from the residuals at the best point, samples the emulated
-posterior (a mixture over GP sample functions), optionally refines the emulator, checks it
-against the forward model at posterior draws, and writes ``RUN_DIR/posterior/``:
+posterior (a mixture over GP sample functions), optionally refines the emulator (rounds
+of forward evaluations at random, most uncertain and space-filling points of the emulated
+posterior's region, stopped early once the out-of-sample error at fresh posterior draws
+is below ``refine_tolerance_nats``; see :func:`refine` and :mod:`smcbayes.posterior.refine`),
+checks it against the forward model at posterior draws, and writes ``RUN_DIR/posterior/``:
 ``posterior.nc`` (arviz InferenceData), ``summary.json``, ``summary.csv``, figures
 (corner, correlations, predictive bands; PNG and SVG) and, after refinement,
 ``gp_refined.pt`` and ``refine.jsonl``.
@@ -39,6 +42,8 @@ class PosteriorSettings:
         refine: forward evaluations added where the posterior is probable and the GP unsure.
         draws: posterior draws pushed through the forward model (bands and emulator check).
         seed: random seed.
+        refine_tolerance_nats: refinement stops early once the emulator's out-of-sample
+            error at fresh posterior draws is below this (mean absolute, nats) twice in a row.
     """
 
     walkers: int = 32
@@ -47,6 +52,7 @@ class PosteriorSettings:
     refine: int = 0
     draws: int = 100
     seed: int = 0
+    refine_tolerance_nats: float = 1.0
 
 
 @dataclass
@@ -158,33 +164,50 @@ def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int) -> Any:
 
 def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
            settings: PosteriorSettings, rng: np.random.Generator, out_dir: Path) -> tuple[Any, tuple[Array, Array]]:
-    """Rounds of: sample, evaluate the forward model where the GP is unsure, refit.
+    """Rounds of: sample the emulated posterior (the mixture over GP sample functions, with
+    fresh functions each round, shorter chains), evaluate the forward model (random,
+    uncertain and space-filling points of its region), check the emulator out of sample,
+    refit.
+
+    Stops when ``settings.refine`` evaluations are spent or, after at least two rounds,
+    when the out-of-sample error at the round's random posterior draws is below
+    ``settings.refine_tolerance_nats`` in two consecutive rounds.
 
     Returns the refitted surrogate and the enlarged training data ``(x_unit, log_loss)``.
     """
-    from smcbayes.posterior.refine import local_design
+    from smcbayes.posterior.refine import check_values, round_design
 
     x, y = data
-    remaining = settings.refine
-    per_round = max(4, min(20, settings.refine // 4))
-    quick = PosteriorSettings(walkers=settings.walkers, steps=min(settings.steps, 1000), functions=0,
-                              seed=int(rng.integers(2**31 - 1)))
+    remaining, rounds, below = settings.refine, 0, 0
+    per_round = max(9, min(30, settings.refine // 4))
     while remaining > 0:
+        # draws of the same mixture over sample functions as the final posterior: a sample
+        # function's spurious dip far from the data is then evaluated and corrected
+        quick = PosteriorSettings(walkers=settings.walkers, steps=min(settings.steps, 1000),
+                                  functions=settings.functions, seed=int(rng.integers(2**31 - 1)))
         _, chains = sample(ctx, surrogate, n_eff, quick, rng)
         pooled = np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
-        pts = local_design(pooled, surrogate, min(per_round, remaining), rng)
+        pts, n_rand = round_design(pooled, surrogate, min(per_round, remaining), rng)
         remaining -= max(len(pts), 1)
         theta = ctx.space.from_unit(pts)
         vals = true_log_loss(ctx, theta)
+        cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
+        err = check_values(surrogate.predict(pts[:n_rand])[0], np.minimum(vals[:n_rand], cap), n_eff)
         with (out_dir / "refine.jsonl").open("a", encoding="utf-8") as fh:
-            for row, val in zip(theta, vals, strict=True):
-                rec = {"params": dict(zip(ctx.space.free_names, row.tolist(), strict=True)),
+            for k, (row, val) in enumerate(zip(theta, vals, strict=True)):
+                rec = {"round": rounds, "kind": "draw" if k < n_rand else "design",
+                       "params": dict(zip(ctx.space.free_names, row.tolist(), strict=True)),
                        "log_loss": None if not np.isfinite(val) else float(val)}
                 fh.write(json.dumps(rec) + "\n")
         ok = np.isfinite(vals)
         x, y = np.vstack([x, pts[ok]]), np.concatenate([y, vals[ok]])
         surrogate = fit_local(x, y, n_eff, surrogate.kernel, int(rng.integers(2**31 - 1)))
-        print(f"  refined: {x.shape[0]} training points, best log-loss {np.min(y):.4f}", file=sys.stderr)
+        rounds += 1
+        below = below + 1 if err < settings.refine_tolerance_nats else 0
+        print(f"  refined: {x.shape[0]} training points, best log-loss {np.min(y):.4f}, "
+              f"out-of-sample error {err:.2f} nats", file=sys.stderr)
+        if rounds >= 2 and below >= 2:
+            break
     return surrogate, (x, y)
 
 

@@ -10,10 +10,17 @@ from smcbayes import __version__
 from smcbayes.errors import ConfigError
 from smcbayes.report.collect import RunFiles, load_run_files
 from smcbayes.report.document import Section
-from smcbayes.report.measured import load_measured, plot_measured, project_of, validation_errors
+from smcbayes.report.measured import (
+    load_measured,
+    plot_measured,
+    project_of,
+    search_ranges,
+    validation_errors,
+)
 from smcbayes.report.render import to_html, to_markdown
+from smcbayes.report.sections_diagnosis import diagnosis_section
 from smcbayes.report.sections_run import calibration_section, data_section, reproducibility_section
-from smcbayes.report.sections_stages import bands_section, diagnosis_section, posterior_section
+from smcbayes.report.sections_stages import bands_section, posterior_section
 
 FORMATS = ("html", "md")
 FIGURE_DIR = "report_figures"
@@ -30,17 +37,22 @@ def build_sections(run: RunFiles) -> list[Section]:
         paths = plot_measured(dataset, run.run_dir / FIGURE_DIR / "measured")
         measured_png = paths[0] if paths else None
         validation = validation_errors(run.config, run.calibration, project, dataset)
-    sections = [data_section(run, dataset, measured_png), calibration_section(run, validation)]
-    for make in (posterior_section, bands_section, diagnosis_section):
-        sec = make(run)
-        if sec is not None:
-            sections.append(sec)
+    ranges = search_ranges(run.config, project) if project is not None else {}
+    sections = [
+        data_section(run, dataset, measured_png),
+        calibration_section(run, validation),
+        posterior_section(run, ranges),
+        bands_section(run),
+        diagnosis_section(run),
+    ]
+    sections = [s for s in sections if s is not None]
     sections.append(reproducibility_section(run))
     return sections
 
 
-def write_report(run_dir: Path, formats: Sequence[str] = FORMATS,
-                 diagnosis_dir: Path | None = None) -> list[Path]:
+def write_report(
+    run_dir: Path, formats: Sequence[str] = FORMATS, diagnosis_dir: Path | None = None
+) -> list[Path]:
     """Write the report of ``run_dir`` in ``formats``; returns the written files.
 
     Args:
@@ -58,9 +70,14 @@ def write_report(run_dir: Path, formats: Sequence[str] = FORMATS,
     sections = build_sections(run)
     name = (run.config.get("project") or {}).get("name", "run")
     title = f"smcbayes report: {name}"
-    now = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    stages = ", ".join(s.title.lower() for s in sections if s.key not in ("data", "reproducibility"))
-    subtitle = f"Run directory {run_dir.resolve()}; stages: {stages}; smcbayes {__version__}; written {now}."
+    now = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    stages = ", ".join(
+        s.title.lower() for s in sections if s.key not in ("data", "reproducibility")
+    )
+    subtitle = (
+        f"Run directory {run_dir.resolve()}; stages: {stages}; smcbayes {__version__}; "
+        f"written {now}."
+    )
     out = []
     if "html" in formats:
         path = run_dir / "report.html"

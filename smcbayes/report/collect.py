@@ -75,7 +75,7 @@ def data_dir_of(config: dict[str, Any]) -> Path | None:
     if not data:
         return None
     path = Path(data)
-    return path if path.is_absolute() else Path(project.get("base_dir", ".")) / path
+    return (path if path.is_absolute() else Path(project.get("base_dir", ".")) / path).resolve()
 
 
 def load_run_files(run_dir: Path, diagnosis_dir: Path | None = None) -> RunFiles:
@@ -91,8 +91,10 @@ def load_run_files(run_dir: Path, diagnosis_dir: Path | None = None) -> RunFiles
     config = _dict_or_none(read_json(run_dir / "config.json"))
     calibration = _dict_or_none(read_json(run_dir / "summary.json"))
     if config is None or calibration is None:
-        raise ConfigError(f"{run_dir}: not a calibration run directory (config.json and "
-                          "summary.json missing or unreadable); run `smcbayes calibrate` first")
+        raise ConfigError(
+            f"{run_dir}: not a calibration run directory (config.json and "
+            "summary.json missing or unreadable); run `smcbayes calibrate` first"
+        )
     diag_dir = diagnosis_dir if diagnosis_dir is not None else run_dir / "diagnose"
     posterior = _dict_or_none(read_json(run_dir / "posterior" / "summary.json"))
     diagnosis = _dict_or_none(read_json(diag_dir / "summary.json"))

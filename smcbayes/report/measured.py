@@ -27,6 +27,24 @@ def project_of(config: Mapping[str, Any]) -> ProjectConfig | None:
         return None
 
 
+def search_ranges(
+    config: Mapping[str, Any], project: ProjectConfig
+) -> dict[str, tuple[float, float, bool]]:
+    """Search bounds ``(lower, upper, log)`` of the run's free parameters (user units)."""
+    from smcbayes.forward.model import ForwardModel
+
+    try:
+        space = ForwardModel(
+            project,
+            effects=config.get("effects"),
+            overrides=config.get("overrides") or {},
+            fidelity=config.get("fidelity"),
+        ).space
+    except (SmcBayesError, TypeError, ValueError):
+        return {}
+    return {p.name: (p.lower, p.upper, p.log) for p in space.free}
+
+
 def load_measured(project: ProjectConfig) -> Any:
     """The project's dataset (all configurations with data), or ``None`` if unreadable."""
     from smcbayes.data.dataset import load_dataset
@@ -52,8 +70,9 @@ def plot_measured(dataset: Any, path: Path) -> list[Path] | None:
         return None
     plt = pyplot()
     nrows, ncols = grid_shape(len(ids), cols=4)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(3.4 * ncols, 2.6 * nrows), squeeze=False,
-                             sharey=True)
+    fig, axes = plt.subplots(
+        nrows, ncols, figsize=(3.4 * ncols, 2.6 * nrows), squeeze=False, sharey=True
+    )
     for k, cid in enumerate(ids):
         ax = axes[k // ncols][k % ncols]
         m = dataset.measurements[cid]
@@ -69,8 +88,9 @@ def plot_measured(dataset: Any, path: Path) -> list[Path] | None:
     return save(fig, path)
 
 
-def validation_errors(config: Mapping[str, Any], calibration: Mapping[str, Any],
-                      project: ProjectConfig, dataset: Any) -> dict[str, dict[str, float]]:
+def validation_errors(
+    config: Mapping[str, Any], calibration: Mapping[str, Any], project: ProjectConfig, dataset: Any
+) -> dict[str, dict[str, float]]:
     """Force MSE (kN^2) and RMSE (kN) of the best point on validation configurations with data.
 
     Uses the run's effects and fixed values; empty when there is nothing to compare or the
@@ -84,8 +104,12 @@ def validation_errors(config: Mapping[str, Any], calibration: Mapping[str, Any],
     if not ids or not best:
         return {}
     try:
-        model = ForwardModel(project, effects=config.get("effects"),
-                             overrides=config.get("overrides") or {}, fidelity=config.get("fidelity"))
+        model = ForwardModel(
+            project,
+            effects=config.get("effects"),
+            overrides=config.get("overrides") or {},
+            fidelity=config.get("fidelity"),
+        )
         params = {k: np.array([float(v["value"])]) for k, v in best.items()}
         results = model.simulate_params(params, ids)
         loss = evaluate_loss(results, dataset, project.loss, ids=ids)
@@ -94,5 +118,8 @@ def validation_errors(config: Mapping[str, Any], calibration: Mapping[str, Any],
     out = {}
     for k, cid in enumerate(ids):
         mse = float(loss.force_mse_kN2[0, k])
-        out[cid] = {"mse_kN2": mse, "rmse_kN": float(np.sqrt(mse)) if np.isfinite(mse) else float("nan")}
+        out[cid] = {
+            "mse_kN2": mse,
+            "rmse_kN": float(np.sqrt(mse)) if np.isfinite(mse) else float("nan"),
+        }
     return out

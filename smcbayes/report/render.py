@@ -30,11 +30,14 @@ td.num { text-align: right; font-variant-numeric: tabular-nums; }
 figure { margin: 1rem 0; page-break-inside: avoid; break-inside: avoid; }
 figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
 figcaption { font-size: 0.88rem; color: #444; }
-pre { background: #f4f4f4; padding: 0.6rem; overflow-x: auto; font-size: 0.8rem; white-space: pre-wrap; }
+pre { background: #f4f4f4; padding: 0.6rem; overflow-x: auto; font-size: 0.8rem;
+      white-space: pre-wrap; }
+.scroll { overflow-x: auto; }
 .warning { background: #fff4e0; border-left: 4px solid #e09000; padding: 0.3rem 0.6rem; }
 .meta { color: #555; font-size: 0.9rem; }
 @media print { body { max-width: none; padding: 0; font-size: 10pt; } nav { display: none; }
-  h2 { page-break-after: avoid; break-after: avoid; } table, pre { page-break-inside: avoid; } }
+  h2 { page-break-after: avoid; break-after: avoid; } table, pre { page-break-inside: avoid; }
+  .scroll { overflow: visible; } table { font-size: 8pt; } }
 """
 
 
@@ -46,11 +49,16 @@ def _html_table(t: Table) -> str:
     head = "".join(f"<th>{escape(h)}</th>" for h in t.header)
     body = []
     for row in t.rows:
-        cells = "".join(f'<td class="num">{escape(c)}</td>' if i in t.numeric else f"<td>{escape(c)}</td>"
-                        for i, c in enumerate(row))
+        cells = "".join(
+            f'<td class="num">{escape(c)}</td>' if i in t.numeric else f"<td>{escape(c)}</td>"
+            for i, c in enumerate(row)
+        )
         body.append(f"<tr>{cells}</tr>")
     caption = f"<caption>{escape(t.caption)}</caption>" if t.caption else ""
-    return f"<table>{caption}<thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+    return (
+        f'<div class="scroll"><table>{caption}<thead><tr>{head}</tr></thead>'
+        f"<tbody>{''.join(body)}</tbody></table></div>"
+    )
 
 
 def _html_block(b: object) -> str:
@@ -65,8 +73,10 @@ def _html_block(b: object) -> str:
     if isinstance(b, Table):
         return _html_table(b)
     if isinstance(b, Figure):
-        return (f'<figure><img src="{_png_data(b.path)}" alt="{escape(b.caption)}">'
-                f"<figcaption>{escape(b.caption)}</figcaption></figure>")
+        return (
+            f'<figure><img src="{_png_data(b.path)}" alt="{escape(b.caption)}">'
+            f"<figcaption>{escape(b.caption)}</figcaption></figure>"
+        )
     if isinstance(b, Code):
         return f"<pre>{escape(b.text)}</pre>"
     raise TypeError(f"unknown report block {type(b).__name__}")
@@ -75,11 +85,15 @@ def _html_block(b: object) -> str:
 def to_html(title: str, subtitle: str, sections: Sequence[Section]) -> str:
     """One self-contained HTML page."""
     nav = "".join(f'<li><a href="#{s.key}">{escape(s.title)}</a></li>' for s in sections)
-    parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
-             '<meta name="viewport" content="width=device-width, initial-scale=1">',
-             f"<title>{escape(title)}</title><style>{CSS}</style></head><body>",
-             f"<h1>{escape(title)}</h1>", f'<p class="meta">{escape(subtitle)}</p>',
-             f"<nav><ul>{nav}</ul></nav>"]
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        f"<title>{escape(title)}</title><style>{CSS}</style></head><body>",
+        f"<h1>{escape(title)}</h1>",
+        f'<p class="meta">{escape(subtitle)}</p>',
+        f"<nav><ul>{nav}</ul></nav>",
+    ]
     for s in sections:
         parts.append(f'<section id="{s.key}"><h2>{escape(s.title)}</h2>')
         parts.extend(_html_block(b) for b in s.blocks)
@@ -103,12 +117,15 @@ def _md_block(b: object, base: Path) -> str:
     if isinstance(b, Table):
         lines = [f"*{b.caption}*", ""] if b.caption else []
         lines.append("| " + " | ".join(_md_cell(h) for h in b.header) + " |")
-        lines.append("|" + "|".join("---:" if i in b.numeric else "---" for i in range(len(b.header))) + "|")
+        lines.append(
+            "|" + "|".join("---:" if i in b.numeric else "---" for i in range(len(b.header))) + "|"
+        )
         lines += ["| " + " | ".join(_md_cell(c) for c in row) + " |" for row in b.rows]
         return "\n".join(lines)
     if isinstance(b, Figure):
         rel = Path(os.path.relpath(b.path, base)).as_posix()
-        return f"![{b.caption}]({rel})\n\n*{b.caption}* (SVG: `{Path(rel).with_suffix('.svg').as_posix()}`)"
+        svg = Path(rel).with_suffix(".svg").as_posix()
+        return f"![{b.caption}]({rel})\n\n*{b.caption}* (SVG: `{svg}`)"
     if isinstance(b, Code):
         return f"```\n{b.text}\n```"
     raise TypeError(f"unknown report block {type(b).__name__}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import datetime as dt
 import shlex
 from pathlib import Path
@@ -16,9 +17,17 @@ def _config_rows(project: dict[str, Any], with_data: set[str]) -> tuple[tuple[st
     rows = []
     for c in project.get("configuration", []):
         charge, press = c.get("charge") or {}, c.get("press") or {}
-        rows.append((str(c.get("id")), str(c.get("role", "train")), str(charge.get("shape", "-")),
-                     fmt(charge.get("coverage_pct")), fmt(press.get("speed_mm_s")),
-                     fmt(charge.get("mass_g")), "yes" if c.get("id") in with_data else "no"))
+        rows.append(
+            (
+                str(c.get("id")),
+                str(c.get("role", "train")),
+                str(charge.get("shape", "-")),
+                fmt(charge.get("coverage_pct")),
+                fmt(press.get("speed_mm_s")),
+                fmt(charge.get("mass_g")),
+                "yes" if c.get("id") in with_data else "no",
+            )
+        )
     return tuple(rows)
 
 
@@ -26,16 +35,26 @@ def _truth_blocks(truth: dict[str, Any]) -> list:
     effects = truth.get("effects") or []
     noise = truth.get("noise") or {}
     on = ", ".join(effects) if effects else "no effect"
-    text = (f"These curves are synthetic: the forward model was run at known parameter values "
-            f"with {on} switched on, and noise was added (white {fmt(noise.get('white_kN'))} kN, "
-            f"correlated {fmt(noise.get('correlated_kN'))} kN over {fmt(noise.get('correlation_s'))} s; "
-            f"seed {truth.get('seed', '-')}). The calibrated model below knows only the effects "
-            "listed in the calibration settings, so any effect on here and off there is the "
-            "gap the diagnosis should find.")
+    text = (
+        f"These curves are synthetic: the forward model was run at known parameter values "
+        f"with {on} switched on, and noise was added (white {fmt(noise.get('white_kN'))} kN, "
+        f"correlated {fmt(noise.get('correlated_kN'))} kN over "
+        f"{fmt(noise.get('correlation_s'))} s; "
+        f"seed {truth.get('seed', '-')}). The calibrated model below knows only the effects "
+        "listed in the calibration settings, so any effect on here and off there is the "
+        "gap the diagnosis should find."
+    )
     params = truth.get("parameters") or {}
     rows = tuple((k, fmt(v)) for k, v in params.items())
-    return [Paragraph(text), Table(("parameter", "true value (unit in the name)"), rows,
-                                   caption="parameter values of the synthetic truth", numeric=(1,))]
+    return [
+        Paragraph(text),
+        Table(
+            ("parameter", "true value (unit in the name)"),
+            rows,
+            caption="parameter values of the synthetic truth",
+            numeric=(1,),
+        ),
+    ]
 
 
 def data_section(run: RunFiles, dataset: Any, measured_png: Path | None) -> Section:
@@ -45,38 +64,71 @@ def data_section(run: RunFiles, dataset: Any, measured_png: Path | None) -> Sect
     with_data = set(dataset.measurements) if dataset is not None else set()
     roles = [c.get("role", "train") for c in configs]
     sec = Section("data", "Data")
-    sec.add(Paragraph(f"Project '{project.get('name', '-')}': {len(configs)} configuration(s), "
-                      f"{roles.count('train')} for training, {roles.count('validation')} for "
-                      f"validation; measured curves from {data_dir_of(run.config) or 'no data folder'}."))
-    sec.add(Table(("configuration", "role", "charge", "coverage (%)", "speed (mm/s)", "mass (g)",
-                   "measured data"), _config_rows(project, with_data),
-                  caption="press configurations", numeric=(3, 4, 5)))
+    sec.add(
+        Paragraph(
+            f"Project '{project.get('name', '-')}': {len(configs)} configuration(s), "
+            f"{roles.count('train')} for training, {roles.count('validation')} for "
+            f"validation; measured curves from {data_dir_of(run.config) or 'no data folder'}."
+        )
+    )
+    sec.add(
+        Table(
+            (
+                "configuration",
+                "role",
+                "charge",
+                "coverage (%)",
+                "speed (mm/s)",
+                "mass (g)",
+                "measured data",
+            ),
+            _config_rows(project, with_data),
+            caption="press configurations",
+            numeric=(3, 4, 5),
+        )
+    )
     if run.truth is not None:
         sec.add(*_truth_blocks(run.truth))
     if measured_png is not None:
-        sec.add(Figure(measured_png, "Measured closing force from first contact to the force limit."))
+        sec.add(
+            Figure(measured_png, "Measured closing force from first contact to the force limit.")
+        )
     elif dataset is None:
-        sec.add(Paragraph("The measured curves could not be read from the data folder recorded in "
-                          "the run, so they are not drawn here."))
+        sec.add(
+            Paragraph(
+                "The measured curves could not be read from the data folder recorded in "
+                "the run, so they are not drawn here."
+            )
+        )
     return sec
 
 
 def _settings_table(cal: dict[str, Any]) -> Table:
     s = cal.get("settings") or {}
     fixed = cal.get("fixed_parameters") or {}
-    rows = [("free parameters", ", ".join(cal.get("free_parameters") or []) or "-"),
-            ("fixed parameters", ", ".join(f"{k} = {fmt(v)}" for k, v in fixed.items()) or "none"),
-            ("effects in the model", ", ".join(cal.get("effects") or []) or "none (base model)"),
-            ("training configurations", ", ".join(cal.get("config_ids") or []) or "-"),
-            ("budget / initial design / batch", f"{fmt(s.get('budget'))} / {fmt(s.get('init'))} / {fmt(s.get('batch'))}"),
-            ("kernel, seed", f"{s.get('kernel', '-')}, {fmt(s.get('seed'))}"),
-            ("evaluations (failed)", f"{fmt(cal.get('evaluations'))} ({fmt(cal.get('failures'))})"),
-            ("stop reason", str(cal.get("stop_reason", "-"))),
-            ("wall time (s)", fmt(cal.get("seconds_wall"), 3))]
+    rows = [
+        ("free parameters", ", ".join(cal.get("free_parameters") or []) or "-"),
+        ("fixed parameters", ", ".join(f"{k} = {fmt(v)}" for k, v in fixed.items()) or "none"),
+        ("effects in the model", ", ".join(cal.get("effects") or []) or "none (base model)"),
+        ("training configurations", ", ".join(cal.get("config_ids") or []) or "-"),
+        (
+            "budget / initial design / batch",
+            f"{fmt(s.get('budget'))} / {fmt(s.get('init'))} / {fmt(s.get('batch'))}",
+        ),
+        ("kernel, seed", f"{s.get('kernel', '-')}, {fmt(s.get('seed'))}"),
+        ("evaluations (failed)", f"{fmt(cal.get('evaluations'))} ({fmt(cal.get('failures'))})"),
+        ("stop reason", str(cal.get("stop_reason", "-"))),
+        ("wall time (s)", fmt(cal.get("seconds_wall"), 3)),
+    ]
     loss = cal.get("loss") or {}
     if loss:
-        rows.append(("loss weights (force, displacement), clip",
-                     f"{fmt(loss.get('w_force'))}, {fmt(loss.get('w_displacement'))}, {loss.get('clip', '-')}"))
+        rows.append(
+            (
+                "loss weights (force, displacement), clip",
+                f"{fmt(loss.get('w_force'))}, {fmt(loss.get('w_displacement'))}, "
+                f"{loss.get('clip', '-')}",
+            )
+        )
     return Table(("setting", "value"), tuple(rows), caption="calibration settings")
 
 
@@ -84,11 +136,22 @@ def _best_table(cal: dict[str, Any], truth: dict[str, Any] | None) -> Table:
     true = (truth or {}).get("parameters") or cal.get("truth") or {}
     rows = []
     for name, v in (cal.get("best_params") or {}).items():
-        rows.append((name, fmt(v.get("value")), str(v.get("unit", "-")),
-                     "fixed" if v.get("fixed") else "calibrated", fmt(true.get(name))))
-    return Table(("parameter", "best value", "unit", "status", "true value"), tuple(rows),
-                 caption=f"best point (evaluation {fmt(cal.get('best_index'))}, loss "
-                         f"{fmt(cal.get('best_loss_kN2'))} kN²)", numeric=(1, 4))
+        rows.append(
+            (
+                name,
+                fmt(v.get("value")),
+                str(v.get("unit", "-")),
+                "fixed" if v.get("fixed") else "calibrated",
+                fmt(true.get(name)),
+            )
+        )
+    return Table(
+        ("parameter", "best value", "unit", "status", "true value"),
+        tuple(rows),
+        caption=f"best point (evaluation {fmt(cal.get('best_index'))}, loss "
+        f"{fmt(cal.get('best_loss_kN2'))} kN²)",
+        numeric=(1, 4),
+    )
 
 
 def _error_table(cal: dict[str, Any], validation: dict[str, dict[str, float]]) -> Table:
@@ -96,83 +159,144 @@ def _error_table(cal: dict[str, Any], validation: dict[str, dict[str, float]]) -
     force_only = loss.get("w_force", 1.0) == 1.0 and not loss.get("w_displacement", 0.0)
     rows = []
     for cid, e in (cal.get("best_errors_kN2") or {}).items():
-        rmse = fmt(e ** 0.5, 3) if force_only and isinstance(e, (int, float)) and e >= 0 else "-"
+        rmse = fmt(e**0.5, 3) if force_only and isinstance(e, (int, float)) and e >= 0 else "-"
         rows.append((cid, "train", fmt(e), rmse))
     for cid, e in validation.items():
         rows.append((cid, "validation (not fitted)", fmt(e["mse_kN2"]), fmt(e["rmse_kN"], 3)))
-    return Table(("configuration", "role", "error e_k (kN²)", "force RMSE (kN)"), tuple(rows),
-                 caption="errors of the best point per configuration", numeric=(2, 3))
+    return Table(
+        ("configuration", "role", "error e_k (kN²)", "force RMSE (kN)"),
+        tuple(rows),
+        caption="errors of the best point per configuration",
+        numeric=(2, 3),
+    )
 
 
 def calibration_section(run: RunFiles, validation: dict[str, dict[str, float]]) -> Section:
     """Settings, convergence, best parameters with units, curves, per-configuration errors."""
     cal = run.calibration
     sec = Section("calibration", "Calibration")
-    sec.add(Paragraph("Bayesian optimisation of the free parameters on the training configurations: "
-                      "a Latin hypercube design, then a Gaussian process on log(loss) proposing "
-                      "new points by expected improvement."))
+    sec.add(
+        Paragraph(
+            "Bayesian optimisation of the free parameters on the training configurations: "
+            "a Latin hypercube design, then a Gaussian process on log(loss) proposing "
+            "new points by expected improvement."
+        )
+    )
     sec.add(_settings_table(cal))
     if (fig := run.figure("figures", "convergence")) is not None:
-        sec.add(Figure(fig, "Loss per evaluation and best so far (log scale, kN²); the shaded "
-                            "part is the initial design."))
+        sec.add(
+            Figure(
+                fig,
+                "Loss per evaluation and best so far (log scale, kN²); the shaded "
+                "part is the initial design.",
+            )
+        )
     if cal.get("best_params"):
         sec.add(_best_table(cal, run.truth))
     else:
         sec.add(Paragraph("No evaluation succeeded, so there is no best point.", tone="warning"))
     if (fig := run.figure("figures", "best_curves")) is not None:
-        sec.add(Figure(fig, "Simulated force (colour) at the best point against the measured force "
-                            "(black), per configuration; dashed: simulated ram displacement."))
+        sec.add(
+            Figure(
+                fig,
+                "Simulated force (colour) at the best point against the measured force "
+                "(black), per configuration; dashed: simulated ram displacement.",
+            )
+        )
     if cal.get("best_errors_kN2"):
         sec.add(_error_table(cal, validation))
     if (fig := run.figure("figures", "landscape")) is not None:
-        sec.add(Figure(fig, "Gaussian-process landscape of log(loss) over the two free parameters."))
+        sec.add(
+            Figure(fig, "Gaussian-process landscape of log(loss) over the two free parameters.")
+        )
     return sec
+
+
+def _option_map(command: str) -> dict[str, argparse.Action]:
+    """Destination -> option of a subcommand, from the command-line parser itself."""
+    from smcbayes.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return {
+        a.dest: a for a in sub.choices[command]._actions if a.option_strings and a.dest != "help"
+    }
+
+
+def _rebuilt(command: str, head: str, values: dict[str, Any]) -> str:
+    """``smcbayes COMMAND HEAD --option value ...`` for the values the command accepts."""
+    options, parts = _option_map(command), [f"smcbayes {command} {head}"]
+    for key, value in values.items():
+        action = options.get(key)
+        if action is None or value is None or value is False:
+            continue
+        flag = action.option_strings[0]
+        if value is True:
+            parts.append(flag)
+        elif isinstance(value, dict):
+            if key == "set":  # --set NAME=VALUE, repeated
+                parts += [f"{flag} {shlex.quote(f'{k}={v}')}" for k, v in value.items()]
+        elif isinstance(value, list) and isinstance(action, argparse._AppendAction):
+            parts += [f"{flag} {shlex.quote(str(v))}" for v in value]
+        elif isinstance(value, list):
+            parts.append(f"{flag} {shlex.quote(','.join(map(str, value)))}")
+        else:
+            parts.append(f"{flag} {shlex.quote(str(value))}")
+    return " ".join(parts)
 
 
 def _commands(run: RunFiles) -> tuple[str, str]:
     """Command lines: recorded by the demo, else rebuilt from the recorded settings."""
     if run.demo and run.demo.get("commands"):
         return "\n".join(run.demo["commands"]), "as recorded by `smcbayes demo`"
-    s, out = run.config, shlex.quote(str(run.run_dir))
-    cmd = ["smcbayes calibrate CONFIG", f"--out {out}"]
-    cmd += [f"--{k} {s[k]}" for k in ("budget", "init", "batch", "kernel", "seed") if s.get(k) is not None]
-    cmd += [f"--effect {e}" for e in s.get("effects") or []]
-    cmd += [f"--set {k}={v}" for k, v in (s.get("overrides") or {}).items()]
-    lines = [" ".join(cmd)]
+    out = shlex.quote(str(run.run_dir))
+    cal = {**run.config, "set": run.config.get("overrides"), "effect": run.config.get("effects")}
+    lines = [_rebuilt("calibrate", f"CONFIG --out {out}", cal)]
     if run.posterior and run.posterior.get("settings"):
-        p = run.posterior["settings"]
-        lines.append(f"smcbayes posterior {out} " + " ".join(f"--{k} {v}" for k, v in p.items()))
+        lines.append(_rebuilt("posterior", out, run.posterior["settings"]))
     if run.diagnosis is not None:
-        d, f = run.diagnosis, run.diagnosis.get("fit_settings") or {}
-        lines.append(f"smcbayes diagnose {out} --effects {','.join(d.get('candidates') or [])} "
-                     f"--holdout {','.join(d.get('holdout') or [])} --seed {d.get('seed', 0)} "
-                     f"--population {f.get('population', '-')} --generations {f.get('generations', '-')} "
-                     f"--out {shlex.quote(str(run.diagnosis_dir))}")
+        d = run.diagnosis
+        values = {
+            **(d.get("fit_settings") or {}),
+            "effects": d.get("candidates"),
+            "holdout": d.get("holdout"),
+            "seed": d.get("seed"),
+            "min_score": d.get("min_score"),
+            "out": str(run.diagnosis_dir),
+        }
+        lines.append(_rebuilt("diagnose", out, values))
     lines.append(f"smcbayes report {out}")
-    return "\n".join(lines), "rebuilt from the settings recorded in the run (CONFIG: the project file)"
+    origin = "rebuilt from the settings recorded in the run (CONFIG: the project file)"
+    return "\n".join(lines), origin
 
 
 def reproducibility_section(run: RunFiles) -> Section:
     """Package version, config hash, seeds, command lines, dates."""
     cfg = run.run_dir / "config.json"
-    started = dt.datetime.fromtimestamp(cfg.stat().st_mtime, dt.timezone.utc)
-    seeds = [("calibration", (run.calibration.get("settings") or {}).get("seed", run.config.get("seed")))]
+    started = dt.datetime.fromtimestamp(cfg.stat().st_mtime, dt.UTC)
+    seeds = [
+        ("calibration", (run.calibration.get("settings") or {}).get("seed", run.config.get("seed")))
+    ]
     if run.posterior:
         seeds.append(("posterior", (run.posterior.get("settings") or {}).get("seed")))
     if run.diagnosis:
         seeds.append(("diagnosis", run.diagnosis.get("seed")))
     if run.truth:
         seeds.append(("synthetic data", run.truth.get("seed")))
-    rows = (("smcbayes version", __version__),
-            ("config hash (SHA-256 of config.json)", sha256(cfg)),
-            ("run started (UTC)", started.strftime("%Y-%m-%d %H:%M:%S")),
-            ("report written (UTC)", dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S")),
-            ("seeds", ", ".join(f"{k} {fmt(v)}" for k, v in seeds)),
-            ("run directory", str(run.run_dir.resolve())))
+    rows = (
+        ("smcbayes version", __version__),
+        ("config hash (SHA-256 of config.json)", sha256(cfg)),
+        ("run started (UTC)", started.strftime("%Y-%m-%d %H:%M:%S")),
+        ("report written (UTC)", dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M:%S")),
+        ("seeds", ", ".join(f"{k} {fmt(v)}" for k, v in seeds)),
+        ("run directory", str(run.run_dir.resolve())),
+    )
     text, origin = _commands(run)
     sec = Section("reproducibility", "Reproducibility")
     sec.add(Table(("item", "value"), rows, caption="what this report was made from"))
     sec.add(Heading(f"Command lines ({origin})"), Code(text))
     if run.demo and run.demo.get("timings_s"):
-        sec.add(Bullets(tuple(f"{k}: {v:.1f} s" for k, v in run.demo["timings_s"].items())))
+        sec.add(
+            Heading("Stage times of the demo"),
+            Bullets(tuple(f"{k}: {v:.1f} s" for k, v in run.demo["timings_s"].items())),
+        )
     return sec

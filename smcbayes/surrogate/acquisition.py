@@ -17,7 +17,7 @@ from smcbayes.surrogate.gp import DTYPE, Surrogate
 Array = NDArray[np.float64]
 
 
-def _negate(samples: torch.Tensor, X: torch.Tensor | None = None) -> torch.Tensor:  # noqa: N803
+def _negate(samples: torch.Tensor, X: torch.Tensor | None = None) -> torch.Tensor:
     return -samples[..., 0]
 
 

@@ -24,6 +24,7 @@ from botorch.models import SingleTaskGP
 from botorch.models.transforms.outcome import Standardize
 from botorch.models.utils.gpytorch_modules import get_covar_module_with_dim_scaled_prior
 from gpytorch.mlls import ExactMarginalLogLikelihood
+from gpytorch.utils.warnings import NumericalWarning
 from numpy.typing import NDArray
 
 from smcbayes.errors import SurrogateError
@@ -34,16 +35,20 @@ DTYPE = torch.float64
 
 
 @contextmanager
-def torch_threads(count: int = 1) -> Iterator[None]:
-    """Run torch with ``count`` intra-op threads, restoring the previous setting.
+def gp_session(threads: int = 1) -> Iterator[None]:
+    """Run torch with ``threads`` intra-op threads and without gpytorch's noise warnings.
 
     GPs of a few hundred points are fastest on one thread, and on a loaded machine torch's
-    spinning thread pool makes them up to ten times slower.
+    spinning thread pool makes them up to ten times slower.  A small fixed noise is
+    deliberate (deterministic simulator); gpytorch's floor of 1e-6 in standardised units
+    applies and its warning about it would flood the terminal.
     """
     previous = torch.get_num_threads()
-    torch.set_num_threads(count)
+    torch.set_num_threads(threads)
     try:
-        yield
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NumericalWarning)
+            yield
     finally:
         torch.set_num_threads(previous)
 

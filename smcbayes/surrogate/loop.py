@@ -168,10 +168,10 @@ class BayesOpt:
         if x.shape[0] < 2 or np.ptp(y) == 0:
             return round_rng(s.seed, rnd).random((q, self.space.dim))
         from smcbayes.surrogate.acquisition import propose
-        from smcbayes.surrogate.gp import fit_surrogate, torch_threads
+        from smcbayes.surrogate.gp import fit_surrogate, gp_session
 
         seed = round_seed(s.seed, rnd)
-        with torch_threads(1):
+        with gp_session():
             self.last_surrogate = fit_surrogate(x, y, s.kernel, seed, s.noise)
             cand, _ = propose(self.last_surrogate, q, seed, s.restarts, s.raw_samples,
                               self._local_box(proposed))
@@ -206,7 +206,9 @@ class BayesOpt:
                 tasks.append(Task(tuple(indices[lo:lo + size]), theta[lo:lo + size], cid))
         return tasks
 
-    def _record(self, index: int, rnd: int, theta_row: Array, parts: dict[str, tuple[TaskResult, int]]) -> dict[str, Any]:
+    def _record(self, index: int, rnd: int, theta_row: Array,
+                parts: dict[str, tuple[TaskResult, int]]) -> dict[str, Any]:
+        """The log record of evaluation ``index`` from its configurations' (result, row) pairs."""
         ids = self.objective.config_ids
         errors = {c: float(parts[c][0].error[parts[c][1]]) for c in ids}
         reasons = [f"{c}: {parts[c][0].status[parts[c][1]]}" for c in ids

@@ -94,7 +94,7 @@ def finish(bo: BayesOpt, problem: Problem, run_dir: Path, wall_s: float,
     from smcbayes.commands.common import measured_force, write_curves
     from smcbayes.plotting import plot_simulation
     from smcbayes.surrogate.figures import plot_convergence, plot_landscape
-    from smcbayes.surrogate.gp import fit_surrogate, save_surrogate, torch_threads
+    from smcbayes.surrogate.gp import fit_surrogate, gp_session, save_surrogate
 
     s = bo.settings
     info = summary(bo, problem, wall_s)
@@ -103,7 +103,7 @@ def finish(bo: BayesOpt, problem: Problem, run_dir: Path, wall_s: float,
     surrogate = None
     seed = round_seed(s.seed, len(bo.state.rounds))
     if x.shape[0] >= 2 and np.ptp(y) > 0:
-        with torch_threads(1):
+        with gp_session():
             surrogate = fit_surrogate(x, y, s.kernel, seed, s.noise)
         save_surrogate(run_dir / "gp.pt", surrogate, {
             "free_parameters": space.free_names, "fixed": dict(space.fixed),
@@ -128,10 +128,11 @@ def finish(bo: BayesOpt, problem: Problem, run_dir: Path, wall_s: float,
         if surrogate is not None and space.dim == 2:
             from smcbayes.surrogate.acquisition import propose
 
-            with torch_threads(1):
-                cand, _ = propose(surrogate, 1, seed, s.restarts, s.raw_samples)
             recs = [r for _, r in sorted(bo.state.evaluations.items())]
-            plot_landscape(surrogate, space, recs, s.init, cand, problem.truth, fig_dir / "landscape")
+            with gp_session():
+                cand, _ = propose(surrogate, 1, seed, s.restarts, s.raw_samples)
+                plot_landscape(surrogate, space, recs, s.init, cand, problem.truth,
+                               fig_dir / "landscape")
     write_json(run_dir / "summary.json", info)
     return info
 

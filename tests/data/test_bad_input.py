@@ -103,7 +103,7 @@ def test_moldflow_errors(tmp_path: Path) -> None:
         read_moldflow(p, "force")
 
 
-def test_force_in_N_declared_as_kN(tmp_path: Path, dh) -> None:  # noqa: ANN001
+def test_force_in_N_declared_as_kN(tmp_path: Path, dh) -> None:
     dh.write_text(tmp_path / "force" / "c1.csv", "time_s,force_kN\n0,0\n1,100000\n2,300000\n")
     proj = dh.project(tmp_path, [dh.config(data={"force": "force/c1.csv"})])
     with pytest.raises(DataError) as info:
@@ -113,7 +113,7 @@ def test_force_in_N_declared_as_kN(tmp_path: Path, dh) -> None:  # noqa: ANN001
     assert load_dataset(proj)["c1"].force.values.max() == pytest.approx(300.0)
 
 
-def test_config_pointing_at_missing_file(tmp_path: Path, dh) -> None:  # noqa: ANN001
+def test_config_pointing_at_missing_file(tmp_path: Path, dh) -> None:
     proj = dh.project(tmp_path, [dh.config(data={"force": "force/missing.csv"})])
     with pytest.raises(DataError) as info:
         load_dataset(proj)
@@ -150,7 +150,7 @@ def test_cli_exits_2_with_one_line_and_leaves_files_alone(tmp_path: Path, case: 
     assert after == before
 
 
-def test_reading_good_data_modifies_nothing(tmp_path: Path, dh) -> None:  # noqa: ANN001
+def test_reading_good_data_modifies_nothing(tmp_path: Path, dh) -> None:
     body = "".join(f"{t},{30 * t}\n" for t in range(11))
     f = dh.write_text(tmp_path / "force" / "c1.csv", "time_s,force_kN\n" + body)
     stamp, content = f.stat().st_mtime_ns, f.read_bytes()

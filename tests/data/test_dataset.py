@@ -30,7 +30,7 @@ def _recording() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return t, force, pos
 
 
-def test_press_export_dataset_splits_closing_and_hold(tmp_path: Path, dh) -> None:  # noqa: ANN001
+def test_press_export_dataset_splits_closing_and_hold(tmp_path: Path, dh) -> None:
     t, f, x = _recording()
     write_press(tmp_path / "run1.csv", datetime(2024, 2, 2, 8), t, f, x)
     proj = dh.project(tmp_path, [dh.config(data={"force": "run1.csv", "format": "press"},
@@ -48,7 +48,7 @@ def test_press_export_dataset_splits_closing_and_hold(tmp_path: Path, dh) -> Non
     assert len(m.steps) == 5 and "trim idle" in m.steps[1] and "first contact" in m.steps[2]
 
 
-def test_csv_and_moldflow_datasets_agree(tmp_path: Path, dh) -> None:  # noqa: ANN001
+def test_csv_and_moldflow_datasets_agree(tmp_path: Path, dh) -> None:
     t = np.linspace(0.0, 6.0, 121)
     f = LIMIT * (t / 6.0) ** 2
     write_csv(tmp_path / "f.csv", t, f, "force_kN", digits=12)
@@ -67,7 +67,7 @@ def test_csv_and_moldflow_datasets_agree(tmp_path: Path, dh) -> None:  # noqa: A
         np.testing.assert_allclose(cb.values, ca.values, rtol=1e-8, atol=1e-12)
 
 
-def test_full_ram_displacement_gives_the_hold(tmp_path: Path, dh) -> None:  # noqa: ANN001
+def test_full_ram_displacement_gives_the_hold(tmp_path: Path, dh) -> None:
     t, f, x = _recording()
     keep = t < 28.0
     write_csv(tmp_path / "f.csv", t[keep], f[keep], "force_kN", digits=12)
@@ -98,7 +98,7 @@ def test_preprocess_steps(tmp_path: Path) -> None:
     assert pp.flow_stop_time(8.0, 0.6, 0.3) == pytest.approx(3.2 / 0.3)
 
 
-def test_preprocess_options_are_recorded(tmp_path: Path, dh) -> None:  # noqa: ANN001
+def test_preprocess_options_are_recorded(tmp_path: Path, dh) -> None:
     t = np.linspace(0.0, 6.0, 301)
     write_csv(tmp_path / "f.csv", t, 0.5 + LIMIT * (t / 6.0) ** 2, "force_kN", digits=12)
     proj = dh.project(tmp_path, [dh.config(data={"force": "f.csv"}, force_limit_kN=LIMIT)])
@@ -106,11 +106,11 @@ def test_preprocess_options_are_recorded(tmp_path: Path, dh) -> None:  # noqa: A
                           resample_dt_s=0.05, clip="flow_stop")
     m = load_dataset(proj, preprocess=spec)["c1"]
     words = ["read", "first contact", "Savitzky-Golay", "resampled", "flow-stop"]
-    assert [w in s for w, s in zip(words, m.steps)] == [True] * 5
+    assert [w in s for w, s in zip(words, m.steps, strict=False)] == [True] * 5
     assert m.force.end_s == pytest.approx(m.flow_stop_s) and m.flow_stop_s == pytest.approx(1.0)
 
 
-def test_real_thesis_data_loads(dh) -> None:  # noqa: ANN001
+def test_real_thesis_data_loads(dh) -> None:
     if not dh.REAL_DATA.is_dir():
         pytest.skip("thesis-press data folder not present")
     proj = load_project(dh.THESIS_TOML)

@@ -13,14 +13,14 @@ from smcbayes.data.loss import LossSpec, evaluate_loss, interp_rows
 from smcbayes.errors import DataError
 
 
-def _dataset(dh, tmp_path: Path):  # noqa: ANN001, ANN202
+def _dataset(dh, tmp_path: Path):
     dh.write_text(tmp_path / "force" / "c1.csv", "time_s,force_kN\n0,0\n1,100\n2,300\n")
     dh.write_text(tmp_path / "hold" / "c1.csv", "time_s,displacement_mm\n0.5,-0.1\n1.5,-0.2\n")
     proj = dh.project(tmp_path, [dh.config(data={"force": "force/c1.csv", "hold": "hold/c1.csv"})])
     return load_dataset(proj)
 
 
-def _sim(dh):  # noqa: ANN001, ANN202
+def _sim(dh):
     return dh.sim_result("c1", [0, 1, 1.5, 3], [0, 150, 300, 300], [1.5],
                       displacement_mm=[0, 1, 1.5, 1.8])
 
@@ -58,7 +58,7 @@ def test_force_limit_clip_removes_overshoot(dh, tmp_path: Path) -> None:
 def test_curve_against_itself_is_zero(dh, tmp_path: Path) -> None:
     t = np.linspace(0, 5, 60)
     f = 300 * (t / 5) ** 3
-    body = "\n".join(f"{a:.17g},{b:.17g}" for a, b in zip(t, f))
+    body = "\n".join(f"{a:.17g},{b:.17g}" for a, b in zip(t, f, strict=False))
     dh.write_text(tmp_path / "force" / "c1.csv", "time_s,force_kN\n" + body + "\n")
     ds = load_dataset(dh.project(tmp_path, [dh.config(data={"force": "force/c1.csv"})]))
     sim = {"c1": dh.sim_result("c1", np.append(t, 505.0), np.append(f, 300.0), [5.0])}

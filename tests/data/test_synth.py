@@ -18,7 +18,7 @@ from smcbayes.forward.model import ForwardModel
 TRUTH = {"n": 0.35, "tau_c_MPa": 0.08}
 
 
-def _synth(dh, out: Path, *extra: str) -> Dataset:  # noqa: ANN001
+def _synth(dh, out: Path, *extra: str) -> Dataset:
     args = ["synth", str(dh.THESIS_TOML), "--truth", "n=0.35", "--truth", "tau_c_MPa=0.08",
             "--seed", "11", "--out", str(out), *extra]
     assert main(args) == 0
@@ -50,7 +50,7 @@ def _interpolated_variance(ds: Dataset, white: float, corr: float, tau_s: float)
     return float(np.mean(out))
 
 
-def test_synth_loss_at_truth_gives_the_noise_back(tmp_path: Path, dh) -> None:  # noqa: ANN001
+def test_synth_loss_at_truth_gives_the_noise_back(tmp_path: Path, dh) -> None:
     clean = _synth(dh, tmp_path / "clean")
     floor = _loss_at(clean, TRUTH)  # resolution floor: steep curve ends sampled at 0.02 s
     noisy = _synth(dh, tmp_path / "noisy", "--noise-kN", "20", "--correlated-kN", "10",
@@ -68,7 +68,7 @@ def test_synth_loss_at_truth_gives_the_noise_back(tmp_path: Path, dh) -> None:  
     assert info["parameters"]["n"] == 0.35 and info["parameters"]["m"] == 1.5
 
 
-def test_synth_is_reproducible_and_reads_like_real_data(tmp_path: Path, dh) -> None:  # noqa: ANN001
+def test_synth_is_reproducible_and_reads_like_real_data(tmp_path: Path, dh) -> None:
     a = _synth(dh, tmp_path / "a", "--noise-kN", "5", "--resolution-s", "0.018", "--resolution-kN", "3")
     _synth(dh, tmp_path / "b", "--noise-kN", "5", "--resolution-s", "0.018", "--resolution-kN", "3")
     for sub in ("force/60-bar-03.csv", "hold/80-center-11.csv", "project.toml"):
@@ -83,7 +83,7 @@ def test_synth_is_reproducible_and_reads_like_real_data(tmp_path: Path, dh) -> N
     assert (tmp_path / "a" / "project.toml").read_text().count("[[configuration]]") == 12
 
 
-def test_effects_pass_through(tmp_path: Path, dh) -> None:  # noqa: ANN001
+def test_effects_pass_through(tmp_path: Path, dh) -> None:
     ds = _synth(dh, tmp_path / "e", "--effect", "compressibility")
     info = json.loads((tmp_path / "e" / "truth.json").read_text())
     assert info["effects"] == ["compressibility"]
@@ -101,7 +101,7 @@ def test_ou_noise_statistics() -> None:
     assert r == pytest.approx(np.exp(-1.0), abs=0.05)
 
 
-def test_bad_truth_exits_2(tmp_path: Path, dh, capsys: pytest.CaptureFixture[str]) -> None:  # noqa: ANN001
+def test_bad_truth_exits_2(tmp_path: Path, dh, capsys: pytest.CaptureFixture[str]) -> None:
     args = ["synth", str(dh.THESIS_TOML), "--truth", "nn=0.3", "--seed", "1", "--out", str(tmp_path)]
     assert main(args) == 2
     assert "nn" in capsys.readouterr().err

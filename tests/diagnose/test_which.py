@@ -20,7 +20,7 @@ def run(ctx, seed: int = 0) -> dict:  # noqa: ANN001
     return diagnose(ctx, settings, None, log=lambda _: None)
 
 
-@pytest.mark.parametrize("effect", ["compressibility", "heating"])
+@pytest.mark.parametrize("effect", ["compressibility", "press_compliance"])
 def test_withheld_effect_is_named(synthetic_ctx, effect: str) -> None:  # noqa: ANN001
     """Swapping the effect in the data swaps the answer (computed, not templated)."""
     summary = run(synthetic_ctx(effect))
@@ -66,3 +66,17 @@ def test_holdout_default_and_validation(synthetic_ctx) -> None:  # noqa: ANN001
         check_holdout(ctx, ["60-bar-7"])
     with pytest.raises(ConfigError, match="keep at least one"):
         check_holdout(ctx, list(ctx.ids))
+
+
+def test_pair_is_fitted_and_reported(synthetic_ctx) -> None:  # noqa: ANN001
+    ctx = synthetic_ctx("press_compliance")
+    settings = DiagnoseSettings(candidates=("press_compliance", "heating"), pair=True, fit=TINY,
+                                figures=False)
+    summary = diagnose(ctx, settings, None, log=lambda _: None)
+    pair = "press_compliance+heating"
+    row = next(r for r in summary["ranking"] if r["effect"] == pair)
+    assert row["extra_parameters"] == 1 + 3
+    assert set(row["params"]) >= {"k_press_kN_mm", "T_start_C"}
+    assert pair in summary["shrink"]["models"]
+    # the decision names single effects only
+    assert summary["decision"]["best"] == "press_compliance"

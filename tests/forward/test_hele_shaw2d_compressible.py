@@ -10,7 +10,7 @@ from smcbayes.config import build_project
 from smcbayes.forward.model import ForwardModel
 
 
-def _project(shape: str, cells: int = 24):  # noqa: ANN202
+def _project(shape: str, cells: int = 24):
     raw = {"solver": {"cells_2d": cells, "closing_steps_2d": 60},
            "configuration": [{"id": "c", "charge": {"shape": shape, "coverage_pct": 60.0, "mass_g": 390.0,
                                                     "stack_height_mm": 8.0},
@@ -18,7 +18,7 @@ def _project(shape: str, cells: int = 24):  # noqa: ANN202
     return build_project(raw, "test.toml", Path("."))
 
 
-def _closing(res, t_end: float) -> tuple[np.ndarray, ...]:  # noqa: ANN001
+def _closing(res, t_end: float) -> tuple[np.ndarray, ...]:
     t = np.linspace(0.0, t_end, 300)
     return tuple(np.interp(t, res.time_s[0], y[0]) for y in (res.force_kN, res.solid_fraction, res.gap_mm))
 

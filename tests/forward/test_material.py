@@ -5,7 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from smcbayes.forward.material import (
-    cross_shear_rate, cross_stress, cross_viscosity, cure_factor, slip_velocity,
+    cross_shear_rate,
+    cross_stress,
+    cross_viscosity,
+    cure_factor,
+    slip_velocity,
     zero_shear_viscosity,
 )
 

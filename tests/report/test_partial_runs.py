@@ -13,23 +13,41 @@ from smcbayes.errors import ConfigError
 from smcbayes.report import write_report
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the shared HTML checker of these tests
-from htmlcheck import PLACEHOLDER, external_references, parse_page  # noqa: E402
+from htmlcheck import PLACEHOLDER, external_references, parse_page
 
-PROJECT = {"name": "tiny", "configuration": [{
-    "id": "bar-03", "role": "train", "charge": {"shape": "bar", "coverage_pct": 60.0, "mass_g": 388.0},
-    "press": {"speed_mm_s": 0.3}}]}
+PROJECT = {
+    "name": "tiny",
+    "configuration": [
+        {
+            "id": "bar-03",
+            "role": "train",
+            "charge": {"shape": "bar", "coverage_pct": 60.0, "mass_g": 388.0},
+            "press": {"speed_mm_s": 0.3},
+        }
+    ],
+}
 
 
 def fake_run(tmp_path: Path) -> Path:
     """A run directory with the calibration's config.json and summary.json only (no figures)."""
     run = tmp_path / "run"
     run.mkdir()
-    (run / "config.json").write_text(json.dumps({"project": PROJECT, "seed": 3, "budget": 5}), encoding="utf-8")
-    summary = {"best_loss_kN2": 12.5, "best_index": 2, "evaluations": 5, "failures": 0,
-               "best_params": {"n": {"value": 0.31, "unit": "-", "fixed": False},
-                               "B_Pa_s": {"value": 2.0e4, "unit": "Pa s", "fixed": True}},
-               "best_errors_kN2": {"bar-03": 12.5}, "settings": {"seed": 3, "budget": 5},
-               "loss": {"w_force": 1.0, "w_displacement": 0.0, "clip": "none"}}
+    (run / "config.json").write_text(
+        json.dumps({"project": PROJECT, "seed": 3, "budget": 5}), encoding="utf-8"
+    )
+    summary = {
+        "best_loss_kN2": 12.5,
+        "best_index": 2,
+        "evaluations": 5,
+        "failures": 0,
+        "best_params": {
+            "n": {"value": 0.31, "unit": "-", "fixed": False},
+            "B_Pa_s": {"value": 2.0e4, "unit": "Pa s", "fixed": True},
+        },
+        "best_errors_kN2": {"bar-03": 12.5},
+        "settings": {"seed": 3, "budget": 5},
+        "loss": {"w_force": 1.0, "w_displacement": 0.0, "clip": "none"},
+    }
     (run / "summary.json").write_text(json.dumps(summary), encoding="utf-8")
     return run
 
@@ -54,7 +72,9 @@ def test_calibration_only_run_has_no_posterior_or_diagnosis(tmp_path: Path) -> N
 def test_damaged_stage_summaries_are_skipped_or_tolerated(tmp_path: Path) -> None:
     run = fake_run(tmp_path)
     (run / "posterior").mkdir()
-    (run / "posterior" / "summary.json").write_text('{"parameters": [{"name": "n"}]}', encoding="utf-8")
+    (run / "posterior" / "summary.json").write_text(
+        '{"parameters": [{"name": "n"}]}', encoding="utf-8"
+    )
     (run / "diagnose").mkdir()
     (run / "diagnose" / "summary.json").write_text("{ not json", encoding="utf-8")
     write_report(run)
@@ -67,15 +87,21 @@ def test_diagnosis_in_another_folder(tmp_path: Path) -> None:
     run = fake_run(tmp_path)
     other = tmp_path / "diag"
     other.mkdir()
-    (other / "summary.json").write_text(json.dumps({
-        "where": {"verdict": "the misfit is late in the closing"}, "seed": 4,
-        "decision": {"best": None, "statement": "no effect explains the gap beyond noise"}}),
-        encoding="utf-8")
+    (other / "summary.json").write_text(
+        json.dumps(
+            {
+                "where": {"verdict": "the misfit is late in the closing"},
+                "seed": 4,
+                "decision": {"best": None, "statement": "no effect explains the gap beyond noise"},
+            }
+        ),
+        encoding="utf-8",
+    )
     write_report(run, ("html",), other)
     assert sections_of(run) == ["data", "calibration", "diagnosis", "reproducibility"]
     assert not (run / "report.md").exists()
     text = (run / "report.html").read_text(encoding="utf-8")
-    assert "the misfit is late in the closing" in text and "diagnosis 4" in text
+    assert "The misfit is late in the closing" in text and "diagnosis 4" in text
 
 
 def test_not_a_run_directory(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -91,3 +117,39 @@ def test_cli_markdown_only(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     assert main(["report", str(run), "--format", "md"]) == 0
     assert (run / "report.md").is_file() and not (run / "report.html").exists()
     assert "report.md" in capsys.readouterr().out
+
+
+def test_interval_share_of_the_search_range() -> None:
+    from smcbayes.report.sections_stages import interval_share
+
+    ranges = {"B_Pa_s": (1e3, 1e5, True), "n": (0.2, 0.6, False)}
+    assert interval_share({"name": "B_Pa_s", "q05": 1e3, "q95": 1e4}, ranges) == pytest.approx(0.5)
+    assert interval_share({"name": "n", "q05": 0.3, "q95": 0.4}, ranges) == pytest.approx(0.25)
+    assert interval_share({"name": "m", "q05": 1.1, "q95": 1.2}, ranges) != interval_share(
+        {"name": "m", "q05": 1.1, "q95": 1.2}, ranges
+    )  # unknown range: NaN
+
+
+def test_rebuilt_command_lines_parse(tmp_path: Path) -> None:
+    import shlex
+
+    from smcbayes.cli import build_parser
+
+    run = fake_run(tmp_path)
+    config = json.loads((run / "config.json").read_text(encoding="utf-8"))
+    config.update(effects=["press_compliance"], overrides={"n": 0.3}, external={"command": "x"})
+    (run / "config.json").write_text(json.dumps(config), encoding="utf-8")
+    (run / "posterior").mkdir()
+    settings = {"walkers": 8, "steps": 100, "refine_tolerance_nats": 1.0, "seed": 2}
+    (run / "posterior" / "summary.json").write_text(json.dumps({"settings": settings}), "utf-8")
+    write_report(run, ("md",))
+    md = (run / "report.md").read_text(encoding="utf-8")
+    block = md.split("```\n")[-2].strip().splitlines()
+    parser = build_parser()
+    parsed = [
+        parser.parse_args(shlex.split(line.replace("CONFIG", "p.toml"))[1:]) for line in block
+    ]
+    assert [a.command for a in parsed] == ["calibrate", "posterior", "report"]
+    assert parsed[0].effect == ["press_compliance"] and parsed[0].set == ["n=0.3"]
+    assert parsed[0].seed == 3 and parsed[0].budget == 5 and parsed[0].external is None
+    assert parsed[1].walkers == 8 and parsed[1].seed == 2

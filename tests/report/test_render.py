@@ -8,11 +8,21 @@ from pathlib import Path
 import pytest
 
 from smcbayes.plotting import pyplot, save
-from smcbayes.report.document import Bullets, Code, Figure, Heading, Paragraph, Section, Table, fmt, pct
+from smcbayes.report.document import (
+    Bullets,
+    Code,
+    Figure,
+    Heading,
+    Paragraph,
+    Section,
+    Table,
+    fmt,
+    pct,
+)
 from smcbayes.report.render import to_html, to_markdown
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the shared HTML checker of these tests
-from htmlcheck import PLACEHOLDER, external_references, parse_page  # noqa: E402
+from htmlcheck import PLACEHOLDER, external_references, parse_page
 
 
 @pytest.fixture
@@ -26,11 +36,17 @@ def figure(tmp_path: Path) -> Path:
 
 
 def sections(figure: Path) -> list[Section]:
-    return [Section("one", "First <one>").add(
-        Heading("sub & heading"), Paragraph("a < b and {braces} stay text", tone="warning"),
-        Bullets(("x|y", "z")), Table(("name", "value"), (("a|b", "1.5"), ("<c>", "2")), "cap", (1,)),
-        Figure(figure, "a figure"), Code("smcbayes report RUN")),
-        Section("two", "Second").add(Paragraph("plain"))]
+    return [
+        Section("one", "First <one>").add(
+            Heading("sub & heading"),
+            Paragraph("a < b and {braces} stay text", tone="warning"),
+            Bullets(("x|y", "z")),
+            Table(("name", "value"), (("a|b", "1.5"), ("<c>", "2")), "cap", (1,)),
+            Figure(figure, "a figure"),
+            Code("smcbayes report RUN"),
+        ),
+        Section("two", "Second").add(Paragraph("plain")),
+    ]
 
 
 def test_html_is_self_contained_and_escaped(figure: Path) -> None:

@@ -32,7 +32,7 @@ def records(bo: BayesOpt) -> list[dict]:
 
 
 @pytest.fixture(scope="module")
-def client():  # noqa: ANN201
+def client():
     cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                        dashboard_address=None)
     c = distributed.Client(cluster)
@@ -41,14 +41,16 @@ def client():  # noqa: ANN201
     cluster.close()
 
 
-def test_dask_equals_local(client, tmp_path: Path) -> None:  # noqa: ANN001
+def test_dask_equals_local(client, tmp_path: Path) -> None:
     local = BayesOpt(objective(), SETTINGS, RunLog(tmp_path / "local.jsonl"), LocalExecutor(1)).run()
-    dask = BayesOpt(objective(), SETTINGS, RunLog(tmp_path / "dask.jsonl"), DaskExecutor(client)).run()
+    # by address, as `--scheduler tcp://...` does
+    executor = DaskExecutor(client.scheduler.address)
+    dask = BayesOpt(objective(), SETTINGS, RunLog(tmp_path / "dask.jsonl"), executor).run()
     assert records(dask) == records(local)
     assert len(records(dask)) == 8
 
 
-def test_worker_killed_mid_run(client, tmp_path: Path) -> None:  # noqa: ANN001
+def test_worker_killed_mid_run(client, tmp_path: Path) -> None:
     log = RunLog(tmp_path / "kill.jsonl")
     killed: list[int] = []
 

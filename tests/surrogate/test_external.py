@@ -31,6 +31,10 @@ SCRIPT = textwrap.dedent('''
     model = ForwardModel(load_project(config))
     cid = job["config_id"]
     res = model.simulate_params({k: np.array([v]) for k, v in job["parameters"].items()}, [cid])[cid]
+    if output.endswith(".xml"):  # Moldflow-style result: force in N
+        from smcbayes.data.readers.moldflow import write_moldflow
+        write_moldflow(output, "Clamp force", res.time_s[0], res.force_kN[0] * 1e3, "N", "Force")
+        sys.exit(0)
     with open(output, "w") as fh:
         fh.write("time_s,force_kN,displacement_mm\\n")
         for t, f, d in zip(res.time_s[0], res.force_kN[0], res.displacement_mm[0]):
@@ -69,6 +73,22 @@ def test_external_matches_native(tmp_path: Path, script: Path) -> None:
     np.testing.assert_allclose(external.error, native.error, rtol=1e-3)
     job = json.loads(next((tmp_path / "work").glob("*/params.json")).read_text())
     assert job["units"]["tau_c_MPa"] == "MPa" and job["parameters"]["n"] == 0.4
+
+
+def test_external_moldflow_output(tmp_path: Path, script: Path) -> None:
+    config = one_config(tmp_path)
+    problem = build_problem(load_project(config), tmp_path / "run")
+    cmd = f"{sys.executable} {script} {{params}} {{output}} {config}"
+    ext = ExternalSimulator(problem.project, problem.model.space, cmd, tmp_path / "work", 120.0,
+                            output_format="moldflow")
+    obj = SimulatorObjective(ext, problem.objective.dataset, problem.train_ids, problem.project.loss)
+    theta = np.array([[0.05, 1.4]])
+    cid = problem.train_ids[0]
+    external = obj.evaluate(Task((0,), theta, cid))
+    assert external.status == ["ok"]
+    assert list((tmp_path / "work").glob("*/curves.xml"))
+    np.testing.assert_allclose(external.error, problem.objective.evaluate(Task((0,), theta, cid)).error,
+                               rtol=1e-3)
 
 
 def test_external_failures_have_reasons(tmp_path: Path) -> None:

@@ -20,7 +20,7 @@ def slip_space() -> ParameterSpace:
     return ParameterSpace(BASE_PARAMETERS).with_fixed({"n": 0.4, "tau_star_Pa": 1e4, "B_Pa_s": 1e4})
 
 
-def run(tmp: Path, objective, **kw) -> BayesOpt:  # noqa: ANN001
+def run(tmp: Path, objective, **kw) -> BayesOpt:
     settings = BOSettings(**{"budget": 14, "init": 5, "restarts": 4, "raw_samples": 64, **kw})
     tmp.mkdir(parents=True, exist_ok=True)
     return BayesOpt(objective, settings, RunLog(tmp / "log.jsonl"), LocalExecutor(1)).run()

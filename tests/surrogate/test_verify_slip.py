@@ -1,4 +1,4 @@
-"""The thesis's 2-D check and the local process pool on the real forward model."""
+"""The thesis's 2-D check, the process pool and failure reporting on the real forward model."""
 
 from __future__ import annotations
 
@@ -9,14 +9,16 @@ import numpy as np
 from smcbayes.config import load_project
 from smcbayes.surrogate.executors.local import LocalExecutor
 from smcbayes.surrogate.loop import BayesOpt, BOSettings
+from smcbayes.surrogate.objective import Task, TaskResult
 from smcbayes.surrogate.problem import build_problem
+from smcbayes.surrogate.rundir import calibrate
 from smcbayes.surrogate.runlog import RunLog
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "configs" / "verify-slip-2d.toml"
 
 
-def settings(project, **kw) -> BOSettings:  # noqa: ANN001
+def settings(project, **kw) -> BOSettings:
     c = project.calibration
     base = dict(budget=c.budget, init=c.init, batch=c.batch, kernel=c.kernel, seed=c.seed,
                 local_evaluations=c.local_evaluations, local_radius=c.local_radius)
@@ -49,3 +51,30 @@ def test_process_pool_equals_inline(tmp_path: Path) -> None:
                      for _, r in sorted(bo.state.evaluations.items())])
     assert runs[0] == runs[1] and len(runs[0]) == 6
     assert all(r["status"] == "ok" for r in runs[0])
+
+
+class FailSome:
+    """Test-only wrapper: every evaluation whose index is a multiple of 5 fails (20 %)."""
+
+    def __init__(self, inner) -> None:
+        self.inner, self.space, self.config_ids = inner, inner.space, inner.config_ids
+
+    def evaluate(self, task: Task) -> TaskResult:
+        res = self.inner.evaluate(task)
+        bad = np.array([i % 5 == 0 for i in task.indices])
+        status = ["failed: injected" if b else s for b, s in zip(bad, res.status, strict=True)]
+        return TaskResult(res.indices, res.config_id, np.where(bad, np.nan, res.error),
+                          res.force_mse_kN2, res.displacement_mse_mm2, status, res.seconds)
+
+
+def test_failures_are_reported_in_summary(tmp_path: Path) -> None:
+    project = load_project(CONFIG)
+    problem = build_problem(project, tmp_path)
+    problem.objective = FailSome(problem.objective)
+    info = calibrate(problem, settings(project, budget=10), tmp_path, LocalExecutor(1),
+                     figures=False, progress=None)
+    assert info["evaluations"] == 10 and info["failures"] == 2
+    assert [f["index"] for f in info["failure_reasons"]] == [0, 5]
+    assert all("injected" in f["reason"] for f in info["failure_reasons"])
+    assert info["best_loss_kN2"] is not None and info["stop_reason"].startswith("budget")
+    assert (tmp_path / "summary.json").is_file() and (tmp_path / "gp.pt").is_file()

@@ -35,7 +35,7 @@ def _open_rows(path: Path) -> list[tuple[int, list[str]]]:
     header = lines[0][1]
     delimiter = max((",", ";", "\t"), key=header.count)
     reader = csv.reader([line for _, line in lines], delimiter=delimiter)
-    return [(n, [cell.strip() for cell in row]) for (n, _), row in zip(lines, reader)]
+    return [(n, [cell.strip() for cell in row]) for (n, _), row in zip(lines, reader, strict=False)]
 
 
 def read_csv(path: str | Path, value_column: str, quantity: str, time_column: str = "time_s",
@@ -104,5 +104,5 @@ def write_csv(path: str | Path, time_s: Array, values: Array, value_column: str,
     path = Path(path)
     with path.open("w", encoding="utf-8", newline="") as fh:
         fh.write(f"time_s,{value_column}\n")
-        for t, v in zip(time_s, values):
+        for t, v in zip(time_s, values, strict=False):
             fh.write(f"{t:.{digits}g},{v:.{digits}g}\n")

@@ -40,11 +40,11 @@ def _datasets(root: ET.Element) -> list[ET.Element]:
 def _pick(path: Path, sets: list[ET.Element], quantity: str, name: str | None) -> ET.Element:
     names = [(s.findtext(".//Name") or "").strip() for s in sets]
     if name is not None:
-        hits = [s for s, n in zip(sets, names) if name.lower() in n.lower()]
+        hits = [s for s, n in zip(sets, names, strict=False) if name.lower() in n.lower()]
     elif len(sets) == 1:
         return sets[0]
     else:
-        hits = [s for s, n in zip(sets, names) if any(k in n.lower() for k in _KEYWORDS[quantity])]
+        hits = [s for s, n in zip(sets, names, strict=False) if any(k in n.lower() for k in _KEYWORDS[quantity])]
     if len(hits) != 1:
         raise DataError(f"{path}: {len(hits)} datasets match {quantity} {name or ''}; datasets: "
                         f"{', '.join(repr(n) for n in names)}; give the dataset name in the config")
@@ -112,7 +112,7 @@ def write_moldflow(path: str | Path, name: str, time_s: np.ndarray, values: np.n
     blocks = "\n".join(
         f'      <Block><IndpVar Value="{t:.9E}"/><Data><NodeData ID="1">'
         f"<DeptValues>{v:.9E}</DeptValues></NodeData></Data></Block>"
-        for t, v in zip(time_s, values))
+        for t, v in zip(time_s, values, strict=False))
     text = (f'<?xml version="1.0" encoding="UTF-8"?>\n<MoldflowXMLDocument version="1.0">\n'
             f"  <Dataset>\n    <DataDescription>\n      <Name>{name}</Name>\n"
             f"      <IndpVar><Name>Time</Name><Unit>s</Unit></IndpVar>\n"

@@ -124,7 +124,7 @@ def write_press(path: str | Path, start: datetime, time_s: np.ndarray, force_kN:
                 position_mm: np.ndarray) -> None:
     """Write a press export (for tests and examples): stamp, position (mm), force (kN)."""
     rows = [f"Zeit;{POSITION_COLUMN};{FORCE_COLUMN}", ";mm;kN"]
-    for t, x, f in zip(time_s, position_mm, force_kN):
+    for t, x, f in zip(time_s, position_mm, force_kN, strict=False):
         stamp = (start + timedelta(seconds=float(t))).strftime(STAMP_FORMAT)
         rows.append(";".join((stamp, f"{x:.6f}".replace(".", ","), f"{f:.6f}".replace(".", ","))))
     Path(path).write_bytes(("\r\n".join(rows) + "\r\n").encode("utf-16-le"))

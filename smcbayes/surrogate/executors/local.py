@@ -14,7 +14,7 @@ _OBJECTIVE: Objective | None = None
 
 
 def _init_worker(objective: Objective) -> None:
-    global _OBJECTIVE  # noqa: PLW0603  (one objective per worker process)
+    global _OBJECTIVE
     _OBJECTIVE = objective
 
 
