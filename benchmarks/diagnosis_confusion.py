@@ -37,7 +37,10 @@ from smcbayes.data.synth import NoiseSpec  # noqa: E402
 from smcbayes.diagnose.fit import FitSettings  # noqa: E402
 from smcbayes.diagnose.run import DiagnoseSettings, diagnose  # noqa: E402
 from smcbayes.diagnose.synthetic import (  # noqa: E402
-    BASE_TRUTH, EFFECT_TRUTH, calibrate_base, make_case,
+    BASE_TRUTH,
+    EFFECT_TRUTH,
+    calibrate_base,
+    make_case,
 )
 
 IDS = ["60-bar-03", "60-bar-07", "60-bar-11", "60-center-03", "60-center-07", "60-center-11",
@@ -46,7 +49,7 @@ NOISE = NoiseSpec(white_kN=2.0, correlated_kN=3.0, correlation_s=0.5)
 EFFECTS = tuple(EFFECT_TRUTH)
 
 
-def noise_floor(ctx, effect: str | None, ids: list[str]) -> float:  # noqa: ANN001
+def noise_floor(ctx, effect: str | None, ids: list[str]) -> float:
     """Held-out loss (kN^2) of the true model (true effect and values) on the noisy data."""
     extra = (effect,) if effect else ()
     truth = {**BASE_TRUTH, **(EFFECT_TRUTH[effect] if effect else {})}
@@ -55,7 +58,7 @@ def noise_floor(ctx, effect: str | None, ids: list[str]) -> float:  # noqa: ANN0
     return float(np.mean(ctx.losses(extra, theta, ids)[0]))
 
 
-def run_case(project, effect: str | None, seed: int, args: argparse.Namespace, work: Path) -> dict:  # noqa: ANN001
+def run_case(project, effect: str | None, seed: int, args: argparse.Namespace, work: Path) -> dict:
     """Synthetic data, base calibration and diagnosis of one case."""
     t0 = time.perf_counter()
     synth = make_case(project, IDS, effect, NOISE, seed, work / f"{effect or 'none'}-{seed}")

@@ -29,10 +29,19 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _posterior_common import BOUNDS, Timer, calibrate_run, emulated_draws, make_dataset, project_doc, unit_of, write_result  # noqa: E402
+from _posterior_common import (
+    BOUNDS,
+    Timer,
+    calibrate_run,
+    emulated_draws,
+    make_dataset,
+    project_doc,
+    unit_of,
+    write_result,
+)
 
-from smcbayes.posterior.sampler import SamplerSettings, run_ensemble  # noqa: E402
-from smcbayes.posterior.stage import PosteriorSettings, load_run, run_posterior, true_log_loss  # noqa: E402
+from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
+from smcbayes.posterior.stage import PosteriorSettings, load_run, run_posterior, true_log_loss
 
 TRAIN = ["60-bar-03", "60-bar-11", "60-center-07", "80-bar-07", "80-center-03", "80-center-11"]
 CASES: list[dict[str, float]] = [

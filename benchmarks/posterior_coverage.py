@@ -28,11 +28,19 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _posterior_common import (  # noqa: E402
-    BOUNDS, DEFAULTS, Timer, calibrate_run, emulated_draws, make_dataset, project_doc, unit_of, write_result,
+from _posterior_common import (
+    BOUNDS,
+    DEFAULTS,
+    Timer,
+    calibrate_run,
+    emulated_draws,
+    make_dataset,
+    project_doc,
+    unit_of,
+    write_result,
 )
 
-from smcbayes.posterior.stage import PosteriorSettings, load_run, run_posterior  # noqa: E402
+from smcbayes.posterior.stage import PosteriorSettings, load_run, run_posterior
 
 TRAIN = ["60-bar-03", "60-bar-11", "60-center-07"]
 VALIDATION = ["80-center-03", "80-center-11"]

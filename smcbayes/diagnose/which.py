@@ -46,7 +46,11 @@ from numpy.typing import NDArray
 from scipy.optimize import lsq_linear
 
 from smcbayes.diagnose.fit import (
-    DiagnosisContext, Fit, FitSettings, initial_population, residual_stack,
+    DiagnosisContext,
+    Fit,
+    FitSettings,
+    initial_population,
+    residual_stack,
 )
 from smcbayes.posterior.likelihood import effective_points, integrated_autocorr_time
 

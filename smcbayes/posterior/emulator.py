@@ -61,7 +61,7 @@ class NumpyGP:
     y: Array
 
     @classmethod
-    def from_botorch(cls, model) -> NumpyGP:  # noqa: ANN001
+    def from_botorch(cls, model) -> NumpyGP:
         """Copy a fitted SingleTaskGP (no input transform, Standardize outcome transform)."""
         cov = model.covar_module
         name = type(cov).__name__

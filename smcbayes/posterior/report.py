@@ -13,7 +13,11 @@ from smcbayes.posterior.likelihood import EmulatedPosterior
 from smcbayes.posterior.predictive import predictive_bands
 from smcbayes.posterior.refine import check_emulator
 from smcbayes.posterior.summary import (
-    correlations, stack_components, summarise, to_inference_data, warnings_for,
+    correlations,
+    stack_components,
+    summarise,
+    to_inference_data,
+    warnings_for,
 )
 
 

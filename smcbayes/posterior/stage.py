@@ -65,7 +65,7 @@ class RunContext:
     best_theta: Array
 
     @property
-    def space(self):  # noqa: ANN201
+    def space(self):
         return self.problem.model.space
 
 
@@ -164,10 +164,9 @@ def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int) -> Any:
 
 def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
            settings: PosteriorSettings, rng: np.random.Generator, out_dir: Path) -> tuple[Any, tuple[Array, Array]]:
-    """Rounds of: sample the emulated posterior (the mixture over GP sample functions, with
-    fresh functions each round, shorter chains), evaluate the forward model (random,
-    uncertain and space-filling points of its region), check the emulator out of sample,
-    refit.
+    """Rounds of: sample the emulated posterior of the GP mean (shorter chains), evaluate the
+    forward model (random, uncertain and space-filling points of its region), check the
+    emulator out of sample, refit.
 
     Stops when ``settings.refine`` evaluations are spent or, after at least two rounds,
     when the out-of-sample error at the round's random posterior draws is below
@@ -180,11 +179,9 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
     x, y = data
     remaining, rounds, below = settings.refine, 0, 0
     per_round = max(9, min(30, settings.refine // 4))
+    quick = PosteriorSettings(walkers=settings.walkers, steps=min(settings.steps, 1000), functions=0,
+                              seed=int(rng.integers(2**31 - 1)))
     while remaining > 0:
-        # draws of the same mixture over sample functions as the final posterior: a sample
-        # function's spurious dip far from the data is then evaluated and corrected
-        quick = PosteriorSettings(walkers=settings.walkers, steps=min(settings.steps, 1000),
-                                  functions=settings.functions, seed=int(rng.integers(2**31 - 1)))
         _, chains = sample(ctx, surrogate, n_eff, quick, rng)
         pooled = np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
         pts, n_rand = round_design(pooled, surrogate, min(per_round, remaining), rng)

@@ -55,7 +55,7 @@ def stack_components(chains: Sequence[Chains]) -> tuple[Array, Array]:
     return samples, logp
 
 
-def to_inference_data(space: ParameterSpace, chains: Sequence[Chains], attrs: dict):  # noqa: ANN201
+def to_inference_data(space: ParameterSpace, chains: Sequence[Chains], attrs: dict):
     """arviz InferenceData with the posterior in user units and sampler statistics."""
     import arviz as az
 

@@ -24,7 +24,7 @@ def test_window_words_name_the_part_of_the_closing() -> None:
     assert window_words(0, 10, 10) == "the whole closing"
 
 
-def test_verdict_follows_the_data(synthetic_ctx) -> None:  # noqa: ANN001
+def test_verdict_follows_the_data(synthetic_ctx) -> None:
     """Data with a compliant press vs a curing resin: different misfit, different verdict."""
     press = synthetic_ctx("press_compliance")
     cure = synthetic_ctx("curing")
@@ -42,7 +42,7 @@ def test_verdict_follows_the_data(synthetic_ctx) -> None:  # noqa: ANN001
     assert rep_p.heat_kN.shape == (3, rep_p.bins.size)
 
 
-def test_no_effect_data_leave_noise_sized_residuals(synthetic_ctx) -> None:  # noqa: ANN001
+def test_no_effect_data_leave_noise_sized_residuals(synthetic_ctx) -> None:
     ctx = synthetic_ctx(None)
     rep = analyse(ctx, (), ctx.start(()), ctx.ids)
     # white 2 kN + correlated 3 kN: an RMS misfit of the order of 3.6 kN

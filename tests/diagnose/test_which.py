@@ -15,13 +15,13 @@ from .conftest import TINY
 CANDIDATES = ("compressibility", "heating", "press_compliance")
 
 
-def run(ctx, seed: int = 0) -> dict:  # noqa: ANN001
+def run(ctx, seed: int = 0) -> dict:
     settings = DiagnoseSettings(candidates=CANDIDATES, seed=seed, fit=TINY, figures=False)
     return diagnose(ctx, settings, None, log=lambda _: None)
 
 
 @pytest.mark.parametrize("effect", ["compressibility", "press_compliance"])
-def test_withheld_effect_is_named(synthetic_ctx, effect: str) -> None:  # noqa: ANN001
+def test_withheld_effect_is_named(synthetic_ctx, effect: str) -> None:
     """Swapping the effect in the data swaps the answer (computed, not templated)."""
     summary = run(synthetic_ctx(effect))
     assert summary["decision"]["best"] == effect
@@ -32,14 +32,14 @@ def test_withheld_effect_is_named(synthetic_ctx, effect: str) -> None:  # noqa: 
     assert summary["holdout"] == ["60-bar-07"]
 
 
-def test_no_effect_data_are_not_attributed(synthetic_ctx) -> None:  # noqa: ANN001
+def test_no_effect_data_are_not_attributed(synthetic_ctx) -> None:
     summary = run(synthetic_ctx(None))
     assert summary["decision"]["best"] is None
     assert summary["decision"]["statement"].startswith("no effect explains the gap beyond noise")
     assert not any(r["significant"] for r in summary["ranking"])
 
 
-def test_same_seed_same_ranking(synthetic_ctx) -> None:  # noqa: ANN001
+def test_same_seed_same_ranking(synthetic_ctx) -> None:
     ctx = synthetic_ctx("press_compliance")
     settings = DiagnoseSettings(candidates=("press_compliance", "heating"), seed=3, fit=TINY,
                                 figures=False)
@@ -49,7 +49,7 @@ def test_same_seed_same_ranking(synthetic_ctx) -> None:  # noqa: ANN001
     assert [r["score"] for r in a["ranking"]] == [r["score"] for r in b["ranking"]]
 
 
-def test_signature_separates_a_present_effect_from_an_absent_one(synthetic_ctx) -> None:  # noqa: ANN001
+def test_signature_separates_a_present_effect_from_an_absent_one(synthetic_ctx) -> None:
     ctx = synthetic_ctx("compressibility")
     rng = np.random.default_rng(0)
     base = refit(ctx, (), ctx.ids, ctx.start(()), TINY, rng)
@@ -59,7 +59,7 @@ def test_signature_separates_a_present_effect_from_an_absent_one(synthetic_ctx) 
     assert present.sensitivity_kN > 0 and present.most_sensitive
 
 
-def test_holdout_default_and_validation(synthetic_ctx) -> None:  # noqa: ANN001
+def test_holdout_default_and_validation(synthetic_ctx) -> None:
     ctx = synthetic_ctx(None)
     assert default_holdout(ctx) == ["60-bar-07"]
     with pytest.raises(ConfigError, match="did you mean '60-bar-07'"):
@@ -68,7 +68,7 @@ def test_holdout_default_and_validation(synthetic_ctx) -> None:  # noqa: ANN001
         check_holdout(ctx, list(ctx.ids))
 
 
-def test_pair_is_fitted_and_reported(synthetic_ctx) -> None:  # noqa: ANN001
+def test_pair_is_fitted_and_reported(synthetic_ctx) -> None:
     ctx = synthetic_ctx("press_compliance")
     settings = DiagnoseSettings(candidates=("press_compliance", "heating"), pair=True, fit=TINY,
                                 figures=False)
