@@ -112,6 +112,9 @@ def test_html_report_is_complete_and_self_contained(demo_out: Path) -> None:
         "SHA-256",
     ):
         assert words in text, words
+    # the report states the decision the diagnosis computed (not a fixed phrase)
+    decision = json.loads((demo_out / "run" / "diagnose" / "summary.json").read_text())["decision"]
+    assert decision["statement"].split(":")[0] in text
 
 
 def test_markdown_twin_references_existing_figures(demo_out: Path) -> None:

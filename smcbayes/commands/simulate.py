@@ -57,9 +57,14 @@ def simulate_and_write(model: ForwardModel, ids: list[str], out: Path) -> int:
     print(f"curves: {out}/<id>.csv; figure: {figure[0]}")
     fields = getattr(model.solver, "fields", None)
     if fields:
+        drawn = 0
         for cid, res in results.items():
             h = fields[cid][0]
-            front = plot_flow_front(res, h.time_s, h.fill, h.x_faces_mm, h.y_faces_mm,
-                                    out / f"flow_front_{cid}", f"{cid}: {label}")
-        print(f"flow-front figures: {front[0].parent}/flow_front_<id>.png")
+            if h is None:  # the run of this configuration failed
+                continue
+            plot_flow_front(res, h.time_s, h.fill, h.x_faces_mm, h.y_faces_mm,
+                            out / f"flow_front_{cid}", f"{cid}: {label}")
+            drawn += 1
+        if drawn:
+            print(f"flow-front figures: {out}/flow_front_<id>.png")
     return 0

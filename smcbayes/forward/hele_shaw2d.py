@@ -116,6 +116,7 @@ class _Run:
     snap_t: list[float] = field(default_factory=list)
     snap_f: list[Array] = field(default_factory=list)
     switch: float = 0.0
+    status: str = STATUS_OK
 
 
 def make_grid(case: Case, cells: int, use_symmetry: bool) -> tuple[Grid, Array]:
@@ -193,10 +194,16 @@ class HeleShaw2D:
                               "speed; remove press.profile or use --fidelity 1d")
         table = material_table(p, material, self.tau)
         rows = p["n"].shape[0]
-        runs = [self.run_row(case, table, float(p["B"][r]), r, _compaction(case, p, effects, r))
-                for r in range(rows)]
+        runs = []
+        for r in range(rows):
+            # one parameter set that fails must not take the other rows of the batch with it
+            try:
+                runs.append(self.run_row(case, table, float(p["B"][r]), r, _compaction(case, p, effects, r)))
+            except SolverError as err:
+                runs.append(_Run(t=[0.0, 1.0], gap=[case.gap0] * 2, area=[case.area0] * 2,
+                                 force=[0.0, 0.0], solid=[1.0, 1.0], switch=1.0, status=f"failed: {err}"))
         grid, _ = make_grid(case, self.options.cells, self.options.use_symmetry)
-        self.fields[case.id] = [self._history(grid, run) for run in runs]
+        self.fields[case.id] = [self._history(grid, run) if run.snap_f else None for run in runs]
         nodes = _to_nodes(runs)
         o = self.options
         return to_result(case, nodes, o.output_closing_points, o.output_hold_points,
@@ -491,4 +498,4 @@ def _to_nodes(runs: list[_Run]) -> Nodes:
             out[key][i, n:] = arr[-1]
     return Nodes(time=out["t"], gap=out["gap"], area=out["area"], force=out["force"],
                  deflection=np.zeros((P, S)), solid=out["solid"], count=count,
-                 switch=np.array([r.switch for r in runs]), status=[STATUS_OK] * P)
+                 switch=np.array([r.switch for r in runs]), status=[r.status for r in runs])

@@ -17,7 +17,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from smcbayes.errors import SmcBayesError
+from smcbayes.errors import InputError, SmcBayesError
 from smcbayes.forward.parameters import ParameterSpace
 from smcbayes.forward.result import STATUS_OK, SimulationResult
 
@@ -130,6 +130,8 @@ class SimulatorObjective:
             results = self.simulator.simulate(task.theta, [task.config_id])
             spec = self.loss_spec if self.loss_spec is not None else LossSpec()
             loss = evaluate_loss(results, self.dataset, spec, ids=[task.config_id])
+        except InputError:
+            raise  # a bad config or data file is the user's to fix: stop, do not log failures
         except (SmcBayesError, ArithmeticError, ValueError) as err:
             return TaskResult.failed(task, f"{type(err).__name__}: {err}", time.perf_counter() - start)
         error = np.asarray(loss.total, dtype=float).reshape(-1)

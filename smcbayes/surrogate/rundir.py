@@ -33,7 +33,7 @@ from smcbayes.surrogate.runlog import LOG_NAME, RunLog, write_json
 
 IDENTITY_KEYS = ("project", "effects", "overrides", "fidelity", "external", "seed", "init",
                  "batch", "kernel", "failed", "restarts", "raw_samples", "noise",
-                 "local_evaluations", "local_radius")
+                 "local_evaluations", "local_radius", "patience")
 """Settings that must match for ``--resume`` (the budget and tolerance may change)."""
 
 

@@ -93,10 +93,6 @@ def test_press_compliance(make_project: Callable[..., ProjectConfig]) -> None:
     project = make_project(press={"force_limit_kN": 500.0})
     rigid = run(project, **SHEAR)
     soft = run(project, ("press_compliance",), k_press_kN_mm=k_kN_mm, **SHEAR)
-    gap_change = 8.0 - soft.gap_mm[0]
-    np.testing.assert_allclose(soft.displacement_mm[0] - gap_change, soft.force_kN[0] / k_kN_mm,
-                               rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(rigid.displacement_mm[0], 8.0 - rigid.gap_mm[0], atol=1e-12)
     c = closing(soft)
     t, gap, force = soft.time_s[0, c], soft.gap_mm[0, c], soft.force_kN[0, c]
     rising = np.diff(force) > 0
