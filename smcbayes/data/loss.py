@@ -31,6 +31,7 @@ from smcbayes.data.dataset import Dataset, Measurement
 from smcbayes.data.preprocess import crossing_time
 from smcbayes.data.specs import LossSpec
 from smcbayes.errors import DataError
+from smcbayes.forward.nodes import interp_rows
 from smcbayes.forward.result import PHASE_FORCE, SimulationResult
 
 Array = NDArray[np.float64]
@@ -68,34 +69,6 @@ class LossResult:
                 e = e + self.w_displacement * self.displacement_mse_mm2[:, k]
             out[cid] = e
         return out
-
-
-def interp_rows(x: Array, xp: Array, fp: Array) -> Array:
-    """Row-wise linear interpolation holding end values (numpy.interp per row, vectorised).
-
-    Args:
-        x: query points, shape ``(P, N)``.
-        xp: sample points, strictly increasing per row, shape ``(P, T)``.
-        fp: sample values, shape ``(P, T)``.
-
-    Returns:
-        Interpolated values, shape ``(P, N)``.
-    """
-    P, T = xp.shape
-    lo, hi = xp[:, :1], xp[:, -1:]
-    span = np.where(hi > lo, hi - lo, 1.0)
-    # Rows are mapped to disjoint intervals [2p, 2p+1] so one searchsorted serves all rows.
-    offset = 2.0 * np.arange(P)[:, None]
-    xs = ((xp - lo) / span + offset).ravel()
-    q = np.clip((x - lo) / span, 0.0, 1.0) + offset
-    j = np.searchsorted(xs, q.ravel(), side="right").reshape(q.shape) - np.arange(P)[:, None] * T
-    j = np.clip(j, 1, T - 1)
-    rows = np.arange(P)[:, None]
-    x0, x1 = xp[rows, j - 1], xp[rows, j]
-    f0, f1 = fp[rows, j - 1], fp[rows, j]
-    xc = np.clip(x, lo, hi)
-    w = np.where(x1 > x0, (xc - x0) / np.where(x1 > x0, x1 - x0, 1.0), 1.0)
-    return f0 + w * (f1 - f0)
 
 
 def _safe(res: SimulationResult) -> tuple[Array, Array, Array, NDArray[np.bool_]]:

@@ -50,32 +50,50 @@ class Nodes:
     status: list[str]
 
 
-def interp_rows(x_new: Array, x: Array, y: Array, count: NDArray[np.int64]) -> Array:
-    """Row-wise linear interpolation; ``x`` non-decreasing over the first ``count`` entries.
+def row_weights(x_new: Array, xp: Array) -> tuple[NDArray[np.int64], Array]:
+    """Bracketing nodes and weights of row-wise linear interpolation, all rows at once.
 
     Args:
-        x_new: query points, ``(P, T)``.
-        x, y: node abscissae and values, ``(P, S)``.
-        count: valid nodes per row, ``(P,)``; entries past it are ignored.
+        x_new: query points, ``(P, N)``.
+        xp: node abscissae, non-decreasing per row, ``(P, T)`` with ``T >= 2`` (rows may be
+            padded past their end by repeating the last node).
 
     Returns:
-        Interpolated values, ``(P, T)``; constant extrapolation at both ends.
+        ``(j, w)``, each ``(P, N)``: the value at a query is ``f[j-1] + w (f[j] - f[j-1])``;
+        constant extrapolation at both ends.
     """
-    P, S = x.shape
-    idx = np.arange(S)[None, :]
-    valid = idx < count[:, None]
-    big = np.where(valid, x, np.inf)
-    j = np.empty(x_new.shape, dtype=np.int64)
-    for r in range(P):  # searchsorted is not batched; this loop is O(P) cheap calls
-        j[r] = np.searchsorted(big[r, : count[r]], x_new[r], side="right") - 1
-    j = np.clip(j, 0, np.maximum(count - 2, 0)[:, None])
+    P, T = xp.shape
+    lo, hi = xp[:, :1], xp[:, -1:]
+    span = np.where(hi > lo, hi - lo, 1.0)
+    # rows are mapped to disjoint intervals [2r, 2r + 1] so one searchsorted serves all rows
+    offset = 2.0 * np.arange(P)[:, None]
+    xs = ((xp - lo) / span + offset).ravel()
+    q = np.clip((x_new - lo) / span, 0.0, 1.0) + offset
+    j = np.searchsorted(xs, q.ravel(), side="right").reshape(q.shape) - np.arange(P)[:, None] * T
+    j = np.clip(j, 1, T - 1)
     rows = np.arange(P)[:, None]
-    x0, x1 = x[rows, j], x[rows, np.minimum(j + 1, S - 1)]
-    y0, y1 = y[rows, j], y[rows, np.minimum(j + 1, S - 1)]
-    width = x1 - x0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w = np.where(width > 0, (x_new - x0) / width, 1.0)
-    return y0 + np.clip(w, 0.0, 1.0) * (y1 - y0)
+    x0, x1 = xp[rows, j - 1], xp[rows, j]
+    width = np.where(x1 > x0, x1 - x0, 1.0)
+    w = np.where(x1 > x0, (np.clip(x_new, lo, hi) - x0) / width, 1.0)
+    return j, w
+
+
+def apply_weights(fp: Array, j: NDArray[np.int64], w: Array) -> Array:
+    """Values ``(P, N)`` of ``fp`` ``(P, T)`` at the weights of :func:`row_weights`."""
+    rows = np.arange(fp.shape[0])[:, None]
+    f0 = fp[rows, j - 1]
+    return f0 + w * (fp[rows, j] - f0)
+
+
+def interp_rows(x_new: Array, xp: Array, fp: Array) -> Array:
+    """Row-wise linear interpolation holding end values (``numpy.interp`` per row).
+
+    Args:
+        x_new: query points, ``(P, N)``.
+        xp: node abscissae, non-decreasing per row, ``(P, T)``.
+        fp: node values, ``(P, T)``.
+    """
+    return apply_weights(fp, *row_weights(x_new, xp))
 
 
 def output_times(switch: Array, hold: float, closing_points: int, hold_points: int,
@@ -100,10 +118,12 @@ def to_result(case: Case, nodes: Nodes, closing_points: int, hold_points: int,
     ok = np.array([s == STATUS_OK for s in nodes.status])
     switch = np.where(ok, nodes.switch, 1.0)
     t = output_times(switch, case.hold, closing_points, hold_points)
-    args = (nodes.time, nodes.count)
+    # node histories are padded past each row's end with its last node, so one set of
+    # weights serves every curve
+    weights = row_weights(t, nodes.time)
 
     def at(y: Array) -> Array:
-        return interp_rows(t, args[0], y, args[1])
+        return apply_weights(y, *weights)
 
     force, defl = at(nodes.force), at(nodes.deflection)
     # gap, area and solid fraction are interpolated in log with common weights: their
