@@ -6,7 +6,9 @@ appending a function.  Times are medians of several repeats after a warm-up run.
 
 Targets on a 2-core machine: one (configuration, parameter set) run with >= 200 output
 times <= 10 ms; a batch of 256 parameter sets on one configuration <= 0.5 s; with effects,
-a compressible run <= 5x the incompressible run and a batch of 256 sets <= 2 s.  A missed
+a compressible run <= 5x the incompressible run and a batch of 256 sets <= 2 s.  The
+compressibility, press_compliance and speed_ramp rows run on the compiled marching path
+(numba); the "NumPy march" rows time the reference path on the same cases.  A missed
 target is printed as MISSED.  Reference: one Moldflow run of the thesis took 20 minutes.
 
 Usage: ``python benchmarks/forward_speed.py [--repeats 5] [--batch 256]``
@@ -72,8 +74,12 @@ class Bench:
     seed: int = 0
     cache: dict[str, float] = field(default_factory=dict)
 
-    def model(self, effects: tuple[str, ...] = (), fidelity: str | None = None) -> ForwardModel:
-        return ForwardModel(load_project(self.config), effects=list(effects), fidelity=fidelity)
+    def model(self, effects: tuple[str, ...] = (), fidelity: str | None = None,
+              compiled: bool = True) -> ForwardModel:
+        model = ForwardModel(load_project(self.config), effects=list(effects), fidelity=fidelity)
+        if not compiled:
+            model.solver.options = dataclasses.replace(model.solver.options, compiled=False)
+        return model
 
     def thetas(self, model: ForwardModel, rows: int) -> Array:
         """``rows`` parameter vectors drawn uniformly in the search bounds (seeded)."""
@@ -122,6 +128,30 @@ def _effect_rows(bench: Bench, effects: tuple[str, ...], label: str) -> list[Row
     return rows
 
 
+def first_call(bench: Bench) -> list[Row]:
+    """First compressible run of the process: numba compiles the kernel or loads it from cache."""
+    model = bench.model(("compressibility",))
+    start = time.perf_counter()
+    model.simulate(None, [bench.config_id])
+    return [Row("1d compressibility: first call (kernel compile or cache load)",
+                time.perf_counter() - start, 1, 0, None, "", "once per process")]
+
+
+def numpy_reference(bench: Bench) -> list[Row]:
+    """The NumPy marching path on the compiled path's cases: the baseline of its speed-up."""
+    rows = []
+    for effects, label in ((("compressibility",), "compressibility"),
+                           (("compressibility", "press_compliance", "speed_ramp"), "compr.+compliance+ramp")):
+        model = bench.model(effects, compiled=False)
+        single, outputs = bench.time(model, None, 3)
+        base = bench.cache.get("base_single")
+        note = "" if base is None else f"{single / base:.0f}x the base run"
+        rows.append(Row(f"1d {label}, NumPy march: one run", single, 1, outputs, None, "", note))
+        batch, outputs = bench.time(model, bench.thetas(model, bench.batch), 1)
+        rows.append(Row(f"1d {label}, NumPy march: batch of {bench.batch}", batch, bench.batch, outputs))
+    return rows
+
+
 def effect_rows(bench: Bench) -> list[Row]:
     rows: list[Row] = []
     for name in EFFECTS:
@@ -146,7 +176,8 @@ def two_d(bench: Bench) -> list[Row]:
     return [Row("2d 60-center-07: one run", s["seconds"], 1, s["nodes"], 10.0, "<= 10 s", note)]
 
 
-ROWS: list[Callable[[Bench], list[Row]]] = [base_single, base_batch, effect_rows, all_effects, two_d]
+ROWS: list[Callable[[Bench], list[Row]]] = [base_single, base_batch, first_call, effect_rows,
+                                             all_effects, numpy_reference, two_d]
 
 
 # -- convergence orders --------------------------------------------------------------------

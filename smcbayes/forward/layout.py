@@ -114,3 +114,14 @@ def square_charge_factor(fill: Array, fill0: float) -> Array:
     rows = [np.interp(x, -np.log10(1.0 - _PROGRESS), r) for r in _RATIO]
     w = float(np.clip((fill0 - _COVERAGE[0]) / (_COVERAGE[1] - _COVERAGE[0]), 0.0, 1.0))
     return np.exp((1.0 - w) * np.log(rows[0]) + w * np.log(rows[1]))
+
+
+def square_charge_tables(fill0: float) -> tuple[Array, Array, Array, float]:
+    """The tables behind :func:`square_charge_factor`, for compiled solvers.
+
+    Returns:
+        ``(x, low, high, w)``: progress nodes x = -log10(1 - u) ``(K,)``, the factor rows
+        at 60 % and 80 % coverage ``(K,)`` each, and the weight of the 80 % row.
+    """
+    w = float(np.clip((fill0 - _COVERAGE[0]) / (_COVERAGE[1] - _COVERAGE[0]), 0.0, 1.0))
+    return -np.log10(1.0 - _PROGRESS), _RATIO[0].copy(), _RATIO[1].copy(), w

@@ -34,6 +34,12 @@ from smcbayes.forward.squeeze1d import shape_factor
 
 Array = NDArray[np.float64]
 
+MAX_STRETCH = 4.0
+"""largest speed-controlled step, in nominal steps (see :func:`_closing_step`)"""
+HOLD_NODE_TOL = 1e-6
+"""distance (in schedule nodes) within which a time counts as on a hold-schedule node"""
+"""largest speed-controlled step, in nominal steps (see :func:`_closing_step`)"""
+
 
 @dataclass
 class _State:
@@ -65,11 +71,12 @@ class _State:
 @dataclass
 class _Rates:
     """Result of one balance solve, every field ``(P,)``: force (N), gap speed V,
-    spreading speed V_s (m/s)."""
+    spreading speed V_s and ram speed under that force (m/s)."""
 
     force: Array
     speed: Array
     spread: Array
+    ram: Array | None = None
 
 
 @dataclass(frozen=True)
@@ -85,6 +92,8 @@ class _Context:
     inv_k: Array
     dt_close: Array
     gap_end: Array
+    v_ref: float
+    t_close: Array
     shape_correction: bool = True
 
     def solid(self, gap: Array, area: Array) -> Array:
@@ -175,7 +184,7 @@ def _evaluate(ctx: _Context, st: _State, dt: Array) -> _Rates:
         force = np.where(packing, c.area_mould * (pc + zeta * v / st.gap), force)
         speed = np.where(packing, v, speed)
         spread = np.where(packing, 0.0, spread)
-    return _Rates(force, speed, spread)
+    return _Rates(force, speed, spread, free * (1.0 - beta * force / c.force_limit))
 
 
 def _setup(case: Case, p: dict[str, Array], effects: EffectStack, table: MaterialTable,
@@ -189,28 +198,52 @@ def _setup(case: Case, p: dict[str, Array], effects: EffectStack, table: Materia
     v_ref = case.speed if case.profile is None else case.profile.position[-1] / case.profile.time[-1]
     dt_close = (case.gap0 - gap_end) / (v_ref * steps)
     return _Context(case, p, effects, table, solid0, compressible,
-                    effects.compliance(case, p, P), dt_close, gap_end, shape_correction)
+                    effects.compliance(case, p, P), dt_close, gap_end, v_ref,
+                    dt_close * steps, shape_correction)
 
 
-def _step_size(ctx: _Context, st: _State, speed: Array, hold_steps: int, steps: int) -> Array:
-    """Closing step under speed control; geometric hold schedule capped in gap change."""
+def _closing_step(ctx: _Context, ram: Array, force_rate: Array, ram_rate: Array) -> Array:
+    """Speed-controlled step (s), ``(P,)``: the nominal step, stretched up to
+    :data:`MAX_STRETCH` times while the ram, its speed and the force all move slowly.
+
+    The nominal step covers 1/steps of the nominal closing; a ram slowing under load or a
+    soft frame would otherwise spend thousands of steps creeping to the force limit.  The
+    stretch keeps the change per step of the ram position (share of its travel to the
+    limit, gap travel + F_limit / k), of the ram speed (share of the set speed) and of the
+    force (share of the limit) at or below what the nominal step allows.  Only the ram
+    speed U (1 - beta F / F_limit) and the force enter, not the gap speed: with a stiff
+    frame the solved gap speed is a small difference of large terms, and a step size
+    driven by its round-off would make results depend on it.  Rates are ``(P,)`` absolute
+    values over the last step (inf or NaN: none yet).
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        travel = 1.0 + ctx.case.force_limit * ctx.inv_k / (ctx.case.gap0 - ctx.gap_end)
+        rate = np.maximum(np.maximum(ram / travel, ram_rate * ctx.t_close) / ctx.v_ref,
+                          force_rate * ctx.t_close / ctx.case.force_limit)
+        stretch = np.clip(np.nan_to_num(1.0 / rate, nan=1.0, posinf=MAX_STRETCH), 1.0, MAX_STRETCH)
+    return ctx.dt_close * stretch
+
+
+def _step_size(ctx: _Context, st: _State, speed: Array, hold_steps: int, steps: int,
+               closing: Array) -> Array:
+    """``closing`` (s) under speed control; geometric hold schedule capped in gap change."""
     c = ctx.case
     dt0 = ctx.dt_close
     fc = st.phase == PHASE_FORCE
     if c.hold <= 0:
-        return dt0
+        return closing
     ratio = np.maximum(c.hold / dt0, 1.0 + 1e-9)
     elapsed = np.maximum(st.t - st.switch, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        k = np.floor(hold_steps * np.log(np.maximum(elapsed, dt0 * 1e-3) / dt0) / np.log(ratio)) + 1
-    k = np.clip(np.nan_to_num(k, nan=0.0), 0, hold_steps)
+        node = hold_steps * np.log(np.maximum(elapsed, dt0 * 1e-3) / dt0) / np.log(ratio)
+    # a row sitting on a schedule node (to rounding) steps to the next one
+    k = np.clip(np.floor(np.nan_to_num(node, nan=-1.0) + HOLD_NODE_TOL) + 1, 0, hold_steps)
     target = st.switch + dt0 * ratio ** (k / hold_steps)
-    target = np.where(target <= st.t + 1e-12 * np.maximum(st.t, 1.0), st.switch + c.hold, target)
     dt_hold = np.minimum(target, st.switch + c.hold) - st.t
     with np.errstate(divide="ignore"):
         cap = np.where(speed > 0, (c.gap0 - ctx.gap_end) / steps / speed, np.inf)
     dt_hold = np.maximum(np.minimum(dt_hold, cap), 1e-12)
-    return np.where(fc, dt_hold, dt0)
+    return np.where(fc, dt_hold, closing)
 
 
 def _advance(ctx: _Context, st: _State, rates: _Rates, dt: Array, active: NDArray[np.bool_]) -> _State:
@@ -292,13 +325,14 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
                 effects.initial_state(case, p, P))
     done, count = np.zeros(P, dtype=bool), np.zeros(P, dtype=np.int64)
     rec: dict[str, list[Array]] = {k: [] for k in ("t", "gap", "area", "force", "delta", "solid")}
-    prev, prev_force = st.copy(), np.zeros(P)
+    prev, prev_force, prev_ram = st.copy(), np.zeros(P), np.zeros(P)
     # a soft frame (F_limit / (k U) up to ~6x the nominal closing time) needs a generous
     # budget; rows that finish stop costing anything
+    closing = ctx.dt_close
     for it in range(12 * (steps + hold_steps) + 20):
-        rates = _evaluate(ctx, st, ctx.dt_close)
+        rates = _evaluate(ctx, st, closing)
         if np.any(_switch(ctx, st, prev, prev_force, rates, it == 0) & ~done):
-            rates = _evaluate(ctx, st, ctx.dt_close)
+            rates = _evaluate(ctx, st, closing)
         _record(rec, ctx, st, rates.force)
         count[~done] = it + 1
         jump = ~done & ~ctx.compressible & (st.area >= case.area_mould * (1 - 1e-12)) & (st.phase != PHASE_FORCE)
@@ -309,9 +343,15 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
         done |= (st.phase == PHASE_FORCE) & (st.t >= st.switch + case.hold - 1e-9) & ~jump
         if done.all():
             break
-        dt = _step_size(ctx, st, rates.speed, hold_steps, steps)
-        prev, prev_force = st.copy(), rates.force
+        dt = _step_size(ctx, st, rates.speed, hold_steps, steps, closing)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            elapsed = np.where(st.t > prev.t, st.t - prev.t, 0.0)
+            force_rate = np.abs(rates.force - prev_force) / elapsed
+            ram_rate = np.abs(rates.ram - prev_ram) / elapsed
+        prev, prev_force, prev_ram = st.copy(), rates.force, rates.ram
         st = _advance(ctx, st, rates, dt, ~done & ~jump)
+        # the next balance is solved for the step it will take, so the step is set here
+        closing = _closing_step(ctx, rates.ram, force_rate, ram_rate)
     status = [STATUS_OK if d else "failed: the press programme did not finish within the step limit "
               "(press stalled before the force limit?)" for d in done]
     stack = {k: np.stack(v, axis=1) for k, v in rec.items()}

@@ -52,6 +52,9 @@ class Squeeze1DOptions:
         shape_correction: multiply the axisymmetric force of a centred square charge in a
             square mould by :func:`~smcbayes.forward.layout.square_charge_factor`.
         chunk_rows: parameter sets per batched table solve (cache-sized blocks).
+        compiled: run the marching path compiled (numba) when the enabled effects allow
+            it (:mod:`smcbayes.forward.march_compiled`); same results, ~30x faster for a
+            single parameter set.
     """
 
     closing_steps: int = 300
@@ -64,6 +67,7 @@ class Squeeze1DOptions:
     jump_time_s: float = 0.05
     shape_correction: bool = True
     chunk_rows: int = 12
+    compiled: bool = True
 
 
 def material_table(p: dict[str, Array], material: MaterialSpec, tau: Array) -> MaterialTable:
@@ -112,9 +116,13 @@ class Squeeze1D:
         """
         table = material_table(p, material, self.tau)
         if effects.effects or case.profile is not None:
+            from smcbayes.forward import march_compiled
             from smcbayes.forward.march import march
 
-            nodes = march(case, p, effects, table, self.options)
+            if self.options.compiled and march_compiled.supports(effects, case):
+                nodes = march_compiled.march_compiled(case, p, effects, table, self.options)
+            else:
+                nodes = march(case, p, effects, table, self.options)
         else:
             nodes = self._kinematic(case, p, table)
         o = self.options

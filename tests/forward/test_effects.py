@@ -149,6 +149,23 @@ def test_degree_of_cure_is_monotone_and_bounded() -> None:
     assert np.all(h[-1] > 0.9)
 
 
+def test_cure_step_satisfies_the_exact_kamal_sourour_solution() -> None:
+    # for m_c = 1, n_c = 2 the kinetics integrate in closed form: with K = k1 + k2,
+    # G(alpha) = 1 / (K (1 - alpha)) + (k2 / K^2) ln((k1 + k2 alpha) / (1 - alpha)) grows
+    # by exactly dt over a step
+    def invariant(alpha: np.ndarray, k1: np.ndarray, k2: np.ndarray) -> np.ndarray:
+        K = k1 + k2
+        return 1.0 / (K * (1.0 - alpha)) + k2 / K**2 * np.log((k1 + k2 * alpha) / (1.0 - alpha))
+
+    effect = Curing()
+    p = {"k1": np.array([1e-5, 1e-3, 1e-2, 1e-1, 1e-3]), "k2": np.array([1.0, 2e-2, 0.2, 1.0, 1e-4])}
+    for dt in (0.01, 0.1, 1.0, 5.0, 10.0):
+        start = {"cure": np.array([0.0, 0.0, 0.05, 0.1, 0.0])}
+        end = effect.advance(None, p, start, np.full(5, 5e-3), np.full(5, dt))["cure"]  # type: ignore[arg-type]
+        elapsed = invariant(end, p["k1"], p["k2"]) - invariant(start["cure"], p["k1"], p["k2"])
+        np.testing.assert_allclose(elapsed, dt, rtol=1e-4)
+
+
 def test_speed_ramp_delays_the_limit_and_lowers_the_early_force(
         make_project: Callable[..., ProjectConfig]) -> None:
     project = make_project(press={"force_limit_kN": 100.0})

@@ -31,7 +31,10 @@ from smcbayes.units import ZERO_C_K
 
 GAS_CONSTANT = 8.314462618
 """J/(mol K)"""
-CURE_M, CURE_N, CURE_E = 1.0, 2.0, 60e3
+CURE_E = 60e3
+"""activation energy of the cure kinetics (J/mol); the orders are m_c = 1, n_c = 2"""
+RK4_STEP = 0.25
+"""largest sub-step of the cure integration, in units of 1 / (k1 + k2)"""
 MAX_CURE_FACTOR = 1e12  # past gelation the charge no longer flows; keep numbers finite
 
 
@@ -95,20 +98,28 @@ class Curing(Effect):
         shift = 1.0 if T is None else np.exp(-CURE_E / GAS_CONSTANT * (1.0 / T - 1.0 / case.T_mould))
         k1, k2 = p["k1"] * shift, p["k2"] * shift
         alpha = state["cure"]
-        # sub-steps keep the explicit midpoint rule accurate over long hold steps; counted per
-        # row, so that a row's result does not depend on the other rows of its batch
-        n_sub = np.clip(np.ceil(dt * (k1 + k2) / 0.05), 1, 200)
+        # classical Runge-Kutta sub-steps with h (k1 + k2) <= 0.25 (local error ~1e-5 of
+        # the degree of cure); counted per row, so a row's result does not depend on the
+        # other rows of its batch
+        n_sub = np.minimum(np.ceil(dt * (k1 + k2) / RK4_STEP), 50.0)
+        n_sub = np.maximum(n_sub, 1.0)
         h = dt / n_sub
-        for i in range(int(np.max(n_sub))):
-            mid = alpha + 0.5 * h * self._rate(alpha, k1, k2)
-            alpha = np.where(i < n_sub, np.minimum(alpha + h * self._rate(mid, k1, k2), 1.0), alpha)
+        for i in range(int(np.max(n_sub, initial=1.0))):
+            r1 = _cure_rate(alpha, k1, k2)
+            r2 = _cure_rate(alpha + 0.5 * h * r1, k1, k2)
+            r3 = _cure_rate(alpha + 0.5 * h * r2, k1, k2)
+            r4 = _cure_rate(alpha + h * r3, k1, k2)
+            step = np.minimum(alpha + (h / 6.0) * (r1 + 2.0 * (r2 + r3) + r4), 1.0)
+            alpha = step if i == 0 else np.where(i < n_sub, step, alpha)
         return {"cure": alpha}
-
-    @staticmethod
-    def _rate(alpha: Array, k1: Array, k2: Array) -> Array:
-        a = np.clip(alpha, 0.0, 1.0)
-        return (k1 + k2 * a**CURE_M) * (1.0 - a) ** CURE_N
 
     def viscosity_factors(self, case: Case, p: Params, state: State) -> tuple[Array, Array]:
         factor = cure_factor(state["cure"], p["alpha_g"], p["c1"], p["c2"])
         return np.ones_like(factor), np.minimum(factor, MAX_CURE_FACTOR)
+
+
+def _cure_rate(alpha: Array, k1: Array, k2: Array) -> Array:
+    """Kamal-Sourour rate d alpha / dt (1/s) for m_c = 1, n_c = 2; all ``(P,)``."""
+    a = np.minimum(np.maximum(alpha, 0.0), 1.0)
+    u = 1.0 - a
+    return (k1 + k2 * a) * (u * u)
