@@ -1,10 +1,12 @@
 """numba kernel of :mod:`smcbayes.forward.march_compiled` (imported on first use).
 
 Scalar transcription, row by row, of :mod:`smcbayes.forward.march` with the hooks of the
-compressibility, press_compliance and speed_ramp effects inlined; names follow that module.
-Per-row parameters ``rp`` ``(P, 7)``: solid0, k_c (Pa), b, zeta (Pa s), 1/k (m/N),
-t_ramp (s, 0 = none), beta.  ``geo`` ``(12,)``: planar, width, area0, area_mould, gap0,
-gap_full, force_limit, hold, speed, jump_time, shape weight, fill0 (SI).
+five built-in effects inlined; names follow that module.  Per-row parameters ``rp``
+``(P, 17)``: solid0, k_c (Pa), b, zeta (Pa s), 1/k (m/N), t_ramp (s, 0 = none), beta,
+heating flag, T_start (K), kappa (m^2/s), T_b (K), curing flag, k1, k2 (1/s), c1, c2,
+alpha_g.  ``geo`` ``(13,)``: planar, width, area0, area_mould, gap0, gap_full, force_limit,
+hold, speed, jump_time, shape weight, fill0, T_mould (SI).  Row state ``st`` ``(8,)``:
+t, gap, area, deflection, phase, switch time, temperature (K), degree of cure.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from smcbayes.forward.effects.thermal import CURE_E, GAS_CONSTANT, MAX_CURE_FACTOR, RK4_STEP
 from smcbayes.forward.march import HOLD_NODE_TOL, MAX_STRETCH
 from smcbayes.forward.result import PHASE_FLOW, PHASE_FORCE, PHASE_FULL
 
@@ -70,16 +73,72 @@ def _shape(area: float, geo: Array, sx: Array, low: Array, high: Array) -> float
 
 
 @_jit
-def _build(tau: Array, slip: Array, shear: Array, eta0: float, gap: float, area: float, geo: Array,
-           sx: Array, low: Array, high: Array, q: Array, cum: Array,
+def _shear_at(shear: Array, j: int, cure: float, ln_r: float) -> float:
+    """MaterialTable.shear_at at node ``j``: c^2 K(tau_j / c), log-log interpolated."""
+    if cure == 1.0:
+        return shear[j]
+    M = shear.size
+    idx = j - math.log(cure) / ln_r
+    lo = min(max(math.floor(idx), 0), M - 2)
+    frac = idx - lo
+    k0, k1 = math.log(max(shear[lo], 1e-300)), math.log(max(shear[lo + 1], 1e-300))
+    return cure**2 * math.exp(k0 + frac * (k1 - k0))
+
+
+@_jit
+def _viscosity(st: Array, rp: Array, geo: Array) -> tuple[float, float]:
+    """(viscosity factor, cure factor) of the heating and curing effects."""
+    eta_f, cure = 1.0, 1.0
+    if rp[7] > 0:
+        eta_f = math.exp(rp[10] * (1.0 / st[6] - 1.0 / geo[12]))
+    if rp[11] > 0:
+        alpha, alpha_g = st[7], rp[16]
+        g = alpha_g - alpha
+        factor = (alpha_g / g) ** (rp[14] + rp[15] * alpha) if g > 0 else _INF
+        cure = min(factor, MAX_CURE_FACTOR)
+    return eta_f, cure
+
+
+@_jit
+def _cure_rate(alpha: float, k1: float, k2: float) -> float:
+    a = min(max(alpha, 0.0), 1.0)
+    u = 1.0 - a
+    return (k1 + k2 * a) * (u * u)
+
+
+@_jit
+def _advance_state(st: Array, gap: float, dt: float, rp: Array, geo: Array) -> None:
+    """EffectStack.advance of heating and curing over ``dt`` at the step's start gap."""
+    T = st[6]
+    if rp[11] > 0:
+        shift = math.exp(-CURE_E / GAS_CONSTANT * (1.0 / T - 1.0 / geo[12])) if rp[7] > 0 else 1.0
+        k1, k2 = rp[12] * shift, rp[13] * shift
+        n_sub = max(min(math.ceil(dt * (k1 + k2) / RK4_STEP), 50.0), 1.0)
+        h = dt / n_sub
+        alpha = st[7]
+        for _ in range(int(n_sub)):
+            r1 = _cure_rate(alpha, k1, k2)
+            r2 = _cure_rate(alpha + 0.5 * h * r1, k1, k2)
+            r3 = _cure_rate(alpha + 0.5 * h * r2, k1, k2)
+            r4 = _cure_rate(alpha + h * r3, k1, k2)
+            alpha = min(alpha + (h / 6.0) * (r1 + 2.0 * (r2 + r3) + r4), 1.0)
+        st[7] = alpha
+    if rp[7] > 0:
+        tau_h = gap**2 / (math.pi**2 * rp[9])
+        st[6] = geo[12] + (T - geo[12]) * math.exp(-dt / tau_h)
+
+
+@_jit
+def _build(tau: Array, slip: Array, shear: Array, eta0: float, cure: float, gap: float, area: float,
+           geo: Array, sx: Array, low: Array, high: Array, q: Array, cum: Array,
            force: Array) -> tuple[float, float, float]:
     """FlowTable.build (+ scaled) into ``q, cum, force`` ``(M,)``; returns (scale, kin, p)."""
     M = tau.size
     planar = geo[0] > 0.5
     p = 2.0 if planar else 3.0
-    for j in range(M):
-        q[j] = gap * slip[j] + (gap * gap) * (shear[j] / (2.0 * eta0 * tau[j] ** 2))
     ln_r = math.log(tau[1] / tau[0])
+    for j in range(M):
+        q[j] = gap * slip[j] + (gap * gap) * (_shear_at(shear, j, cure, ln_r) / (2.0 * eta0 * tau[j] ** 2))
     s_acc = 0.0
     slope0 = 0.0
     for j in range(M - 1):
@@ -177,7 +236,9 @@ def _evaluate(st: Array, dt: float, tau: Array, slip: Array, shear: Array, eta0:
     t0 = free + delta / dt
     force, speed, spread = f_lim, 0.0, 0.0
     if (not full) or (not fc and not compressible):
-        scale, kin, p = _build(tau, slip, shear, eta0, gap, area, geo, sx, low, high, q, cum, force_t)
+        eta_f, cure = _viscosity(st, rp, geo)
+        scale, kin, p = _build(tau, slip, shear, eta0 * eta_f, cure, gap, area, geo, sx, low, high, q,
+                               cum, force_t)
         if not fc:
             force, speed, spread = _speed_control(tau, q, cum, force_t, scale, kin, p, a0, t0, pc,
                                                   zeta, area, gap)
@@ -239,6 +300,7 @@ def _advance(st: Array, force: float, speed: float, spread: float, dt: float, rp
         gap = gap_s1
     st[0] += dt
     st[1], st[2] = gap, area
+    _advance_state(st, gap0, dt, rp, geo)
     if st[4] != PHASE_FORCE:
         st[3] = force * rp[4]
         if fills and s0 < 1.0:
@@ -257,7 +319,7 @@ def _switch(st: Array, prev: Array, prev_force: float, force: float, first: bool
         if math.isinf(force) or theta != theta:
             theta = 1.0
         theta = min(max(theta, 0.0), 1.0)
-        for i in (0, 1, 3):
+        for i in (0, 1, 3, 6, 7):
             st[i] = prev[i] + theta * (st[i] - prev[i])
         st[2] = prev[2] * (st[2] / prev[2]) ** theta
     st[4] = PHASE_FORCE
@@ -313,7 +375,7 @@ def march_rows(tau: Array, slip: Array, shear: Array, eta0: Array, rp: Array, ge
     done = np.zeros(P, dtype=np.bool_)
     q, cum, force_t = np.empty(M), np.empty(M), np.empty(M)
     gap0, area0, f_lim, hold, v_ref = geo[4], geo[2], geo[6], geo[7], geo[8]
-    st, prev = np.empty(6), np.empty(6)
+    st, prev = np.empty(8), np.empty(8)
     for r in range(P):
         s0 = min(rp[r, 0], 1.0)
         gap_end = s0 * geo[5]
@@ -321,6 +383,7 @@ def march_rows(tau: Array, slip: Array, shear: Array, eta0: Array, rp: Array, ge
         t_close = dt0 * steps
         travel = 1.0 + f_lim * rp[r, 4] / (gap0 - gap_end)
         st[0], st[1], st[2], st[3], st[4], st[5] = 0.0, gap0, area0, 0.0, PHASE_FLOW, _NAN
+        st[6], st[7] = rp[r, 8], 0.0
         prev[:] = st
         prev_force, prev_ram, closing = 0.0, 0.0, dt0
         last = 0

@@ -1,17 +1,17 @@
-"""Compiled time-marching backend for the press-level effects.
+"""Compiled time-marching backend for the built-in effects.
 
 The NumPy marching path (:mod:`smcbayes.forward.march`) is general: any effect plugs in
 through its hooks.  Its cost is ~0.3 ms of interpreter and NumPy call overhead per step,
 whatever the batch size, so a single run takes ~300 steps x 0.3 ms.  This module is the
 same algorithm (same balance, same events, same step control; see the docstring of
-:mod:`~smcbayes.forward.march`) compiled with numba for the effects whose hooks it knows
-(:data:`SUPPORTED`): compressibility, press_compliance and speed_ramp.  It loops over rows
-and steps in machine code, so one run costs a few milliseconds.  Its results agree with the
-NumPy path to round-off (tests/forward/test_march_compiled.py); the NumPy path remains the
-reference and serves every other combination (heating and curing carry states whose hooks
-are Python).
+:mod:`~smcbayes.forward.march`) compiled with numba, with the hooks of the built-in
+effects (:data:`SUPPORTED`) written into the kernel.  It loops over rows and steps in
+machine code, so one run costs about a millisecond.  Its results agree with the NumPy path
+to round-off (tests/forward/test_march_compiled.py).  The NumPy path remains the
+reference and serves what the kernel does not know: effects registered by users and
+measured ram profiles.
 
-numba compiles the kernel on first use (a few seconds) and caches it on disk.
+numba compiles the kernel on first use (about 10 s) and caches it on disk.
 """
 
 from __future__ import annotations
@@ -26,10 +26,11 @@ from smcbayes.forward.effects.base import EffectStack
 from smcbayes.forward.flux import MaterialTable
 from smcbayes.forward.nodes import Nodes
 from smcbayes.forward.result import STATUS_OK
+from smcbayes.units import ZERO_C_K
 
 Array = NDArray[np.float64]
 
-SUPPORTED = frozenset({"compressibility", "press_compliance", "speed_ramp"})
+SUPPORTED = frozenset({"compressibility", "heating", "curing", "press_compliance", "speed_ramp"})
 """Effects whose hooks the compiled kernel implements."""
 
 _FAILED = ("failed: the press programme did not finish within the step limit "
@@ -52,8 +53,8 @@ def _kernel() -> Any:
 
 
 def _row_params(case: Case, p: dict[str, Array], effects: EffectStack, P: int) -> Array:
-    """Per-row effect parameters, ``(P, 7)``: solid0, k_c, b, zeta, 1/k, t_ramp, beta."""
-    out = np.zeros((P, 7))
+    """Per-row effect parameters, ``(P, 17)``, SI (column order: see ``_march_kernel``)."""
+    out = np.zeros((P, 17))
     s0 = effects.solid_fraction0(case, p, P)
     out[:, 0] = 1.0 if s0 is None else np.minimum(np.asarray(s0, float), 1.0)
     if "compressibility" in effects.names:
@@ -64,6 +65,15 @@ def _row_params(case: Case, p: dict[str, Array], effects: EffectStack, P: int) -
     if "speed_ramp" in effects.names:
         out[:, 5] = p["ramp_time"]
         out[:, 6] = p["load_slowdown"]
+    if "heating" in effects.names:
+        out[:, 7] = 1.0
+        out[:, 8] = p["T_start_C"] + ZERO_C_K
+        out[:, 9] = p["diffusivity"]
+        out[:, 10] = p["T_b"]
+    if "curing" in effects.names:
+        out[:, 11] = 1.0
+        for col, name in zip(range(12, 17), ("k1", "k2", "c1", "c2", "alpha_g"), strict=True):
+            out[:, col] = p[name]
     return out
 
 
@@ -87,7 +97,7 @@ def march_compiled(case: Case, p: dict[str, Array], effects: EffectStack, table:
     x, low, high, w, fill0 = _shape_table(case, getattr(options, "shape_correction", True))
     geometry = np.array([float(case.planar), case.width, case.area0, case.area_mould, case.gap0,
                          case.gap_full, case.force_limit, case.hold, case.speed,
-                         options.jump_time_s, w, fill0])
+                         options.jump_time_s, w, fill0, case.T_mould])
     max_iter = 12 * (steps + hold_steps) + 20
     shear = np.ascontiguousarray(np.broadcast_to(table.shear, (P, table.tau.size)))
     slip = np.ascontiguousarray(np.broadcast_to(table.slip, (P, table.tau.size)))

@@ -23,9 +23,9 @@ from smcbayes.forward.parameters import to_si
 from smcbayes.forward.squeeze1d import material_table
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "thesis.toml"
-SUBSETS = [s for r in range(1, 4) for s in itertools.combinations(sorted(march_compiled.SUPPORTED), r)]
-# a bar, a centre charge with the square-charge correction, and another speed
-CONFIGS = ("60-bar-03", "80-center-07", "60-center-11")
+SUBSETS = [s for r in range(1, 6) for s in itertools.combinations(sorted(march_compiled.SUPPORTED), r)]
+# a bar and a centre charge with the square-charge correction
+CONFIGS = ("60-bar-03", "80-center-07")
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +36,7 @@ def project() -> ProjectConfig:
 @pytest.mark.parametrize("subset", SUBSETS, ids="+".join)
 def test_compiled_nodes_equal_the_numpy_march(project: ProjectConfig, subset: tuple[str, ...]) -> None:
     model = ForwardModel(project, effects=list(subset))
-    u = 0.2 + 0.6 * np.random.default_rng(0).random((16, model.space.dim))
+    u = 0.2 + 0.6 * np.random.default_rng(0).random((8, model.space.dim))
     theta = model.space.from_unit(u)
     p = to_si(model.space.batch(theta), model.space.parameters)
     options = model.solver.options
@@ -47,7 +47,7 @@ def test_compiled_nodes_equal_the_numpy_march(project: ProjectConfig, subset: tu
         out = march_compiled.march_compiled(case, p, model.effects, table, options)
         assert out.status == ref.status
         np.testing.assert_array_equal(out.count, ref.count)
-        np.testing.assert_allclose(out.switch, ref.switch, rtol=1e-9)
+        np.testing.assert_allclose(out.switch, ref.switch, rtol=1e-8)
         for name in ("time", "gap", "area", "force", "deflection", "solid"):
             np.testing.assert_allclose(getattr(out, name), getattr(ref, name), rtol=1e-8,
                                        atol=1e-12 * case.force_limit if name == "force" else 0.0,
@@ -63,5 +63,5 @@ def test_solver_takes_the_compiled_path_only_where_supported(project: ProjectCon
     b = reference.simulate(None, ["60-bar-03"])["60-bar-03"]
     np.testing.assert_allclose(a.force_kN, b.force_kN, rtol=1e-9)
     np.testing.assert_allclose(a.displacement_mm, b.displacement_mm, rtol=1e-9)
-    heating = ForwardModel(project, effects=["compressibility", "heating"])
-    assert not march_compiled.supports(heating.effects, heating.cases["60-bar-03"])
+    profiled = dataclasses.replace(compiled.cases["60-bar-03"], profile=object())
+    assert not march_compiled.supports(compiled.effects, profiled)
