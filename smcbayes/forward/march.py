@@ -15,7 +15,12 @@ advance by explicit Euler; the charge area is updated as A (H/H')^(V_s/V), which
 A H constant to round-off when the charge does not compact, and the solid fraction is
 derived from mass conservation, s = s0 H0 A0 / (H A), so solid mass is conserved exactly.
 Switching to force control and filling the cavity are located inside a step by
-interpolation.
+interpolation.  Speed-controlled steps are the nominal step (1/steps of the nominal
+closing), stretched up to 4x while the ram and the force move slowly; force-controlled
+steps follow a geometric schedule over the hold, capped in gap change.
+
+:mod:`smcbayes.forward.march_compiled` runs the same algorithm compiled for the built-in
+effects; this module is the reference and serves any other effect.
 """
 
 from __future__ import annotations
@@ -38,7 +43,6 @@ MAX_STRETCH = 4.0
 """largest speed-controlled step, in nominal steps (see :func:`_closing_step`)"""
 HOLD_NODE_TOL = 1e-6
 """distance (in schedule nodes) within which a time counts as on a hold-schedule node"""
-"""largest speed-controlled step, in nominal steps (see :func:`_closing_step`)"""
 
 
 @dataclass
@@ -326,8 +330,8 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
     done, count = np.zeros(P, dtype=bool), np.zeros(P, dtype=np.int64)
     rec: dict[str, list[Array]] = {k: [] for k in ("t", "gap", "area", "force", "delta", "solid")}
     prev, prev_force, prev_ram = st.copy(), np.zeros(P), np.zeros(P)
-    # a soft frame (F_limit / (k U) up to ~6x the nominal closing time) needs a generous
-    # budget; rows that finish stop costing anything
+    # a soft frame (F_limit / (k U) up to ~6x the nominal closing time) or a ram slowing
+    # under load needs a generous budget; rows that finish stop advancing
     closing = ctx.dt_close
     for it in range(12 * (steps + hold_steps) + 20):
         rates = _evaluate(ctx, st, closing)
