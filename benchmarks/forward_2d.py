@@ -1,7 +1,7 @@
 """2-D thin-cavity solver: convergence, the 1-D equal-area error, the square-charge
 correction and run time.  Prints its figures and writes benchmarks/results/forward_2d.json.
 
-Run:  python benchmarks/forward_2d.py [--quick]
+Run:  python benchmarks/forward_2d.py [--quick] [--compressible-only]
 
 1. Convergence: Newtonian square charge at first contact against F = 0.42173 mu V L^4/H^3
    (grid order); full-width bar against the exact 1-D planar solver over the closing (grid
@@ -14,6 +14,14 @@ Run:  python benchmarks/forward_2d.py [--quick]
    after :func:`smcbayes.forward.layout.square_charge_factor`.
 3. Speed: one thesis configuration at the default grid, wall time, grid size and the RMS
    force difference to a twice-refined grid.
+4. Compressible charge (local solid fraction per cell, compressibility effect at its
+   default parameters): wall time of the same configuration; grid convergence at four times
+   the default steps and time-step convergence on 24 cells (RMS force difference of
+   successive runs over the closing, force impulse over the flow, final gap, with the
+   measured orders); solid mass conservation over the whole run; the per-cell path at s0 = 1 against the
+   incompressible run; the high-fluidity (uniform-pressure) limit of a bar against the
+   lumped compaction of the 1-D march; the solid fraction at the centre and at the front,
+   and its field at the fill snapshots (benchmarks/results/forward_2d_solid_fraction.png).
 """
 
 from __future__ import annotations
@@ -25,13 +33,22 @@ from pathlib import Path
 
 import numpy as np
 
-from smcbayes.config import MaterialSpec, load_project
+from smcbayes.config import MaterialSpec, ProjectConfig, load_project
 from smcbayes.forward.case import Case
-from smcbayes.forward.hele_shaw2d import HeleShaw2D, HeleShaw2DOptions, make_grid
+from smcbayes.forward.compaction2d import CellCompaction
+from smcbayes.forward.hele_shaw2d import (
+    FillHistory,
+    HeleShaw2D,
+    HeleShaw2DOptions,
+    cell_compaction,
+    make_grid,
+)
 from smcbayes.forward.layout import square_charge_factor
 from smcbayes.forward.model import ForwardModel
 from smcbayes.forward.parameters import to_si
 from smcbayes.forward.squeeze1d import material_table
+from smcbayes.forward.stepper2d import Run
+from smcbayes.plotting import pyplot, save
 
 ROOT = Path(__file__).resolve().parents[1]
 CENTRE = ["60-center-03", "60-center-07", "60-center-11", "80-center-03", "80-center-07", "80-center-11"]
@@ -41,10 +58,11 @@ PROGRESS = np.concatenate([np.linspace(0.0, 0.9, 46), 1.0 - np.logspace(-1.0, -3
 NEWTONIAN = {"n": 0.5, "tau_star": 1e30, "B": 1e4, "tau_c": 1e30, "m": 1.0}
 
 
-def _run(case: Case, si: dict, cells: int, steps: int = 100, courant: float = 0.5):
+def _run(case: Case, si: dict, cells: int, steps: int = 100, courant: float = 0.5,
+         compaction: CellCompaction | None = None) -> Run:
     solver = HeleShaw2D(HeleShaw2DOptions(cells=cells, closing_steps=steps, courant=courant))
     table = material_table(si, MaterialSpec(), solver.tau)
-    return solver.run_row(case, table, float(si["B"][0]), 0)
+    return solver.run_row(case, table, float(si["B"][0]), 0, compaction)
 
 
 def _order(values: list[float]) -> list[float]:
@@ -92,7 +110,7 @@ def convergence(model: ForwardModel, si: dict, quick: bool) -> dict:
     return out
 
 
-def _closing_curves(model: ForwardModel, cid: str, run) -> tuple[np.ndarray, ...]:
+def _closing_curves(model: ForwardModel, cid: str, run: Run) -> tuple[np.ndarray, ...]:
     """Times, fill fraction, 1-D and 2-D force (kN) over the common closing window."""
     case = model.cases[cid]
     r1 = model.simulate(None, [cid])[cid]
@@ -169,13 +187,142 @@ def speed(model: ForwardModel, si: dict, cid: str) -> dict:
             "rms_vs_refined_pct": pct, "nodes": len(coarse.t)}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="fewer grids in the convergence study")
-    args = parser.parse_args()
-    project = load_project(ROOT / "configs" / "thesis.toml")
-    solver = project.solver.model_copy(update={"output_closing_points": 4000})
-    project = project.model_copy(update={"solver": solver})
+def compressible(project: ProjectConfig, cid: str, quick: bool) -> dict:
+    """Per-cell compaction: speed, grid convergence, conservation and the limits."""
+    model = ForwardModel(project, effects=["compressibility"], fidelity="1d")
+    si = to_si(model.space.batch(None), model.space.parameters)
+    case = model.cases[cid]
+    comp = cell_compaction(case, si, model.effects, 0)
+    steps = project.solver.closing_steps_2d
+    start = time.perf_counter()
+    run = _run(case, si, project.solver.cells_2d, steps=steps, compaction=comp)
+    seconds = time.perf_counter() - start
+    solid = np.array(run.solid_volume)
+    out: dict = {"configuration": cid, "solid0": comp.solid0, "seconds": seconds, "nodes": len(run.t),
+                 "solid_mass_max_relative_error": float(np.max(np.abs(solid / solid[0] - 1.0))),
+                 "final_solid_fraction": run.solid[-1]}
+    # four times the default steps, so that the grid error stands above the time-step error
+    out["grid"] = _grid_study(case, si, comp, 4 * steps, [12, 24, 48] if quick else [12, 24, 48, 96])
+    out["time_step"] = _time_study(case, si, comp, 24, [50, 100, 200] if quick else [50, 100, 200, 400])
+    base = _run(case, si, project.solver.cells_2d, steps=steps)
+    one = _run(case, si, project.solver.cells_2d, steps=steps, compaction=CellCompaction(1.0, comp.law))
+    out["s0_one_vs_incompressible_max_relative_force"] = float(
+        np.max(np.abs(np.array(one.force) / np.array(base.force) - 1.0))) if len(one.t) == len(base.t) else None
+    out["uniform_limit"] = _uniform_limit(project)
+    out["direction"] = _direction(project, cid)
+    return out
+
+
+def _grid_study(case: Case, si: dict, comp: CellCompaction, steps: int, cells: list[int]) -> dict:
+    """Compressible grid convergence at ``steps`` closing steps (see :func:`_study`)."""
+    runs = [_run(case, si, c, steps=steps, compaction=comp) for c in cells]
+    return {"cells": cells, "closing_steps": steps, **_study(case, runs)}
+
+
+def _time_study(case: Case, si: dict, comp: CellCompaction, cells: int, steps: list[int]) -> dict:
+    """Compressible time-step convergence on ``cells`` cells (see :func:`_study`); the
+    Courant limit is lifted so that the step count alone sets the step."""
+    runs = [_run(case, si, cells, steps=n, courant=100.0, compaction=comp) for n in steps]
+    return {"cells": cells, "closing_steps": steps, **_study(case, runs)}
+
+
+def _study(case: Case, runs: list[Run]) -> dict:
+    """RMS force difference of successive runs over the closing (contact to the switch),
+    force impulse over the flow (to 80 % of the incompressible filling time) and the
+    final gap, with the observed orders."""
+    t = np.linspace(0.0, 0.98 * min(r.switch for r in runs), 600)
+    forces = [np.interp(t, r.t, np.array(r.force) / 1e3) for r in runs]
+    rms = [float(np.sqrt(np.mean((forces[i] - forces[i + 1]) ** 2))) for i in range(len(runs) - 1)]
+    t_flow = 0.8 * (case.gap0 - case.gap_full) / case.speed
+    k = t <= t_flow
+    impulse = [float(np.trapezoid(f[k], t[k])) for f in forces]
+    return {"rms_successive_kN": rms,
+            "rms_order": [float(np.log2(rms[i] / rms[i + 1])) for i in range(len(rms) - 1)],
+            "rms_successive_pct": [100.0 * r / float(np.sqrt(np.mean(forces[-1] ** 2))) for r in rms],
+            "flow_impulse_kNs": impulse, "flow_impulse_order": _order(impulse), "flow_window_s": t_flow,
+            "final_gap_mm": [1e3 * r.gap[-1] for r in runs], "final_gap_order": _order([r.gap[-1] for r in runs]),
+            "switch_s": [r.switch for r in runs]}
+
+
+def _uniform_limit(project: ProjectConfig) -> dict:
+    """Bar at high fluidity (B = 10 and 100 Pa s, also at four times the steps) and at the
+    default: per-cell 2-D against the lumped compaction of the 1-D march over the closing."""
+    out = {}
+    fine = project.model_copy(update={"solver": project.solver.model_copy(
+        update={"closing_steps_2d": 4 * project.solver.closing_steps_2d})})
+    for label, over, proj in (("B_10_Pa_s", {"B_Pa_s": 10.0}, project), ("B_10_Pa_s_4x_steps", {"B_Pa_s": 10.0}, fine),
+                              ("B_100_Pa_s", {"B_Pa_s": 100.0}, project), ("default", {}, project)):
+        r1 = ForwardModel(proj, effects=["compressibility"], fidelity="1d", overrides=over).simulate(None, ["60-bar-07"])
+        r2 = ForwardModel(proj, effects=["compressibility"], fidelity="2d", overrides=over).simulate(None, ["60-bar-07"])
+        a, b = r1["60-bar-07"], r2["60-bar-07"]
+        t = np.linspace(0.0, a.switch_time_s[0], 400)
+        f1, f2 = (np.interp(t, r.time_s[0], r.force_kN[0]) for r in (a, b))
+        s1, s2 = (np.interp(t, r.time_s[0], r.solid_fraction[0]) for r in (a, b))
+        out[label] = {"rms_force_pct": _rms(f2, f1)[1], "max_solid_fraction_difference": float(np.max(np.abs(s2 - s1))),
+                      "switch_relative": float(b.switch_time_s[0] / a.switch_time_s[0] - 1.0),
+                      "final_solid_fraction_1d": float(a.solid_fraction[0, -1]),
+                      "final_solid_fraction_2d": float(b.solid_fraction[0, -1])}
+    return out
+
+
+def _direction(project: ProjectConfig, cid: str) -> dict:
+    """Solid fraction at the centre cell and over the front cells at mid-filling."""
+    model = ForwardModel(project, effects=["compressibility"], fidelity="2d")
+    res = model.simulate(None, [cid])[cid]
+    h = model.solver.fields[cid][0]
+    k = len(h.time_s) // 2
+    solid, fill = h.solid[k], h.fill[k]
+    front = solid[(fill > 0.0) & (fill < 1.0 - 1e-9)]
+    nx, ny = solid.shape
+    _solid_figure(h, ROOT / "benchmarks" / "results" / "forward_2d_solid_fraction")
+    return {"time_s": float(h.time_s[k]), "solid0": float(res.solid_fraction[0, 0]),
+            "centre": float(solid[nx // 2, ny // 2]), "max": float(np.nanmax(solid)),
+            "front_min": float(front.min()), "front_max": float(front.max())}
+
+
+def _solid_figure(h: FillHistory, path: Path) -> None:
+    """Solid fraction per cell at the fill snapshots (empty cells blank), one panel each."""
+    plt = pyplot()
+    count = len(h.time_s)
+    fig, axes = plt.subplots(1, count, figsize=(3.2 * count, 3.4), squeeze=False)
+    lo, hi = float(np.nanmin(h.solid)), float(np.nanmax(h.solid))
+    for k, ax in enumerate(axes[0]):
+        mesh = ax.pcolormesh(h.x_faces_mm, h.y_faces_mm, h.solid[k].T, vmin=lo, vmax=hi, cmap="viridis")
+        ax.set_aspect("equal")
+        ax.set_title(f"t = {h.time_s[k]:.2f} s", fontsize=9)
+        ax.set_xlabel("x (mm)")
+        if k == 0:
+            ax.set_ylabel("y (mm)")
+    fig.subplots_adjust(wspace=0.45)
+    fig.colorbar(mesh, ax=axes[0].tolist(), label="solid fraction s (-)", shrink=0.8)
+    save(fig, path)
+
+
+def _print_compressible(c: dict) -> None:
+    print(f"2-D compressible, {c['configuration']} (s0 = {c['solid0']:.3f}): {c['seconds']:.2f} s, {c['nodes']} steps, "
+          f"solid mass max relative error {c['solid_mass_max_relative_error']:.1e}, final s {c['final_solid_fraction']:.4f}")
+    for name, g in (("grid", c["grid"]), ("time step", c["time_step"])):
+        print(f"  {name}: cells {g['cells']}, closing steps {g['closing_steps']}; RMS force between successive "
+              "runs over the closing",
+              [f"{v:.3f} kN ({p:.2f} %)" for v, p in zip(g["rms_successive_kN"], g["rms_successive_pct"], strict=True)],
+              "order", [f"{o:.2f}" for o in g["rms_order"]])
+        print(f"    flow impulse to {g['flow_window_s']:.2f} s (kN s)", [f"{v:.4f}" for v in g["flow_impulse_kNs"]],
+              "order", [f"{o:.2f}" for o in g["flow_impulse_order"]])
+        print("    final gap (mm)", [f"{v:.4f}" for v in g["final_gap_mm"]], "order",
+              [f"{o:.2f}" for o in g["final_gap_order"]], "; switch (s)", [f"{v:.4f}" for v in g["switch_s"]])
+    print(f"  s0 = 1 on the per-cell path vs incompressible: max relative force difference "
+          f"{c['s0_one_vs_incompressible_max_relative_force']:.1e}")
+    for label, u in c["uniform_limit"].items():
+        print(f"  bar 60-bar-07 per-cell vs lumped 1-D ({label}): RMS force {u['rms_force_pct']:.2f} %, switch "
+              f"{u['switch_relative']:+.1e}, max |ds| {u['max_solid_fraction_difference']:.1e}, final s "
+              f"{u['final_solid_fraction_2d']:.4f} vs {u['final_solid_fraction_1d']:.4f}")
+    d = c["direction"]
+    print(f"  solid fraction at t = {d['time_s']:.2f} s: centre {d['centre']:.4f} (max {d['max']:.4f}), front "
+          f"{d['front_min']:.4f}-{d['front_max']:.4f}, s0 {d['solid0']:.4f}")
+
+
+def incompressible(project: ProjectConfig, quick: bool) -> dict:
+    """Sections 1-3 (base model), printed as they come."""
     model = ForwardModel(project, fidelity="1d")
     si = to_si(model.space.batch(None), model.space.parameters)
     results = {"speed": speed(model, si, "60-center-07")}
@@ -184,7 +331,7 @@ def main() -> None:
           f"{s['cells_whole_mould'][1]} cells ({s['cells_solved'][0]} x {s['cells_solved'][1]} solved, "
           f"{s['nodes']} steps); RMS force vs twice-refined grid {s['rms_vs_refined_kN']:.3f} kN "
           f"({s['rms_vs_refined_pct']:.2f} %)")
-    results["convergence"] = conv = convergence(model, si, args.quick)
+    results["convergence"] = conv = convergence(model, si, quick)
     print("Newtonian square, first instant: cells", conv["square_first_instant"]["cells"],
           "error", [f"{e:+.2e}" for e in conv["square_first_instant"]["relative_error"]],
           "order", [f"{o:.2f}" for o in conv["square_first_instant"]["order"]])
@@ -193,7 +340,9 @@ def main() -> None:
           "order", [f"{o:.2f}" for o in conv["bar_vs_1d"]["order"]])
     print("Time step (impulse over 80 % of the closing, 16 cells): steps", conv["time_step"]["closing_steps"],
           "order", [f"{o:.2f}" for o in conv["time_step"]["order"]])
-    results["one_d_error"] = err = one_d_error(model, si, project.solver.cells_2d)
+    # the plain equal-area disc: the correction is what this section measures
+    plain = project.model_copy(update={"solver": project.solver.model_copy(update={"shape_correction": False})})
+    results["one_d_error"] = err = one_d_error(ForwardModel(plain, fidelity="1d"), si, project.solver.cells_2d)
     print(f"{'configuration':<16}{'1-D RMS (kN)':>14}{'(%)':>9}{'corrected (kN)':>16}{'(%)':>9}"
           f"{'leave-one-out (%)':>19}")
     for cid, row in err["configurations"].items():
@@ -204,7 +353,26 @@ def main() -> None:
     for c, row in zip(err["coverages"], err["fitted_ratio"], strict=False):
         print(f"  coverage {c:.2f}:", np.array2string(np.array(row), precision=4, separator=", ",
                                                      max_line_width=100))
+    return results
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer grids in the convergence study")
+    parser.add_argument("--compressible-only", action="store_true",
+                        help="run section 4 only (the other sections' results in the JSON are kept)")
+    args = parser.parse_args()
+    project = load_project(ROOT / "configs" / "thesis.toml")
+    solver = project.solver.model_copy(update={"output_closing_points": 4000})
+    project = project.model_copy(update={"solver": solver})
     out = ROOT / "benchmarks" / "results" / "forward_2d.json"
+    results = {}
+    if args.compressible_only and out.exists():
+        results = json.loads(out.read_text(encoding="utf-8"))
+    if not args.compressible_only:
+        results.update(incompressible(project, args.quick))
+    results["compressible"] = comp = compressible(project, "60-center-07", args.quick)
+    _print_compressible(comp)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(results, indent=2), encoding="utf-8")
     print(f"written {out}")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -91,7 +92,8 @@ def plot_simulation(results: Mapping[str, SimulationResult],
 
 
 def plot_flow_front(result: SimulationResult, time_s: Array, fill: Array, x_faces_mm: Array,
-                    y_faces_mm: Array, path: str | Path, title: str, row: int = 0) -> list[Path]:
+                    y_faces_mm: Array, path: str | Path, title: str, row: int = 0,
+                    solid: Array | None = None) -> list[Path]:
     """Filled area of the mould at a few instants (2-D solver) next to the force curve.
 
     Args:
@@ -101,9 +103,16 @@ def plot_flow_front(result: SimulationResult, time_s: Array, fill: Array, x_face
         x_faces_mm, y_faces_mm: cell faces relative to the mould centre (mm).
         path: output path without suffix.
         title: figure title.
+        solid: solid fraction per cell at those times, ``(K, NX, NY)`` (NaN where empty), for
+            a porous charge; its last snapshot is drawn in a third panel.
     """
     plt = pyplot()
-    fig, (ax, axf) = plt.subplots(1, 2, figsize=(10.0, 4.2), gridspec_kw={"width_ratios": [1, 1.3]})
+    if solid is None:
+        fig, (ax, axf) = plt.subplots(1, 2, figsize=(10.0, 4.2), gridspec_kw={"width_ratios": [1, 1.3]})
+    else:
+        fig, (ax, axs, axf) = plt.subplots(1, 3, figsize=(14.5, 4.2),
+                                           gridspec_kw={"width_ratios": [1, 1, 1.3]})
+        _solid_panel(fig, axs, solid[-1], float(time_s[-1]), x_faces_mm, y_faces_mm)
     # cell centres plus the walls (edge values), so that a filled wall cell reaches the wall
     xc = np.concatenate([x_faces_mm[:1], 0.5 * (x_faces_mm[1:] + x_faces_mm[:-1]), x_faces_mm[-1:]])
     yc = np.concatenate([y_faces_mm[:1], 0.5 * (y_faces_mm[1:] + y_faces_mm[:-1]), y_faces_mm[-1:]])
@@ -131,8 +140,24 @@ def plot_flow_front(result: SimulationResult, time_s: Array, fill: Array, x_face
     axf.set_xlabel("time (s)")
     axf.set_ylabel("force (kN)")
     axf.set_yscale("log")
+    positive = f[mask][f[mask] > 0]
+    if positive.size:
+        # the first contact starts from zero force; show four decades below the peak
+        axf.set_ylim(bottom=max(float(positive.min()), 1e-4 * float(positive.max())))
     axf.set_title(result.config_id, fontsize=10)
     axf.legend(fontsize=7, loc="upper left")
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return save(fig, path)
+
+
+def _solid_panel(fig: Any, ax: Any, solid: Array, time_s: float, x_faces_mm: Array,
+                 y_faces_mm: Array) -> None:
+    """Solid fraction per cell ``(NX, NY)`` (NaN where empty) over the mould outline."""
+    mesh = ax.pcolormesh(x_faces_mm, y_faces_mm, np.ma.masked_invalid(solid).T, cmap="magma",
+                         shading="flat")
+    fig.colorbar(mesh, ax=ax, label="solid fraction (-)", shrink=0.85)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x along the mould (mm)")
+    ax.set_ylabel("y across the mould (mm)")
+    ax.set_title(f"solid fraction at t = {time_s:.2f} s", fontsize=10)

@@ -129,3 +129,16 @@ def test_simulate_writes_curves_and_figure(tmp_path: Path, capsys: pytest.Captur
     assert (out / "simulation.png").stat().st_size > 0
     assert not (out / "centre.csv").exists()
     assert "press_compliance" in capsys.readouterr().out
+
+
+def test_simulate_2d_draws_the_flow_front_and_the_solid_fraction(tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    project = write(tmp_path, 'name = "cli-test"\n', 'name = "cli-test"\n\n[solver]\ncells_2d = 16\n')
+    out = tmp_path / "out"
+    code = main(["simulate", str(project), "--out", str(out), "--only", "centre", "--fidelity", "2d",
+                 "--effect", "compressibility"])
+    assert code == 0, capsys.readouterr().err
+    figure = out / "flow_front_centre.svg"
+    assert figure.stat().st_size > 0
+    svg = figure.read_text(encoding="utf-8")
+    assert "solid fraction" in svg and "filled area" in svg

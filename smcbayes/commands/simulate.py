@@ -63,7 +63,7 @@ def simulate_and_write(model: ForwardModel, ids: list[str], out: Path) -> int:
             if h is None:  # the run of this configuration failed
                 continue
             plot_flow_front(res, h.time_s, h.fill, h.x_faces_mm, h.y_faces_mm,
-                            out / f"flow_front_{cid}", f"{cid}: {label}")
+                            out / f"flow_front_{cid}", f"{cid}: {label}", solid=h.solid)
             drawn += 1
         if drawn:
             print(f"flow-front figures: {out}/flow_front_<id>.png")

@@ -10,7 +10,11 @@ cell and a front cell places the front at ``(1/2 + f) h`` from the filled cell's
 Fluxes per unit width follow the generalised Hele-Shaw law q(G) of
 :mod:`smcbayes.forward.flux`, written with the fluidity S(G) = q(G) / G:
 
-    sum_faces S_f |face| (p_i - p_nb) / d_f = V A_cell      (every filled cell i).
+    sum_faces S_f |face| (p_i - p_nb) / d_f = V A_cell - Q_i      (every filled cell i),
+
+where Q_i = k_i (p_i - P_i)^+ >= 0 is an optional monotone volume sink (pore compaction
+of a porous charge, :class:`Sink`; its coefficients come from
+:mod:`smcbayes.forward.compaction2d`).
 
 |grad p| at a face combines the normal difference with the mean tangential difference of
 the two cells.  The nonlinear system is solved by Newton's method with the exact
@@ -27,7 +31,6 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
-from scipy import ndimage
 
 from smcbayes.errors import SolverError
 
@@ -155,35 +158,24 @@ def _face_gradient(p: Array, fs: FaceSet) -> tuple[Array, Array, Array]:
     return np.sqrt(gn * gn + gt * gt), gn, gt
 
 
-def spill(h: Array, gap: float) -> Array:
-    """Pass the content above ``gap`` on to the nearest non-filled cells (m).
+@dataclass(frozen=True)
+class Sink:
+    """Monotone volume sink of the filled cells: Q = coeff (p - threshold)^+ (m^3/s).
 
-    Excess moves one cell per pass down the taxicab distance to the nearest open cell
-    (equal shares between the neighbours one step closer), so it reaches the front in as
-    many passes as it is cells away.  The total is conserved exactly.
+    Attributes:
+        threshold: pressure above which the sink acts (Pa), ``(nx, ny)``.
+        coeff: volume rate per pascal above it (m^3/(s Pa)), ``(nx, ny)``; 0 where the
+            cell has no sink.
     """
-    h = h.copy()
-    nx, ny = h.shape
-    shifts = ((0, 1), (2, 1), (1, 0), (1, 2))  # neighbour (i + a - 1, j + b - 1)
-    for _ in range(4 * (nx + ny) + 10):
-        excess = np.where(h > gap * (1.0 + 1e-11), h - gap, 0.0)
-        if not excess.any():  # round-off of filled cells stays in place
-            return h
-        open_ = h < gap * FULL
-        if not open_.any():
-            if excess.sum() <= 1e-9 * h.sum():
-                return h - excess  # cavity full: what is left over is round-off
-            raise SolverError("2-D fill update: the charge holds more volume than the cavity")
-        dist = ndimage.distance_transform_cdt(~open_, metric="taxicab").astype(float)
-        pad = np.pad(dist, 1, constant_values=np.inf)
-        targets = [pad[a:a + nx, b:b + ny] == dist - 1.0 for a, b in shifts]
-        count = sum(t.astype(float) for t in targets)
-        share = excess / np.maximum(count, 1.0)
-        gained = np.zeros((nx + 2, ny + 2))
-        for (a, b), t in zip(shifts, targets, strict=False):
-            gained[a:a + nx, b:b + ny] += np.where(t, share, 0.0)
-        h += gained[1:-1, 1:-1] - excess
-    raise SolverError("2-D fill update: overflow could not be redistributed")
+
+    threshold: Array
+    coeff: Array
+
+    def rate(self, p: Array) -> tuple[Array, Array]:
+        """Sink Q (m^3/s) and dQ/dp (m^3/(s Pa)) per cell at pressure ``p``, each like ``p``."""
+        active = (self.coeff > 0) & (p > self.threshold)
+        over = np.where(active, p - np.where(active, self.threshold, 0.0), 0.0)
+        return self.coeff * over, np.where(active, self.coeff, 0.0)
 
 
 @dataclass
@@ -196,6 +188,11 @@ class PressureSolution:
         force: press force over the whole mould (N).
         inflow: volume rate into each non-filled cell (m^3/s), ``(nx, ny)``.
         iterations: Newton iterations used.
+        sink: volume rate of the sink per cell (m^3/s), ``(nx, ny)`` (zeros without one).
+        faces: the x- and y-faces of the solve.
+        face_flux: volume rate through each face, from side ``a`` to side ``b`` (m^3/s),
+            ``(K_x,)`` and ``(K_y,)``; faces into non-filled cells carry the same scaling
+            as ``inflow``, so they sum to it exactly.
     """
 
     p: Array
@@ -203,6 +200,9 @@ class PressureSolution:
     force: float
     inflow: Array
     iterations: int
+    sink: Array
+    faces: tuple[FaceSet, FaceSet]
+    face_flux: tuple[Array, Array]
 
 
 def _matrix(size: int, unknown: NDArray[np.int64], fx: FaceSet, fy: FaceSet, cx: Array,
@@ -233,7 +233,7 @@ class _Linearised:
 
 
 def _linearise(grid: Grid, p: Array, fx: FaceSet, fy: FaceSet, fluidity: Fluidity, speed: float,
-               unknown: NDArray[np.int64], jacobian: bool = True) -> _Linearised:
+               unknown: NDArray[np.int64], jacobian: bool = True, sink: Sink | None = None) -> _Linearised:
     """Volume balance of every filled cell and, if asked, its exact Jacobian.
 
     The flux through a face is S(G) G_n |face|; its derivative in a cell pressure is
@@ -268,6 +268,12 @@ def _linearise(grid: Grid, p: Array, fx: FaceSet, fy: FaceSet, fluidity: Fluidit
                 vals.append(sign * d[ok])
     where = np.flatnonzero(unknown >= 0)
     residual = flux[where] - speed * grid.cell_area
+    if sink is not None:
+        q_sink, slope = sink.rate(p)
+        residual = residual + q_sink.ravel()[where]
+        rows.append(np.arange(size))
+        cols.append(np.arange(size))
+        vals.append(slope.ravel()[where])
     jac = None
     if jacobian:
         jac = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
@@ -277,7 +283,8 @@ def _linearise(grid: Grid, p: Array, fx: FaceSet, fy: FaceSet, fluidity: Fluidit
 
 def solve_pressure(grid: Grid, fill: Array, fluidity: Fluidity, speed: float | None,
                    force: float | None, guess: Array | None = None, speed_guess: float | None = None,
-                   tol: float = 1e-6, max_iter: int = 80) -> PressureSolution:
+                   tol: float = 1e-6, max_iter: int = 80, sink: Sink | None = None,
+                   speed_floor: float = 0.0) -> PressureSolution:
     """Pressure of the filled region at a given closing speed, or at a given force.
 
     Newton iteration on the volume balance of the filled cells with step halving.  Under
@@ -292,9 +299,12 @@ def solve_pressure(grid: Grid, fill: Array, fluidity: Fluidity, speed: float | N
         force: force (N) to hold under force control (``speed`` None).
         guess: pressure field of a previous solve (Pa), ``(nx, ny)``, or None.
         speed_guess: closing speed of a previous solve (m/s), force control only.
-        tol: convergence on the largest cell imbalance relative to V A_cell (and on the
-            force relative to ``force``).
+        tol: convergence on the largest cell imbalance relative to max(V, speed_floor)
+            A_cell (and on the force relative to ``force``).
         max_iter: Newton iteration limit (raises :class:`SolverError` past it).
+        sink: volume sink of the filled cells (pore compaction), or None.
+        speed_floor: smallest speed (m/s) of the imbalance scale, so that a creeping
+            press (V -> 0 under force control) still converges.
     """
     full = fill >= FULL
     fx, fy = faces(grid, full, fill)
@@ -304,71 +314,142 @@ def solve_pressure(grid: Grid, fill: Array, fluidity: Fluidity, speed: float | N
     weight = grid.multiplicity * grid.cell_area
     V = speed if speed is not None else (speed_guess or 1e-6)
     p = np.zeros(full.shape) if guess is None else np.where(full, guess, 0.0)
+    closed = sink is not None and bool(full.all())  # no front: some sink must act
+    mean = None if force is None else force / (weight * full.size)
+    if closed:
+        starts = [pp for pp in [p, *_starts(sink, V * grid.cell_area, mean)] if _acting(pp, sink)]
+        if not starts:
+            raise SolverError("2-D pressure: the cavity is full and no cell can compact")
+        p = min(starts, key=lambda pp: _merit(grid, pp, V, (fx, fy), fluidity, unknown, force, sink, speed_floor))
     if not np.any(p):  # cold start: the solution at the zero-stress (Newtonian) fluidity
-        lin = _linearise(grid, p, fx, fy, fluidity, V, unknown, jacobian=False)
-        p.ravel()[where] = spla.spsolve(_matrix(where.size, unknown, fx, fy, *lin.secant),
-                                        np.full(where.size, V * grid.cell_area))
+        p.ravel()[where] = _cold_start(grid, p, (fx, fy), fluidity, V, unknown, sink)
     for it in range(1, max_iter + 1):  # noqa: B007  (the count is returned below)
-        lin = _linearise(grid, p, fx, fy, fluidity, V, unknown)
-        err = np.max(np.abs(lin.residual), initial=0.0) / (V * grid.cell_area)
+        lin = _linearise(grid, p, fx, fy, fluidity, V, unknown, sink=sink)
+        err = np.max(np.abs(lin.residual), initial=0.0) / (max(V, speed_floor) * grid.cell_area)
         if speed is None:
             err = max(err, abs(weight * float(p.sum()) - force) / force)
         if err < tol:
             break
-        lu = spla.splu(lin.jacobian)
-        step = -lu.solve(lin.residual)
-        dV = 0.0
-        if speed is None:  # bordered system: d(residual)/dV = -A_cell, F(p + step + dV b) = force
-            b = lu.solve(np.full(where.size, grid.cell_area))
-            dV = (force / weight - float(p.sum()) - float(step.sum())) / float(b.sum())
-            step = step + dV * b
-        p, V = _line_search(grid, p, V, step, dV, (fx, fy), fluidity, unknown, force)
+        step, dV = _newton_step(lin, grid.cell_area, None if speed is not None else force / weight - float(p.sum()))
+        p, V = _line_search(grid, p, V, step, dV, (fx, fy), fluidity, unknown, force, sink, speed_floor)
+        if closed and not _acting(p, sink):
+            p = _starts(sink, V * grid.cell_area, mean)[-1]
     else:
         raise SolverError(f"2-D pressure iteration did not converge in {max_iter} iterations "
                           f"(imbalance {err:.2e})")
-    return PressureSolution(p=p, speed=V, force=weight * float(p.sum()),
-                            inflow=_inflow(p, fx, fy, lin.secant, full, V * grid.cell_area * where.size),
-                            iterations=it)
+    q_sink = np.zeros(full.shape) if sink is None else sink.rate(p)[0] * full
+    total = V * grid.cell_area * where.size - float(q_sink.sum())
+    inflow, face_flux = _inflow(p, fx, fy, lin.secant, full, total)
+    return PressureSolution(p=p, speed=V, force=weight * float(p.sum()), inflow=inflow, iterations=it,
+                            sink=q_sink, faces=(fx, fy), face_flux=face_flux)
+
+
+def _acting(p: Array, sink: Sink) -> bool:
+    """Whether some sink acts at pressure ``p``."""
+    return bool(np.any((sink.coeff > 0) & (p > sink.threshold)))
+
+
+def _starts(sink: Sink, rate: float, mean: float | None) -> list[Array]:
+    """Starting fields (Pa) of a solve without a front (cavity full), sinks active.
+
+    Without a front the Jacobian is singular unless some sink acts.  Under speed control
+    the candidates are every sink cell taking ``rate`` (m^3/s) on its own, and the uniform
+    pressure at which the sinks take it together (no flow between the cells); under force
+    control the uniform mean pressure ``mean`` (Pa).
+    """
+    if mean is not None:
+        return [np.full(sink.coeff.shape, mean)]
+    can = sink.coeff > 0
+    own = np.where(can, sink.threshold + rate / np.where(can, sink.coeff, 1.0), 0.0)
+    total = float(sink.coeff[can].sum())
+    if total <= 0.0:
+        return [own]
+    common = (float((sink.coeff * np.where(can, sink.threshold, 0.0)).sum()) + rate * sink.coeff.size) / total
+    return [own, np.full(sink.coeff.shape, common)]
+
+
+def _newton_step(lin: _Linearised, cell_area: float, force_gap: float | None) -> tuple[Array, float]:
+    """Newton step of the filled cells' pressures (Pa) and of the speed (m/s).
+
+    Under force control (``force_gap``: force / weight - sum p, in Pa) the speed is a
+    further unknown: bordered system with d(residual)/dV = -A_cell, solved with the one
+    factorisation as step = s0 + dV b and sum(p + step) = force / weight.
+    """
+    try:
+        lu = spla.splu(lin.jacobian)
+    except RuntimeError as err:  # no front and no active sink: pressure undetermined
+        raise SolverError(f"2-D pressure iteration: singular Jacobian ({err})") from err
+    step = -lu.solve(lin.residual)
+    if force_gap is None:
+        return step, 0.0
+    b = lu.solve(np.full(step.size, cell_area))
+    dV = (force_gap - float(step.sum())) / float(b.sum())
+    return step + dV * b, dV
+
+
+def _cold_start(grid: Grid, p: Array, fs: tuple[FaceSet, FaceSet], fluidity: Fluidity, V: float,
+                unknown: NDArray[np.int64], sink: Sink | None) -> Array:
+    """Pressure of the filled cells (Pa) at the zero-stress fluidity, every sink active."""
+    where = np.flatnonzero(unknown >= 0)
+    lin = _linearise(grid, p, fs[0], fs[1], fluidity, V, unknown, jacobian=False)
+    matrix = _matrix(where.size, unknown, fs[0], fs[1], *lin.secant)
+    rhs = np.full(where.size, V * grid.cell_area)
+    if sink is not None:
+        coeff = np.where(np.isfinite(sink.threshold), sink.coeff, 0.0).ravel()[where]
+        matrix = matrix + sp.diags(coeff, format="csc")
+        rhs = rhs + coeff * np.where(coeff > 0, sink.threshold.ravel()[where], 0.0)
+    return spla.spsolve(matrix, rhs)
 
 
 def _line_search(grid: Grid, p: Array, V: float, step: Array, dV: float, fs: tuple[FaceSet, FaceSet],
-                 fluidity: Fluidity, unknown: NDArray[np.int64],
-                 force: float | None) -> tuple[Array, float]:
+                 fluidity: Fluidity, unknown: NDArray[np.int64], force: float | None,
+                 sink: Sink | None, speed_floor: float) -> tuple[Array, float]:
     """Newton update, halving the step (at most 12 times) until the merit decreases.
 
-    The merit is the squared cell imbalance relative to V A_cell plus, under force control,
-    the squared relative force error: the Newton step of the bordered system descends it.
+    The merit is the squared cell imbalance relative to max(V, speed_floor) A_cell plus,
+    under force control, the squared relative force error: the Newton step of the
+    bordered system descends it.
     """
     where = np.flatnonzero(unknown >= 0)
-    scale = V * grid.cell_area
-    weight = grid.multiplicity * grid.cell_area
-
-    def merit(pp: Array, vv: float) -> float:
-        r = _linearise(grid, pp, fs[0], fs[1], fluidity, vv, unknown, jacobian=False).residual
-        out = float(np.sum((r / scale) ** 2))
-        return out if force is None else out + (weight * float(pp.sum()) / force - 1.0) ** 2
-
-    m0, lam = merit(p, V), 1.0
+    m0, lam = _merit(grid, p, V, fs, fluidity, unknown, force, sink, speed_floor, V), 1.0
     for _ in range(12):
         trial = p.copy()
         trial.ravel()[where] += lam * step
         V_new = max(V + lam * dV, 1e-3 * V)
-        if merit(trial, V_new) < m0:
+        if _merit(grid, trial, V_new, fs, fluidity, unknown, force, sink, speed_floor, V) < m0:
             break
         lam *= 0.5
     return trial, V_new
 
 
+def _merit(grid: Grid, p: Array, V: float, fs: tuple[FaceSet, FaceSet], fluidity: Fluidity,
+           unknown: NDArray[np.int64], force: float | None, sink: Sink | None, speed_floor: float,
+           V_scale: float | None = None) -> float:
+    """Squared cell imbalance relative to max(V_scale, speed_floor) A_cell (V_scale
+    defaults to V) plus, under force control, the squared relative force error."""
+    scale = max(V if V_scale is None else V_scale, speed_floor) * grid.cell_area
+    r = _linearise(grid, p, fs[0], fs[1], fluidity, V, unknown, jacobian=False, sink=sink).residual
+    out = float(np.sum((r / scale) ** 2))
+    if force is None:
+        return out
+    return out + (grid.multiplicity * grid.cell_area * float(p.sum()) / force - 1.0) ** 2
+
+
 def _inflow(p: Array, fx: FaceSet, fy: FaceSet, cond: tuple[Array, Array], full: Mask,
-            total: float) -> Array:
-    """Volume rate into each non-filled cell (m^3/s), scaled to sum to ``total`` exactly."""
+            total: float) -> tuple[Array, tuple[Array, Array]]:
+    """Volume rate into each non-filled cell (m^3/s), scaled to sum to ``total`` exactly,
+    and the face fluxes a -> b (m^3/s) with the same scaling on faces into non-filled cells."""
     inflow = np.zeros(p.size)
     flat = p.ravel()
+    fluxes = []
     for fs, c in ((fx, cond[0]), (fy, cond[1])):
         q = c * (flat[fs.a] - flat[fs.b])  # volume rate a -> b (m^3/s)
+        fluxes.append(q)
         np.add.at(inflow, fs.b[~fs.full_b], q[~fs.full_b])
         np.add.at(inflow, fs.a[~fs.full_a], -q[~fs.full_a])
     got = inflow.sum()
-    if got > 0:
-        inflow *= total / got  # removes the solver tolerance from the volume balance
-    return inflow.reshape(p.shape)
+    if got > 0 and total > 0:
+        scale = total / got  # removes the solver tolerance from the volume balance
+        inflow *= scale
+        fluxes = [np.where(fs.full_a & fs.full_b, q, q * scale) for fs, q in zip((fx, fy), fluxes, strict=True)]
+    return inflow.reshape(p.shape), (fluxes[0], fluxes[1])

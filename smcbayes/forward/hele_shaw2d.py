@@ -9,24 +9,24 @@ finite volumes on a structured grid with a fill-fraction (control-volume) flow f
 * front cells gain the volume flowing in from filled cells, filled cells lose V per unit
   area; a cell whose content exceeds the gap passes the excess on to its neighbours, so
   the charge volume is conserved to round-off;
-* the press protocol is the 1-D solver's: speed control at the set speed until the force
-  limit (located inside a step by secant refinement), then force control (the closing
-  speed that gives F = F_limit, solved together with the pressure) for the hold time; an
-  incompressible charge that fills the cavity stops the press and the force jumps to the
-  limit.
+* the press protocol is the 1-D solver's (:mod:`smcbayes.forward.stepper2d`): speed
+  control at the set speed until the force limit (located inside a step by secant
+  refinement), then force control (the closing speed that gives F = F_limit, solved
+  together with the pressure) for the hold time; an incompressible charge that fills the
+  cavity stops the press and the force jumps to the limit.
 
 Mirror symmetry of the layout about the mould's centre lines is used to solve a half or a
 quarter of the mould.  Parameter sets are solved one after another.
 
-The base model and the ``compressibility`` effect are supported (lumped compaction: one
-solid fraction for the whole charge, the closing speed split between spreading and pore
-compaction under the common mean pressure, as in the 1-D solver); other effects are not.
+The base model and the ``compressibility`` effect are supported; other effects are not.
+A porous charge has a local solid fraction per cell (:mod:`smcbayes.forward.compaction2d`):
+each filled cell compacts under its own pressure by the effect's law, the solid moves
+with the flow, and the solid volume is conserved to round-off.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
@@ -35,13 +35,18 @@ from numpy.typing import NDArray
 from smcbayes.config import MaterialSpec, SolverSpec
 from smcbayes.errors import ConfigError, SolverError
 from smcbayes.forward.case import Case
+from smcbayes.forward.compaction2d import CellCompaction
 from smcbayes.forward.effects.base import EffectStack
 from smcbayes.forward.flux import MaterialTable, log_grid
-from smcbayes.forward.grid2d import FULL, Fluidity, Grid, PressureSolution, solve_pressure, spill
+from smcbayes.forward.grid2d import Grid
 from smcbayes.forward.layout import coverage, symmetric
 from smcbayes.forward.nodes import Nodes, to_result
-from smcbayes.forward.result import STATUS_OK, SimulationResult
+from smcbayes.forward.result import SimulationResult
+from smcbayes.forward.spill2d import spill
 from smcbayes.forward.squeeze1d import material_table
+from smcbayes.forward.stepper2d import Law, Run, Stepper
+
+__all__ = ["FillHistory", "HeleShaw2D", "HeleShaw2DOptions", "cell_compaction", "make_grid", "spill", "whole_mould"]
 
 Array = NDArray[np.float64]
 SUPPORTED_EFFECTS = ("compressibility",)
@@ -86,37 +91,15 @@ class FillHistory:
         time_s: snapshot times (s), ``(K,)``.
         fill: fill fraction per cell, ``(K, NX, NY)`` (NX along the mould length).
         x_faces_mm, y_faces_mm: cell faces of the whole mould relative to its centre (mm).
+        solid: solid fraction per cell, ``(K, NX, NY)`` (NaN in empty cells), or None for
+            an incompressible charge.
     """
 
     time_s: Array
     fill: Array
     x_faces_mm: Array
     y_faces_mm: Array
-
-
-@dataclass
-class _State:
-    """State of one run: time (s), gap (m), charge thickness per cell (m), ``(nx, ny)``."""
-
-    t: float
-    gap: float
-    h: Array
-
-
-@dataclass
-class _Run:
-    """Node record of one parameter set."""
-
-    t: list[float] = field(default_factory=list)
-    gap: list[float] = field(default_factory=list)
-    area: list[float] = field(default_factory=list)
-    force: list[float] = field(default_factory=list)
-    volume: list[float] = field(default_factory=list)
-    solid: list[float] = field(default_factory=list)
-    snap_t: list[float] = field(default_factory=list)
-    snap_f: list[Array] = field(default_factory=list)
-    switch: float = 0.0
-    status: str = STATUS_OK
+    solid: Array | None = None
 
 
 def make_grid(case: Case, cells: int, use_symmetry: bool) -> tuple[Grid, Array]:
@@ -181,8 +164,8 @@ class HeleShaw2D:
         Args:
             case: the configuration in SI (``case.pieces`` holds the charge layout).
             p: SI parameters by symbol, each ``(P,)``.
-            effects: the enabled effects: none, or ``compressibility`` (lumped pore
-                compaction of the whole charge).
+            effects: the enabled effects: none, or ``compressibility`` (pore compaction
+                with a local solid fraction per cell).
             material: slip coefficient and threshold exponent.
         """
         other = [n for n in effects.names if n not in SUPPORTED_EFFECTS]
@@ -198,292 +181,61 @@ class HeleShaw2D:
         for r in range(rows):
             # one parameter set that fails must not take the other rows of the batch with it
             try:
-                runs.append(self.run_row(case, table, float(p["B"][r]), r, _compaction(case, p, effects, r)))
+                runs.append(self.run_row(case, table, float(p["B"][r]), r, cell_compaction(case, p, effects, r)))
             except SolverError as err:
-                runs.append(_Run(t=[0.0, 1.0], gap=[case.gap0] * 2, area=[case.area0] * 2,
-                                 force=[0.0, 0.0], solid=[1.0, 1.0], switch=1.0, status=f"failed: {err}"))
+                runs.append(Run(t=[0.0, 1.0], gap=[case.gap0] * 2, area=[case.area0] * 2,
+                                force=[0.0, 0.0], solid=[1.0, 1.0], switch=1.0, status=f"failed: {err}"))
         grid, _ = make_grid(case, self.options.cells, self.options.use_symmetry)
-        self.fields[case.id] = [self._history(grid, run) if run.snap_f else None for run in runs]
+        porous = effects.solid_fraction0(case, p, rows) is not None
+        self.fields[case.id] = [self._history(grid, run, porous) if run.snap_f else None for run in runs]
         nodes = _to_nodes(runs)
         o = self.options
         return to_result(case, nodes, o.output_closing_points, o.output_hold_points,
                          tuple(effects.names))
 
-    def _history(self, grid: Grid, run: _Run) -> FillHistory:
+    def _history(self, grid: Grid, run: Run, porous: bool) -> FillHistory:
         fills = [whole_mould(grid, f)[0] for f in run.snap_f]
+        solid = np.array([whole_mould(grid, s)[0] for s in run.snap_s]) if porous else None
         _, xf, yf = whole_mould(grid, run.snap_f[0])
-        return FillHistory(np.array(run.snap_t), np.array(fills), xf * 1e3, yf * 1e3)
+        return FillHistory(np.array(run.snap_t), np.array(fills), xf * 1e3, yf * 1e3, solid)
 
     def run_row(self, case: Case, table: MaterialTable, eta0: float, row: int,
-                compaction: _Compaction | None = None) -> _Run:
-        """Simulate one parameter set (row ``row`` of ``table``); returns its node record."""
+                compaction: CellCompaction | None = None) -> Run:
+        """Simulate one parameter set (row ``row`` of ``table``); returns its node record.
+
+        Args:
+            case: the configuration in SI.
+            table: flux tables of the batch.
+            eta0: zero-shear viscosity of the row (Pa s).
+            row: row of ``table``.
+            compaction: per-cell pore compaction, or None for an incompressible charge.
+        """
         o = self.options
         grid, h0 = make_grid(case, o.cells, o.use_symmetry)
-        law = _Law(self.tau, table.slip[row], table.shear[row] / (2.0 * eta0 * self.tau**2))
-        stepper = _Stepper(case, grid, law, o, compaction)
-        state, rates = stepper.speed_phase(_State(0.0, case.gap0, h0))
+        law = Law(self.tau, table.slip[row], table.shear[row] / (2.0 * eta0 * self.tau**2))
+        stepper = Stepper(case, grid, law, o, compaction)
+        state, rates = stepper.speed_phase(stepper.initial(h0))
         if rates is not None:
             stepper.force_phase(state)
         return stepper.run
 
 
-def _compaction(case: Case, p: dict[str, Array], effects: EffectStack, row: int) -> _Compaction | None:
-    """Lumped compaction of row ``row`` from the effects' hooks, or None (no pores)."""
+def cell_compaction(case: Case, p: dict[str, Array], effects: EffectStack, row: int) -> CellCompaction | None:
+    """Per-cell compaction of row ``row`` from the effects' hooks, or None (no pores)."""
     s0 = effects.solid_fraction0(case, p, p["n"].shape[0])
     if s0 is None or float(np.asarray(s0)[row]) >= 1.0:
         return None
     p_row = {k: np.asarray(v)[row:row + 1] for k, v in p.items()}
 
-    def law(solid: float) -> tuple[float, float]:
-        pc, zeta = effects.compaction(case, p_row, np.array([solid]))
-        return float(np.asarray(pc).ravel()[0]), float(np.asarray(zeta).ravel()[0])
+    def law(solid: Array) -> tuple[Array, Array]:
+        pc, zeta = effects.compaction(case, p_row, solid)
+        return (np.broadcast_to(np.asarray(pc, dtype=float), solid.shape),
+                np.broadcast_to(np.asarray(zeta, dtype=float), solid.shape))
 
-    return _Compaction(float(np.asarray(s0)[row]), case.area0 * case.gap0, law)
-
-
-@dataclass
-class _Law:
-    """Flux law of one parameter set: q(tau) = H slip + H^2 coeff (m^2/s), ``(M,)``."""
-
-    tau: Array
-    slip: Array
-    coeff: Array
-
-    def at(self, gap: float) -> Fluidity:
-        return Fluidity(self.tau, gap * self.slip + gap * gap * self.coeff, gap)
+    return CellCompaction(float(np.asarray(s0)[row]), law)
 
 
-@dataclass(frozen=True)
-class _Compaction:
-    """Lumped pore compaction of one parameter set.
-
-    Attributes:
-        solid0: initial solid fraction s0 (< 1).
-        bulk0: initial charge volume, pores included (m^3).
-        law: solid fraction -> (compaction pressure P_c (Pa), bulk viscosity (Pa s)).
-    """
-
-    solid0: float
-    bulk0: float
-    law: Callable[[float], tuple[float, float]]
-
-
-@dataclass
-class _Rates:
-    """Force (N), gap closing speed V and spreading speed V_s (m/s) at a state, with the
-    flow solution at V_s (None when the cavity is full and nothing flows)."""
-
-    force: float
-    speed: float
-    spread: float
-    sol: PressureSolution | None
-
-
-class _Stepper:
-    """Time stepping of one parameter set through the press protocol.
-
-    With a compressible charge the closing speed splits into spreading V_s (the 2-D flow)
-    and compaction V_c = V - V_s of the whole charge under the mean pressure F / A:
-    F / A = P_c(s) + zeta V_c / H while the pores compact, s = s0 bulk0 / bulk.
-    """
-
-    def __init__(self, case: Case, grid: Grid, law: _Law, options: HeleShaw2DOptions,
-                 compaction: _Compaction | None) -> None:
-        self.case, self.grid, self.law, self.o, self.comp = case, grid, law, options, compaction
-        self.run = _Run()
-        self.guess: Array | None = None
-        self.speed_guess: float | None = None
-        self.snap_area = list(np.linspace(case.area0, case.area_mould, options.snapshots))
-        self.gap_end = case.gap_full * (1.0 if compaction is None else compaction.solid0)
-
-    def measure(self, st: _State) -> tuple[float, float, float]:
-        """Filled area (m^2), bulk volume (m^3) and solid fraction of a state."""
-        g = self.grid
-        area = g.multiplicity * g.cell_area * float(np.minimum(st.h / st.gap, 1.0).sum())
-        bulk = g.multiplicity * g.cell_area * float(st.h.sum())
-        solid = 1.0 if self.comp is None else min(self.comp.solid0 * self.comp.bulk0 / bulk, 1.0)
-        return area, bulk, solid
-
-    def flow(self, st: _State, speed: float | None, force: float | None) -> PressureSolution:
-        """Pressure at state ``st`` for a spreading speed or a force."""
-        sol = solve_pressure(self.grid, st.h / st.gap, self.law.at(st.gap), speed, force,
-                             self.guess, self.speed_guess)
-        self.guess, self.speed_guess = sol.p, sol.speed
-        return sol
-
-    def rates(self, st: _State, force_control: bool) -> _Rates | None:
-        """Force and speeds at ``st``; None once an incompressible charge fills the cavity."""
-        c, F_lim = self.case, self.case.force_limit
-        area, _, solid = self.measure(st)
-        pores = self.comp is not None and solid < 1.0 - 1e-9
-        pc, zeta = self.comp.law(solid) if pores else (np.inf, 0.0)
-
-        def creep(F: float) -> float:
-            """Compaction speed under force F with the bulk viscosity (m/s)."""
-            return max(F / area - pc, 0.0) * st.gap / zeta if zeta > 0 and np.isfinite(pc) else 0.0
-
-        if np.all(st.h >= st.gap * FULL):
-            if not np.isfinite(pc):
-                return None
-            if force_control:
-                return _Rates(F_lim, creep(F_lim), 0.0, None)
-            return _Rates(area * (pc + zeta * c.speed / st.gap), c.speed, 0.0, None)
-        if force_control:
-            sol = self.flow(st, None, F_lim)
-            return _Rates(F_lim, sol.speed + creep(F_lim), sol.speed, sol)
-        sol = self.flow(st, c.speed, None)
-        if sol.force <= area * pc:
-            return _Rates(sol.force, c.speed, c.speed, sol)
-        if zeta > 0:
-            return self._split(st, area, pc, zeta, sol)
-        if area * pc <= 1e-9 * sol.force:  # pores give way before the charge flows at all
-            return _Rates(0.0, c.speed, 0.0, None)
-        sol = self.flow(st, None, area * pc)
-        return _Rates(area * pc, c.speed, min(sol.speed, c.speed), sol)
-
-    def _split(self, st: _State, area: float, pc: float, zeta: float,
-               at_speed: PressureSolution) -> _Rates:
-        """Force F in [A P_c, F(V)] where V_s(F) + (F/A - P_c) H / zeta = V.
-
-        ``at_speed`` is the flow at V_s = V (force F(V) > A P_c).  The left side increases
-        with F, is below V at A P_c (V_s < V, no compaction) and above it at F(V); Illinois
-        regula falsi on the difference.
-        """
-        V = self.case.speed
-
-        def excess(F: float) -> tuple[float, PressureSolution | None]:
-            if F <= 0.0:
-                return -V, None
-            sol = self.flow(st, None, F)
-            return sol.speed + (F / area - pc) * st.gap / zeta - V, sol
-
-        lo, hi = area * pc, at_speed.force
-        (g_lo, _), g_hi = excess(lo), (hi / area - pc) * st.gap / zeta
-        F, sol, side = hi, at_speed, 0
-        for _ in range(60):
-            F = hi - g_hi * (hi - lo) / (g_hi - g_lo)
-            val, sol = excess(F)
-            if abs(val) <= 1e-6 * V or sol is None:
-                break
-            if val < 0:
-                lo, g_lo, g_hi = F, val, g_hi / 2 if side == -1 else g_hi
-                side = -1
-            else:
-                hi, g_hi, g_lo = F, val, g_lo / 2 if side == 1 else g_lo
-                side = 1
-        spread = 0.0 if sol is None else sol.speed
-        return _Rates(F, V, spread, sol)
-
-    def record(self, st: _State, force: float) -> None:
-        """Append a node (and a fill snapshot when the filled area passes the next mark)."""
-        r = self.run
-        area, bulk, solid = self.measure(st)
-        for name, value in (("t", st.t), ("gap", st.gap), ("area", area), ("force", force),
-                            ("volume", bulk), ("solid", solid)):
-            getattr(r, name).append(value)
-        while self.snap_area and area >= self.snap_area[0] * (1.0 - 1e-9):
-            self.snap_area.pop(0)
-            r.snap_t.append(st.t)
-            r.snap_f.append(np.minimum(st.h / st.gap, 1.0))
-
-    def advance(self, st: _State, r: _Rates, dt: float) -> _State:
-        """State after ``dt`` (s): uniform compaction, then spreading by the inflows of ``r``."""
-        gap = max(st.gap - r.speed * dt, self.gap_end)
-        h = st.h * (1.0 - (r.speed - r.spread) * dt / st.gap)
-        if r.sol is not None:
-            full = st.h >= st.gap * FULL
-            h = np.where(full, h - r.spread * dt, h + r.sol.inflow * dt / self.grid.cell_area)
-        return _State(st.t + dt, gap, spill(h, gap))
-
-    def step_size(self, st: _State, r: _Rates, dt_max: float) -> float:
-        """Largest step (s) within the front Courant limit, ``dt_max``, the filling of the
-        cavity, the end gap and a quarter of the remaining pore fraction."""
-        dt = dt_max
-        if r.sol is not None and r.sol.inflow.max() > 0:
-            dt = min(dt, self.o.courant * st.gap * self.grid.cell_area / float(r.sol.inflow.max()))
-        if r.sol is not None:  # land on the instant the cavity fills: mean content = gap
-            mean = float(st.h.mean())
-            closing = r.speed - mean * (r.speed - r.spread) / st.gap
-            if closing > 0:
-                dt = min(dt, (st.gap - mean) / closing)
-        if r.speed > r.spread:
-            solid = self.measure(st)[2]
-            dt = min(dt, 0.25 * (1.0 - solid) * st.gap / (solid * (r.speed - r.spread)))
-        return min(dt, (st.gap - self.gap_end) / r.speed) if r.speed > 0 else dt
-
-    def speed_phase(self, st: _State) -> tuple[_State, _Rates | None]:
-        """Speed control until the force limit (returns the state and its rates there) or
-        until an incompressible charge fills the cavity (returns the final state and None)."""
-        case = self.case
-        dt_max = (case.gap0 - self.gap_end) / (case.speed * self.o.closing_steps)
-        r = self.rates(st, False)
-        while r is not None and r.force < case.force_limit:
-            self.record(st, r.force)
-            dt = self.step_size(st, r, dt_max)
-            new = self.advance(st, r, dt)
-            new_r = self.rates(new, False)
-            if new_r is None:  # full: the force jumps to the limit
-                self.record(new, r.force)
-                self.run.switch = new.t + self.o.jump_time_s
-                self._hold(new, self.run.switch)
-                return new, None
-            if new_r.force >= case.force_limit:
-                st, r = self._locate_switch(st, r, dt, new_r)
-                break
-            st, r = new, new_r
-        if r is None:
-            raise SolverError(f"configuration '{case.id}': the charge fills the cavity at first contact")
-        self.run.switch = st.t
-        self.record(st, case.force_limit)
-        return st, r
-
-    def _locate_switch(self, st: _State, r: _Rates, dt: float, hi: _Rates) -> tuple[_State, _Rates]:
-        """Step from ``st`` that lands on the force limit (regula falsi in the step size)."""
-        F_lim = self.case.force_limit
-        lo_dt, lo_F, hi_dt, hi_F = 0.0, r.force, dt, hi.force
-        new, new_r = self.advance(st, r, dt), hi
-        for _ in range(6):
-            trial = lo_dt + (F_lim - lo_F) / (hi_F - lo_F) * (hi_dt - lo_dt)
-            new = self.advance(st, r, trial)
-            new_r = self.rates(new, False)
-            if new_r is None:
-                raise SolverError(f"configuration '{self.case.id}': cavity filled while locating "
-                                  "the force limit")
-            if abs(new_r.force - F_lim) <= 1e-4 * F_lim:
-                break
-            if new_r.force < F_lim:
-                lo_dt, lo_F = trial, new_r.force
-            else:
-                hi_dt, hi_F = trial, new_r.force
-        return new, new_r
-
-    def force_phase(self, st: _State) -> None:
-        """Force control from the switch state for the hold time."""
-        case, run = self.case, self.run
-        t_end = run.switch + case.hold
-        dH = max(st.gap - self.gap_end, 0.0) / self.o.hold_steps
-        r = self.rates(st, True)
-        while r is not None and st.t < t_end:
-            dt = min(self.step_size(st, r, np.inf), dH / r.speed if r.speed > 0 else np.inf, t_end - st.t)
-            for _ in range(30):  # a creep step must not compact past P_c(s) = F / A
-                new = self.advance(st, r, dt)
-                new_r = self.rates(new, True)
-                if r.sol is not None or new_r is None or new_r.speed > 0 or r.speed <= 0:
-                    break
-                dt *= 0.5
-            st, r = new, new_r
-            self.record(st, case.force_limit)
-        self._hold(st, t_end)
-
-    def _hold(self, st: _State, t_end: float) -> None:
-        """Close the record with the force limit held until ``t_end`` (s)."""
-        end = max(t_end, self.run.t[-1])
-        self.record(_State(end, st.gap, st.h), self.case.force_limit)
-        if self.run.t[-1] < self.run.switch + self.case.hold:
-            self.record(_State(self.run.switch + self.case.hold, st.gap, st.h), self.case.force_limit)
-
-
-def _to_nodes(runs: list[_Run]) -> Nodes:
+def _to_nodes(runs: list[Run]) -> Nodes:
     """Stack the node records of all rows, padding each past its end."""
     P, S = len(runs), max(len(r.t) for r in runs)
     out = {k: np.zeros((P, S)) for k in ("t", "gap", "area", "force", "solid")}

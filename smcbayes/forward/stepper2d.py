@@ -1,0 +1,396 @@
+"""Time stepping of the 2-D solver through the press protocol (one parameter set).
+
+Speed control at the set speed until the force limit (located inside a step by regula
+falsi in the step size), then force control (the closing speed that gives F = F_limit,
+solved together with the pressure) for the hold time.  An incompressible charge that
+fills the cavity stops the press and the force jumps to the limit; a porous charge keeps
+closing by compaction alone (:mod:`smcbayes.forward.compaction2d`) until the limit and
+then creeps under it.
+
+Each step solves the pressure of the current state, then moves explicitly: filled cells
+lose V dt of content (the gap closes under them), front cells gain the inflow, the solid
+moves with the face fluxes, and content above the gap spills on to the nearest open
+cells.  With compaction the pressure solve depends on the step (semi-implicit law), so a
+step that the Courant, fill or compaction limits cut by more than 30 % is solved again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from smcbayes.errors import SolverError
+from smcbayes.forward.case import Case
+from smcbayes.forward.compaction2d import (
+    CellCompaction,
+    CompactionSink,
+    largest_outflow,
+    solid_fraction,
+    solid_inflow,
+)
+from smcbayes.forward.grid2d import FULL, Fluidity, Grid, PressureSolution, solve_pressure
+from smcbayes.forward.result import STATUS_OK
+from smcbayes.forward.spill2d import spill_with
+
+if TYPE_CHECKING:
+    from smcbayes.forward.hele_shaw2d import HeleShaw2DOptions
+
+Array = NDArray[np.float64]
+RETRY = 0.7
+"""A step cut below this share of the step its pressure was solved for is solved again."""
+POROUS = 1e-8
+"""Pore share of the full cavity below which the charge counts as pore-free."""
+LAG = 0.1
+"""Largest implicit (lag) part of a compacting cell's pressure, as a share of it (or of 1 %
+of the limit's mean pressure, whichever is larger), at 100 closing steps."""
+PORE_STEP = 0.25
+"""Largest share of a cell's remaining pore fraction closed in one step, at 100 closing
+steps.  Both compaction limits scale with 100 / closing_steps, so that the step count
+alone refines every step of a run."""
+MAX_NODES = 100_000
+"""A run that needs more steps than this stops with :class:`SolverError` (never hangs)."""
+SNAP = 1e-4
+"""Open capacity (in cells) below which a porous charge counts as filling the cavity."""
+
+
+@dataclass
+class State:
+    """State of one run: time (s), gap (m), charge thickness per cell (m) and solid
+    volume per unit area (m), both ``(nx, ny)``."""
+
+    t: float
+    gap: float
+    h: Array
+    sigma: Array
+
+
+@dataclass
+class Run:
+    """Node record of one parameter set (SI), with fill and solid-fraction snapshots."""
+
+    t: list[float] = field(default_factory=list)
+    gap: list[float] = field(default_factory=list)
+    area: list[float] = field(default_factory=list)
+    force: list[float] = field(default_factory=list)
+    volume: list[float] = field(default_factory=list)
+    solid: list[float] = field(default_factory=list)
+    solid_volume: list[float] = field(default_factory=list)
+    snap_t: list[float] = field(default_factory=list)
+    snap_f: list[Array] = field(default_factory=list)
+    snap_s: list[Array] = field(default_factory=list)
+    switch: float = 0.0
+    status: str = STATUS_OK
+
+
+@dataclass
+class Law:
+    """Flux law of one parameter set: q(tau) = H slip + H^2 coeff (m^2/s), ``(M,)``."""
+
+    tau: Array
+    slip: Array
+    coeff: Array
+
+    def at(self, gap: float) -> Fluidity:
+        return Fluidity(self.tau, gap * self.slip + gap * gap * self.coeff, gap)
+
+
+@dataclass
+class Rates:
+    """Force (N) and gap closing speed V (m/s) at a state, with the flow solution there
+    (None when nothing moves: an incompressible charge fills the cavity, or a porous one
+    rests under the force)."""
+
+    force: float
+    speed: float
+    sol: PressureSolution | None
+    sink: CompactionSink | None = None
+
+
+class Stepper:
+    """Time stepping of one parameter set; ``compaction`` None for an incompressible charge."""
+
+    def __init__(self, case: Case, grid: Grid, law: Law, options: HeleShaw2DOptions,
+                 compaction: CellCompaction | None) -> None:
+        self.case, self.grid, self.law, self.o, self.comp = case, grid, law, options, compaction
+        self.run = Run()
+        self.guess: Array | None = None
+        self.speed_guess: float | None = None
+        self.snap_area = list(np.linspace(case.area0, case.area_mould, options.snapshots))
+        self.gap_end = case.gap_full * (1.0 if compaction is None else compaction.solid0)
+        self.dt_max = (case.gap0 - self.gap_end) / (case.speed * options.closing_steps)
+        self.refine = 100.0 / options.closing_steps
+        self.dt = self.dt_max
+        """Step (s) the semi-implicit compaction of the next pressure solve is taken over."""
+
+    def initial(self, h0: Array) -> State:
+        """State at first contact from the charge thickness per cell (m)."""
+        s0 = 1.0 if self.comp is None else self.comp.solid0
+        return State(0.0, self.case.gap0, h0, s0 * h0)
+
+    def solid(self, st: State) -> Array:
+        """Solid fraction per cell, ``(nx, ny)`` (s0 in empty cells)."""
+        if self.comp is None:
+            return np.ones_like(st.h)
+        return solid_fraction(st.h, st.sigma, self.comp.solid0)
+
+    def measure(self, st: State) -> tuple[float, float, float, float]:
+        """Filled area (m^2), bulk volume (m^3), mean solid fraction and solid volume (m^3)."""
+        g = self.grid
+        w = g.multiplicity * g.cell_area
+        area = w * float(np.minimum(st.h / st.gap, 1.0).sum())
+        bulk, solid = w * float(st.h.sum()), w * float(st.sigma.sum())
+        return area, bulk, solid / bulk, solid
+
+    def rates(self, st: State, force_control: bool) -> Rates | None:
+        """Force and closing speed at ``st``; None once an incompressible charge (or one
+        whose pores are all closed) fills the cavity."""
+        c, F_lim = self.case, self.case.force_limit
+        full = st.h >= st.gap * FULL
+        sink = None
+        if self.comp is not None:
+            if full.all():  # all the closing goes into the pores: keep the step's compaction small
+                s = self.solid(st)
+                if float(np.sum((1.0 - s) * st.h)) <= POROUS * float(st.h.sum()):
+                    return None  # pores closed to round-off: as incompressible
+                V = c.speed if not force_control else (self.speed_guess or c.speed)
+                self.dt = min(self.dt, PORE_STEP * self.refine * float(np.min((1.0 - s) / s)) * st.gap / V)
+            sink = self.comp.sink(self.solid(st), full, st.gap, self.dt, self.grid)
+        if full.all():
+            if sink is None or not np.any(sink.coeff > 0):
+                return None
+            if force_control and F_lim / self.case.area_mould <= float(sink.threshold.min()):
+                return Rates(F_lim, 0.0, None)  # every cell bears F / A: the press rests
+        speed, force = (None, F_lim) if force_control else (c.speed, None)
+        try:
+            sol = solve_pressure(self.grid, st.h / st.gap, self.law.at(st.gap), speed, force,
+                                 self.guess, self.speed_guess, sink=sink, speed_floor=1e-6 * c.speed)
+        except SolverError:
+            if not force_control or sink is None:
+                raise
+            sol = self._force_by_speed(st, sink)
+            if sol is None:
+                return Rates(F_lim, 0.0, None)
+        self.guess, self.speed_guess = sol.p, sol.speed
+        if force_control or sink is None:
+            return Rates(F_lim if force_control else sol.force, sol.speed, sol, sink)
+        return Rates(sol.force - self._lag(st, sol, sink), sol.speed, sol, sink)
+
+    def _speed_solve(self, st: State, sink: CompactionSink, V: float) -> PressureSolution:
+        sol = solve_pressure(self.grid, st.h / st.gap, self.law.at(st.gap), V, None, self.guess, sink=sink)
+        self.guess = sol.p
+        return sol
+
+    def _force_by_speed(self, st: State, sink: CompactionSink) -> PressureSolution | None:
+        """Force control by regula falsi on the closing speed, with speed-controlled solves.
+
+        The fallback of the bordered Newton solve, which can stall when many compacting
+        cells switch on and off together.  The force increases with the speed; returns
+        None when even a vanishing speed needs more than the force limit (the press rests).
+        """
+        F_lim, floor = self.case.force_limit, 1e-6 * self.case.speed
+        V = self.speed_guess or self.case.speed
+        sol = self._speed_solve(st, sink, V)
+        lo: tuple[float, float] | None = None
+        hi: tuple[float, float] | None = None
+        for _ in range(60):
+            if sol.force < F_lim:
+                lo = (np.log(V), sol.force - F_lim)
+            else:
+                hi = (np.log(V), sol.force - F_lim)
+            if lo is not None and hi is not None:
+                break
+            V = 2.0 * V if hi is None else 0.5 * V
+            if V < floor:
+                return None
+            sol = self._speed_solve(st, sink, V)
+        if lo is None or hi is None:
+            raise SolverError(f"configuration '{self.case.id}': no closing speed gives the force limit")
+        side = 0
+        for _ in range(60):  # Illinois regula falsi in log V
+            x = hi[0] - hi[1] * (hi[0] - lo[0]) / (hi[1] - lo[1])
+            sol = self._speed_solve(st, sink, float(np.exp(x)))
+            g = sol.force - F_lim
+            if abs(g) <= 1e-6 * F_lim:
+                return sol
+            if g < 0:
+                lo, hi, side = (x, g), (hi if side != -1 else (hi[0], hi[1] / 2)), -1
+            else:
+                hi, lo, side = (x, g), (lo if side != 1 else (lo[0], lo[1] / 2)), 1
+        raise SolverError(f"configuration '{self.case.id}': force control did not converge")
+
+    def _lag(self, st: State, sol: PressureSolution, sink: CompactionSink) -> float:
+        """Implicit part of the force (N): sum of dt s P_c'(s) c over the compacting cells.
+
+        The semi-implicit pressure of a compacting cell is that of the end of the step;
+        without this part the force is the compaction law's at the start of the step, the
+        instant the node is recorded at.
+        """
+        c = sol.sink / (st.gap * self.grid.cell_area)
+        lag = self.dt * sink.stiffness * c
+        return self.grid.multiplicity * self.grid.cell_area * float(np.minimum(lag, sol.p).sum())
+
+    def record(self, st: State, force: float) -> None:
+        """Append a node (and snapshots when the filled area passes the next mark)."""
+        r = self.run
+        if len(r.t) >= MAX_NODES:
+            raise SolverError(f"configuration '{self.case.id}': the 2-D run needs more than {MAX_NODES} steps")
+        area, bulk, solid, solid_volume = self.measure(st)
+        for name, value in (("t", st.t), ("gap", st.gap), ("area", area), ("force", force),
+                            ("volume", bulk), ("solid", solid), ("solid_volume", solid_volume)):
+            getattr(r, name).append(value)
+        while self.snap_area and area >= self.snap_area[0] * (1.0 - 1e-9):
+            self.snap_area.pop(0)
+            r.snap_t.append(st.t)
+            r.snap_f.append(np.minimum(st.h / st.gap, 1.0))
+            r.snap_s.append(np.where(st.h > 0.0, self.solid(st), np.nan))
+
+    def advance(self, st: State, r: Rates, dt: float) -> State:
+        """State after ``dt`` (s): filled cells lose V dt, front cells gain their inflow,
+        the solid moves with the face fluxes, the excess spills."""
+        gap = max(st.gap - r.speed * dt, self.gap_end)
+        if r.sol is None:
+            return State(st.t + dt, gap, st.h, st.sigma)
+        full = st.h >= st.gap * FULL
+        h = np.where(full, st.h - r.speed * dt, st.h + r.sol.inflow * dt / self.grid.cell_area)
+        if self.comp is None:
+            h = spill_with(h, gap, None)[0]
+            return State(st.t + dt, gap, h, h)
+        sigma = st.sigma + solid_inflow(r.sol, self.solid(st)) * dt / self.grid.cell_area
+        h, sigma = spill_with(h, gap, sigma, absorb=True)
+        if float(np.sum(gap - h)) <= SNAP * gap:
+            # the last open capacity is round-off of the semi-implicit compaction: call the
+            # cavity full (the solid stays; s of the last cells drops by at most SNAP)
+            h = np.full_like(h, gap)
+        return State(st.t + dt, gap, h, sigma)
+
+    def step_size(self, st: State, r: Rates, dt_max: float) -> float:
+        """Largest step (s) within :meth:`regular_step`, the filling of the cavity and the
+        end gap."""
+        dt, sol = self.regular_step(st, r, dt_max), r.sol
+        if sol is not None and not np.all(st.h >= st.gap * FULL):
+            # land on the instant the cavity fills: mean content = gap
+            mean = float(st.h.mean())
+            closing = r.speed - float(sol.sink.sum()) / (st.h.size * self.grid.cell_area)
+            if closing > 0:
+                dt = min(dt, (st.gap - mean) / closing)
+        return min(dt, (st.gap - self.gap_end) / r.speed) if r.speed > 0 else dt
+
+    def regular_step(self, st: State, r: Rates, dt_max: float) -> float:
+        """Largest step (s) within ``dt_max``, the front Courant limit and, with pores, the
+        stability limit of the solid transport and the compaction limits (:data:`LAG`,
+        :data:`PORE_STEP`)."""
+        dt, g, sol = dt_max, self.grid, r.sol
+        if sol is not None and sol.inflow.max() > 0:
+            dt = min(dt, self.o.courant * st.gap * g.cell_area / float(sol.inflow.max()))
+        if sol is not None and self.comp is not None:
+            out = largest_outflow(sol, st.h.shape)
+            if out > 0:  # stability of the upwind solid transport
+                dt = min(dt, 0.9 * st.gap * g.cell_area / out)
+            s = self.solid(st)
+            c = sol.sink / (st.gap * g.cell_area)  # volumetric compaction rate (1/s)
+            if c.max() > 0:
+                on = c > 0
+                dt = min(dt, PORE_STEP * self.refine * float(np.min((1.0 - s[on]) / (s[on] * c[on]))))
+                if r.sink is not None:  # lag error dt s P_c' c below LAG of the cell pressure
+                    floor = 0.01 * self.case.force_limit / self.case.area_mould
+                    err = r.sink.stiffness[on] * c[on]
+                    ok = err > 0
+                    if ok.any():
+                        bound = np.maximum(sol.p[on][ok], floor) / err[ok]
+                        dt = min(dt, LAG * self.refine * float(np.min(bound)))
+        return dt
+
+    def sized(self, st: State, r: Rates, dt_max: float, force_control: bool) -> tuple[float, Rates | None]:
+        """Step size at ``st`` and the rates solved for it (again if the step was cut).
+
+        The next pressure solve assumes a step of 1.1 times this one's regular limit (at
+        most ``dt_max``): those limits change slowly, so a cut rarely needs a second solve,
+        and a one-off cut (landing on the filled cavity) does not shrink the next steps.
+        """
+        dt = self.step_size(st, r, dt_max)
+        if self.comp is not None and dt < RETRY * self.dt:
+            self.dt = dt
+            r2 = self.rates(st, force_control)
+            if r2 is None:
+                return dt, None
+            r, dt = r2, min(dt, self.step_size(st, r2, dt_max))
+        self.dt = min(dt_max, 1.1 * self.regular_step(st, r, dt_max))
+        return dt, r
+
+    def speed_phase(self, st: State) -> tuple[State, Rates | None]:
+        """Speed control until the force limit (returns the state and its rates there) or
+        until the charge fills the cavity for good (returns the final state and None)."""
+        case = self.case
+        r = self.rates(st, False)
+        while r is not None and r.force < case.force_limit:
+            dt, r2 = self.sized(st, r, self.dt_max, False)
+            r = r2 if r2 is not None else r
+            self.record(st, r.force)
+            new = self.advance(st, r, dt)
+            new_r = self.rates(new, False)
+            if new_r is None:  # full: the force jumps to the limit
+                self.record(new, r.force)
+                self.run.switch = new.t + self.o.jump_time_s
+                self.hold(new, self.run.switch)
+                return new, None
+            if new_r.force >= case.force_limit and self.comp is not None:
+                # the force there depends on the step of the semi-implicit compaction
+                new_r = self.sized(new, new_r, self.dt_max, False)[1] or new_r
+            if new_r.force >= case.force_limit:
+                if np.all(new.h >= new.gap * FULL) and not np.all(st.h >= st.gap * FULL):
+                    st, r = new, new_r  # the limit comes with the filling of the cavity
+                else:
+                    st, r = self._locate_switch(st, r, dt, new_r)
+                break
+            st, r = new, new_r
+        if r is None:
+            raise SolverError(f"configuration '{case.id}': the charge fills the cavity at first contact")
+        self.run.switch = st.t
+        self.record(st, case.force_limit)
+        return st, r
+
+    def _locate_switch(self, st: State, r: Rates, dt: float, hi: Rates) -> tuple[State, Rates]:
+        """Step from ``st`` that lands on the force limit (regula falsi in the step size)."""
+        F_lim = self.case.force_limit
+        lo_dt, lo_F, hi_dt, hi_F = 0.0, r.force, dt, hi.force
+        new, new_r = self.advance(st, r, dt), hi
+        for _ in range(6):
+            trial = lo_dt + (F_lim - lo_F) / (hi_F - lo_F) * (hi_dt - lo_dt)
+            new = self.advance(st, r, trial)
+            new_r = self.rates(new, False)
+            if new_r is None:
+                raise SolverError(f"configuration '{self.case.id}': cavity filled while locating "
+                                  "the force limit")
+            if abs(new_r.force - F_lim) <= 1e-4 * F_lim:
+                break
+            if new_r.force < F_lim:
+                lo_dt, lo_F = trial, new_r.force
+            else:
+                hi_dt, hi_F = trial, new_r.force
+        return new, new_r
+
+    def force_phase(self, st: State) -> None:
+        """Force control from the switch state for the hold time."""
+        case, run = self.case, self.run
+        t_end = run.switch + case.hold
+        dH = max(st.gap - self.gap_end, 0.0) / self.o.hold_steps
+        r = self.rates(st, True)
+        while r is not None and st.t < t_end:
+            limit = min(dH / r.speed if r.speed > 0 else np.inf, t_end - st.t)
+            dt, r2 = self.sized(st, r, limit, True)
+            r = r2 if r2 is not None else r
+            st = self.advance(st, r, min(dt, limit))
+            r = self.rates(st, True)
+            self.record(st, case.force_limit)
+        self.hold(st, t_end)
+
+    def hold(self, st: State, t_end: float) -> None:
+        """Close the record with the force limit held until ``t_end`` (s)."""
+        if t_end > self.run.t[-1] or self.run.force[-1] != self.case.force_limit:
+            self.record(State(max(t_end, self.run.t[-1]), st.gap, st.h, st.sigma), self.case.force_limit)
+        if self.run.t[-1] < self.run.switch + self.case.hold:
+            self.record(State(self.run.switch + self.case.hold, st.gap, st.h, st.sigma),
+                        self.case.force_limit)
