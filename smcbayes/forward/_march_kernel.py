@@ -18,7 +18,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from smcbayes.forward.effects.thermal import CURE_E, GAS_CONSTANT, MAX_CURE_FACTOR, RK4_STEP
-from smcbayes.forward.march import HOLD_NODE_TOL, MAX_STRETCH
+from smcbayes.forward.march import HOLD_NODE_TOL, MAX_STRETCH, STEP_GROWTH
 from smcbayes.forward.result import PHASE_FLOW, PHASE_FORCE, PHASE_FULL
 
 Array = NDArray[np.float64]
@@ -206,42 +206,56 @@ def _solve(tau: Array, q: Array, cum: Array, force: Array, scale: float, kin: fl
 
 
 @_jit
-def _compaction(gap: float, area: float, rp: Array, geo: Array) -> tuple[float, float]:
-    """(P_c, zeta) of the row's state; (inf, 0) for an incompressible row."""
+def _compaction_at(solid: float, rp: Array) -> float:
+    """compaction_pressure P_c(s) (Pa) of the compressibility effect (no end-of-range cut)."""
+    s0 = rp[0]
+    if s0 >= 1.0 or solid >= 1.0:
+        return _INF
+    grow = max(solid / s0, 1.0) ** rp[2] - 1.0
+    return max(rp[1] * grow * (1.0 - s0) / (1.0 - solid), 0.0)
+
+
+@_jit
+def _compaction(gap: float, area: float, dt: float, rp: Array, geo: Array) -> tuple[float, float, float]:
+    """march._compaction for one row: (P_c, zeta, zeta_eff); (inf, 0, 0) if incompressible."""
     s0 = rp[0]
     if s0 >= 1.0:
-        return _INF, 0.0
-    solid = s0 * geo[4] * geo[2] / (gap * area)
+        return _INF, 0.0, 0.0
+    solid = min(s0 * geo[4] * geo[2] / (gap * area), 1.0)
+    pc = _compaction_at(solid, rp)
     if solid >= 1.0 - 1e-9:
-        return _INF, rp[3]
-    grow = max(solid / s0, 1.0) ** rp[2] - 1.0
-    return max(rp[1] * grow * (1.0 - s0) / (1.0 - solid), 0.0), rp[3]
+        pc = _INF
+    ds = 1e-6 * (1.0 - solid)
+    pc_up = _compaction_at(solid + ds, rp)
+    stiff = solid * (pc_up - pc) / ds if math.isfinite(pc) and math.isfinite(pc_up) else _INF
+    return pc, rp[3], rp[3] + dt * stiff
 
 
 @_jit
 def _evaluate(st: Array, dt: float, tau: Array, slip: Array, shear: Array, eta0: float, rp: Array,
               geo: Array, sx: Array, low: Array, high: Array, q: Array, cum: Array,
-              force_t: Array) -> tuple[float, float, float, float]:
-    """march._evaluate for one row; ``st`` = [t, gap, area, delta, phase, switch].
+              force_t: Array) -> tuple[float, float, float, float, float]:
+    """march._evaluate for one row.
 
-    Returns (force N, gap speed V, spreading speed V_s, ram speed) (m/s)."""
+    Returns (force N, gap speed V, spreading speed V_s, ram speed (m/s), balance force N)."""
     t, gap, area, delta = st[0], st[1], st[2], st[3]
     a_m, f_lim = geo[3], geo[6]
     full = area >= a_m * (1.0 - 1e-12)
     fc = st[4] == PHASE_FORCE
     compressible = rp[0] < 1.0
-    pc, zeta = _compaction(gap, area, rp, geo)
+    pc, zeta, zeta_eff = _compaction(gap, area, dt, rp, geo)
     free = geo[8] * -math.expm1(-t / rp[5]) if rp[5] > 0.0 else geo[8]
     a0 = rp[4] / dt + free * rp[6] / f_lim
     t0 = free + delta / dt
     force, speed, spread = f_lim, 0.0, 0.0
+    balance = force
     if (not full) or (not fc and not compressible):
         eta_f, cure = _viscosity(st, rp, geo)
         scale, kin, p = _build(tau, slip, shear, eta0 * eta_f, cure, gap, area, geo, sx, low, high, q,
                                cum, force_t)
         if not fc:
-            force, speed, spread = _speed_control(tau, q, cum, force_t, scale, kin, p, a0, t0, pc,
-                                                  zeta, area, gap)
+            force, speed, spread, balance = _speed_control(tau, q, cum, force_t, scale, kin, p, a0, t0,
+                                                           pc, zeta, zeta_eff, area, gap)
         else:
             spread = _solve(tau, q, cum, force_t, scale, kin, p, 1.0, 0.0, f_lim)[3]
     creep = 0.0
@@ -250,34 +264,49 @@ def _evaluate(st: Array, dt: float, tau: Array, slip: Array, shear: Array, eta0:
     if fc:
         speed = spread + creep
     if compressible and full and not fc:
-        v = _nmax((t0 - a0 * a_m * pc) / (1.0 + a0 * a_m * zeta / gap), 0.0)
-        if not math.isfinite(v):
-            v = 0.0
-        force, speed, spread = a_m * (pc + zeta * v / gap), v, 0.0
-    return force, speed, spread, free * (1.0 - rp[6] * force / f_lim)
+        force, balance, speed = _packing(gap, pc, zeta, zeta_eff, a0, t0, geo)
+        spread = 0.0
+    if fc:
+        balance = force
+    return force, speed, spread, free * (1.0 - rp[6] * balance / f_lim), balance
+
+
+@_jit
+def _packing(gap: float, pc: float, zeta: float, zeta_eff: float, a0: float, t0: float,
+             geo: Array) -> tuple[float, float, float]:
+    """march._packing for one row: (force, balance force, closing speed)."""
+    a_m = geo[3]
+    v = _nmax((t0 - a0 * a_m * pc) / (1.0 + a0 * a_m * zeta_eff / gap), 0.0)
+    if not math.isfinite(v):
+        v = 0.0
+    if v > 0:
+        return a_m * (pc + zeta * v / gap), a_m * (pc + zeta_eff * v / gap), v
+    return a_m * pc, a_m * pc, v
 
 
 @_jit
 def _speed_control(tau: Array, q: Array, cum: Array, force_t: Array, scale: float, kin: float,
-                   p: float, a0: float, t0: float, pc: float, zeta: float, area: float,
-                   gap: float) -> tuple[float, float, float]:
-    """march._speed_control for one row: (force, speed, spread)."""
+                   p: float, a0: float, t0: float, pc: float, zeta: float, zeta_eff: float,
+                   area: float, gap: float) -> tuple[float, float, float, float]:
+    """march._speed_control for one row: (force, speed, spread, balance force)."""
     force = _solve(tau, q, cum, force_t, scale, kin, p, a0, 1.0, t0)[2]
     spread = _nmax(t0 - a0 * force, 0.0)
     speed = spread
     if force > area * pc:
-        if zeta > 0:
-            r = gap / (zeta * area)
-            s1 = _solve(tau, q, cum, force_t, scale, kin, p, a0 + r, 1.0, t0 + pc * gap / zeta)
-            return s1[2], _nmax(t0 - a0 * s1[2], s1[3]), s1[3]
+        if zeta_eff > 0:
+            r = gap / (zeta_eff * area)
+            s1 = _solve(tau, q, cum, force_t, scale, kin, p, a0 + r, 1.0, t0 + pc * gap / zeta_eff)
+            v1 = _nmax(t0 - a0 * s1[2], s1[3])
+            f1 = s1[2] - area * (zeta_eff - zeta) * (v1 - s1[3]) / gap
+            return f1, v1, s1[3], s1[2]
         f2 = area * pc
         s2 = _solve(tau, q, cum, force_t, scale, kin, p, 1.0, 0.0, f2)
-        return f2, t0 - a0 * f2, s2[3]
-    return force, speed, spread
+        return f2, t0 - a0 * f2, s2[3], f2
+    return force, speed, spread, force
 
 
 @_jit
-def _advance(st: Array, force: float, speed: float, spread: float, dt: float, rp: Array,
+def _advance(st: Array, balance: float, speed: float, spread: float, dt: float, rp: Array,
              geo: Array) -> None:
     """march._advance for one active row, in place."""
     a_m = geo[3]
@@ -302,7 +331,7 @@ def _advance(st: Array, force: float, speed: float, spread: float, dt: float, rp
     st[1], st[2] = gap, area
     _advance_state(st, gap0, dt, rp, geo)
     if st[4] != PHASE_FORCE:
-        st[3] = force * rp[4]
+        st[3] = balance * rp[4]
         if fills and s0 < 1.0:
             st[4] = PHASE_FULL
 
@@ -388,11 +417,12 @@ def march_rows(tau: Array, slip: Array, shear: Array, eta0: Array, rp: Array, ge
         prev_force, prev_ram, closing = 0.0, 0.0, dt0
         last = 0
         for it in range(max_iter):
-            force, speed, spread, ram = _evaluate(st, closing, tau, slip[r], shear[r], eta0[r], rp[r],
-                                                  geo, sx, low, high, q, cum, force_t)
+            force, speed, spread, ram, balance = _evaluate(st, closing, tau, slip[r], shear[r], eta0[r],
+                                                           rp[r], geo, sx, low, high, q, cum, force_t)
             if _switch(st, prev, prev_force, force, it == 0, rp[r], geo):
-                force, speed, spread, ram = _evaluate(st, closing, tau, slip[r], shear[r], eta0[r],
-                                                      rp[r], geo, sx, low, high, q, cum, force_t)
+                force, speed, spread, ram, balance = _evaluate(st, closing, tau, slip[r], shear[r],
+                                                               eta0[r], rp[r], geo, sx, low, high, q,
+                                                               cum, force_t)
             rec[0, r, it], rec[1, r, it], rec[2, r, it] = st[0], st[1], st[2]
             rec[3, r, it], rec[4, r, it] = force, force * rp[r, 4]
             rec[5, r, it] = s0 * gap0 * area0 / (st[1] * st[2])
@@ -418,8 +448,9 @@ def march_rows(tau: Array, slip: Array, shear: Array, eta0: Array, rp: Array, ge
             prev[:] = st
             prev_force, prev_ram = force, ram
             if not jump:
-                _advance(st, force, speed, spread, dt, rp[r], geo)
-            closing = dt0 * _stretch(ram, force_rate, ram_rate, v_ref, t_close, f_lim, travel)
+                _advance(st, balance, speed, spread, dt, rp[r], geo)
+            closing = min(max(dt0 * _stretch(ram, force_rate, ram_rate, v_ref, t_close, f_lim, travel),
+                              closing / STEP_GROWTH), closing * STEP_GROWTH)
         switch[r] = st[5]
         for k in range(6):
             rec[k, r, last + 1:] = rec[k, r, last]

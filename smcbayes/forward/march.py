@@ -41,6 +41,8 @@ Array = NDArray[np.float64]
 
 MAX_STRETCH = 4.0
 """largest speed-controlled step, in nominal steps (see :func:`_closing_step`)"""
+STEP_GROWTH = 1.2
+"""largest ratio of consecutive speed-controlled steps"""
 HOLD_NODE_TOL = 1e-6
 """distance (in schedule nodes) within which a time counts as on a hold-schedule node"""
 
@@ -75,12 +77,16 @@ class _State:
 @dataclass
 class _Rates:
     """Result of one balance solve, every field ``(P,)``: force (N), gap speed V,
-    spreading speed V_s and ram speed under that force (m/s)."""
+    spreading speed V_s and ram speed (m/s), and the force of the closing balance (N): the
+    force with the compaction pressure taken at the end of the step (see
+    :func:`_compaction`), which sets the frame deflection; it equals ``force`` except
+    while the charge compacts."""
 
     force: Array
     speed: Array
     spread: Array
     ram: Array | None = None
+    balance: Array | None = None
 
 
 @dataclass(frozen=True)
@@ -115,18 +121,34 @@ def _flow_table(ctx: _Context, st: _State, rows: NDArray[np.int64]) -> FlowTable
     return ft if factor is None else ft.scaled(factor)
 
 
-def _compaction(ctx: _Context, st: _State) -> tuple[Array, Array]:
+def _compaction(ctx: _Context, st: _State, dt: Array) -> tuple[Array, Array, Array]:
+    """Compaction pressure P_c (Pa), bulk viscosity zeta and its effective value over a
+    step ``dt`` (Pa s), each ``(P,)``.
+
+    The pressure enters the closing balance at the end of the step, linearised:
+    zeta_eff = zeta + dt s P_c'(s) (P_c' by a forward difference; the law has a kink at
+    s0).  Taken at the start of the step instead, a stiff compaction law makes the split
+    between spreading and compaction, or the gap and a compliant frame, chatter from step
+    to step (rate-independent compaction, zeta = 0, is the default).
+    """
+    P = st.t.size
     if not ctx.compressible.any():
-        return np.full(st.t.size, np.inf), np.zeros(st.t.size)
-    solid = ctx.solid(st.gap, st.area)
+        return np.full(P, np.inf), np.zeros(P), np.zeros(P)
+    solid = np.minimum(ctx.solid(st.gap, st.area), 1.0)
     pc, zeta = ctx.effects.compaction(ctx.case, ctx.p, solid)
     # a step may end at the pore-free state to round-off; no compaction is left there
-    return np.where(solid >= 1.0 - 1e-9, np.inf, pc), zeta
+    pc = np.where(solid >= 1.0 - 1e-9, np.inf, pc)
+    ds = 1e-6 * (1.0 - solid)
+    pc_up, _ = ctx.effects.compaction(ctx.case, ctx.p, solid + ds)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        stiff = np.where(np.isfinite(pc) & np.isfinite(pc_up), solid * (pc_up - pc) / ds, np.inf)
+    return pc, zeta, zeta + dt * stiff
 
 
-def _speed_control(ft: FlowTable, a0: Array, t0: Array, pc: Array, zeta: Array,
+def _speed_control(ft: FlowTable, a0: Array, t0: Array, pc: Array, zeta: Array, zeta_eff: Array,
                    area: Array, gap: Array) -> _Rates:
-    """Speed-controlled spreading (rows of ``ft``), with compaction where it is active."""
+    """Speed-controlled spreading (rows of ``ft``), with compaction where it is active;
+    ``zeta_eff`` is the effective bulk viscosity of the step (see :func:`_compaction`)."""
     one, zero = np.ones(a0.size), np.zeros(a0.size)
     s0 = ft.solve(a0, one, t0)
     force = s0.force
@@ -134,19 +156,23 @@ def _speed_control(ft: FlowTable, a0: Array, t0: Array, pc: Array, zeta: Array,
     # stiff frame a0 F >> V and the table's interpolation error in F would swamp V
     spread = np.maximum(t0 - a0 * force, 0.0)
     speed = spread.copy()
+    balance = force
     comp = force > area * pc
     if np.any(comp):
-        visc = zeta > 0
+        visc = zeta_eff > 0
         with np.errstate(divide="ignore", invalid="ignore"):
-            r = np.where(visc, gap / (zeta * area), 0.0)
-            s1 = ft.solve(a0 + r, one, t0 + np.where(visc, pc * gap / zeta, 0.0))
+            r = np.where(visc, gap / (zeta_eff * area), 0.0)
+            s1 = ft.solve(a0 + r, one, t0 + np.where(visc, pc * gap / zeta_eff, 0.0))
             v1 = np.maximum(t0 - a0 * s1.force, s1.speed)
+            # the force of the present state: without the end-of-step part of P_c
+            f1 = s1.force - area * (zeta_eff - zeta) * (v1 - s1.speed) / gap
             f2 = np.where(comp, area * pc, 1.0)
             s2 = ft.solve(one, zero, f2)
-        force = np.where(comp, np.where(visc, s1.force, f2), force)
+        balance = np.where(comp, np.where(visc, s1.force, f2), force)
+        force = np.where(comp, np.where(visc, f1, f2), force)
         spread = np.where(comp, np.where(visc, s1.speed, s2.speed), spread)
         speed = np.where(comp, np.where(visc, v1, t0 - a0 * f2), speed)
-    return _Rates(force, speed, spread)
+    return _Rates(force, speed, spread, None, balance)
 
 
 def _evaluate(ctx: _Context, st: _State, dt: Array) -> _Rates:
@@ -160,19 +186,22 @@ def _evaluate(ctx: _Context, st: _State, dt: Array) -> _Rates:
     c, P = ctx.case, st.t.size
     full = st.area >= c.area_mould * (1.0 - 1e-12)
     fc = st.phase == PHASE_FORCE
-    pc, zeta = _compaction(ctx, st)
+    pc, zeta, zeta_eff = _compaction(ctx, st, dt)
     free, beta = ctx.effects.ram_speed(c, ctx.p, st.t, c.set_speed(st.t))
     a0 = ctx.inv_k / dt + free * beta / c.force_limit
     t0 = free + st.delta / dt
     force, speed, spread = np.full(P, c.force_limit), np.zeros(P), np.zeros(P)
+    balance = force.copy()
     rows = np.nonzero(~full | (~fc & ~ctx.compressible))[0]
     if rows.size:
         ft = _flow_table(ctx, st, rows)
         sc_rows, fc_rows = ~fc[rows], fc[rows]
         if np.any(sc_rows):
-            sc = _speed_control(ft, a0[rows], t0[rows], pc[rows], zeta[rows], st.area[rows], st.gap[rows])
+            sc = _speed_control(ft, a0[rows], t0[rows], pc[rows], zeta[rows], zeta_eff[rows],
+                                st.area[rows], st.gap[rows])
             idx = rows[sc_rows]
             force[idx], speed[idx], spread[idx] = sc.force[sc_rows], sc.speed[sc_rows], sc.spread[sc_rows]
+            balance[idx] = sc.balance[sc_rows]
         if np.any(fc_rows):
             limit = np.full(rows.size, c.force_limit)
             spread[rows[fc_rows]] = ft.solve(np.ones(rows.size), np.zeros(rows.size), limit).speed[fc_rows]
@@ -180,15 +209,30 @@ def _evaluate(ctx: _Context, st: _State, dt: Array) -> _Rates:
         creep = np.where((zeta > 0) & np.isfinite(pc),
                          np.maximum(c.force_limit / st.area - pc, 0.0) * st.gap / zeta, 0.0)
     speed = np.where(fc, spread + creep, speed)
-    if ctx.compressible.any():
-        packing = full & ~fc & ctx.compressible
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            v = np.maximum((t0 - a0 * c.area_mould * pc) / (1.0 + a0 * c.area_mould * zeta / st.gap), 0.0)
-        v = np.where(np.isfinite(v), v, 0.0)
-        force = np.where(packing, c.area_mould * (pc + zeta * v / st.gap), force)
+    packing = full & ~fc & ctx.compressible
+    if np.any(packing):
+        f_pack, f_balance, v = _packing(ctx, st, pc, zeta, zeta_eff, a0, t0)
+        force = np.where(packing, f_pack, force)
+        balance = np.where(packing, f_balance, balance)
         speed = np.where(packing, v, speed)
         spread = np.where(packing, 0.0, spread)
-    return _Rates(force, speed, spread, free * (1.0 - beta * force / c.force_limit))
+    balance = np.where(fc, force, balance)
+    return _Rates(force, speed, spread, free * (1.0 - beta * balance / c.force_limit), balance)
+
+
+def _packing(ctx: _Context, st: _State, pc: Array, zeta: Array, zeta_eff: Array, a0: Array,
+             t0: Array) -> tuple[Array, Array, Array]:
+    """A full cavity compacting under speed control: F / A = P_c + zeta_eff V / H with
+    a0 F + V = t0.  Returns the force of the present state and of the balance (N) and the
+    closing speed (m/s), all ``(P,)`` (meaningless in rows that are not packing)."""
+    a_m = ctx.case.area_mould
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        v = np.maximum((t0 - a0 * a_m * pc) / (1.0 + a0 * a_m * zeta_eff / st.gap), 0.0)
+        v = np.where(np.isfinite(v), v, 0.0)
+        moving = v > 0
+        balance = np.where(moving, a_m * (pc + zeta_eff * v / st.gap), a_m * pc)
+        force = np.where(moving, a_m * (pc + zeta * v / st.gap), a_m * pc)
+    return force, balance, v
 
 
 def _setup(case: Case, p: dict[str, Array], effects: EffectStack, table: MaterialTable,
@@ -278,7 +322,7 @@ def _advance(ctx: _Context, st: _State, rates: _Rates, dt: Array, active: NDArra
         gap, area = np.where(dense, gap_s1, gap), np.where(dense, area_s1, area)
         dt = np.where(dense, np.clip(dt_s1, 0.0, dt), dt)
     new.t, new.gap, new.area = st.t + dt, gap, area
-    new.delta = np.where(active & (st.phase != PHASE_FORCE), rates.force * ctx.inv_k, st.delta)
+    new.delta = np.where(active & (st.phase != PHASE_FORCE), rates.balance * ctx.inv_k, st.delta)
     new.extra = ctx.effects.advance(c, ctx.p, st.extra, st.gap, dt)
     if ctx.compressible.any():
         new.phase = np.where(fills & ctx.compressible & (st.phase != PHASE_FORCE), PHASE_FULL,
@@ -355,7 +399,10 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
         prev, prev_force, prev_ram = st.copy(), rates.force, rates.ram
         st = _advance(ctx, st, rates, dt, ~done & ~jump)
         # the next balance is solved for the step it will take, so the step is set here
-        closing = _closing_step(ctx, rates.ram, force_rate, ram_rate)
+        # consecutive steps differ by at most STEP_GROWTH: smooth steps, and a step size
+        # that cannot feed back on the force it is computed from
+        closing = np.clip(_closing_step(ctx, rates.ram, force_rate, ram_rate),
+                          closing / STEP_GROWTH, closing * STEP_GROWTH)
     status = [STATUS_OK if d else "failed: the press programme did not finish within the step limit "
               "(press stalled before the force limit?)" for d in done]
     stack = {k: np.stack(v, axis=1) for k, v in rec.items()}

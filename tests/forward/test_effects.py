@@ -210,3 +210,26 @@ def test_compressible_60_bar_closes_below_4_mm_with_a_late_steep_rise(thesis_con
     assert 15.0 < t_limit < 21.0  # measured 17.9 s
     force = lambda share: np.interp(share * t_limit, res.time_s[0], res.force_kN[0])  # noqa: E731
     assert force(0.6) < 0.1 * 1400.0 < force(0.9)
+
+
+def test_packing_against_a_soft_frame_rises_smoothly(thesis_config: Path) -> None:
+    # rate-independent compaction near the pore-free state is stiffer than the frame; an
+    # explicit compaction pressure made gap and frame deflection overshoot each other
+    # (force increments alternating between zero and double)
+    from smcbayes.forward.march import march
+    from smcbayes.forward.parameters import to_si
+    from smcbayes.forward.squeeze1d import material_table
+
+    project = load_project(thesis_config)
+    model = ForwardModel(project, effects=["compressibility", "press_compliance"])
+    batch = {k: np.array([v]) for k, v in model.space.defaults().items()}
+    batch["k_press_kN_mm"] = np.array([500.0])
+    p = to_si(batch, model.space.parameters)
+    case = model.cases["60-bar-03"]
+    nodes = march(case, p, model.effects, material_table(p, project.material, model.solver.tau),
+                  model.solver.options)
+    n = nodes.count[0]
+    packing = (nodes.area[0, :n] >= case.area_mould * (1 - 1e-12)) & (nodes.time[0, :n] < nodes.switch[0])
+    rise = np.diff(nodes.force[0, :n][packing])
+    assert rise.size > 50 and np.all(rise > 0)
+    assert np.all((rise[1:] / rise[:-1] > 0.5) & (rise[1:] / rise[:-1] < 2.0))
