@@ -102,15 +102,36 @@ def unit_of(space: Any, params: Mapping[str, float]) -> np.ndarray:
 
 
 def emulated_draws(run_dir: Path) -> np.ndarray:
-    """Unit-cube draws ``(N, d)`` of the emulated posterior from ``posterior/posterior.nc``."""
+    """Unit-cube draws ``(N, d)`` of the reported posterior (``posterior`` group of posterior.nc)."""
+    return posterior_samples(run_dir)["reported"]
+
+
+def posterior_samples(run_dir: Path) -> dict[str, Any]:
+    """Samples of ``posterior/posterior.nc`` in the unit cube.
+
+    Returns:
+        ``reported`` ``(N, d)`` (the ``posterior`` group), ``emulator`` ``(M, d)`` (the emcee
+        chains of the emulated posterior) and, when the correction ran, ``weighted``:
+        ``(unit (K, d), normalised weights (K,))`` of the importance sample, else None.
+    """
     import arviz as az
 
     from smcbayes.posterior.stage import load_run
 
     space = load_run(run_dir).space
-    post = az.from_netcdf(str(run_dir / "posterior" / "posterior.nc")).posterior
-    theta = np.column_stack([post[n].values.reshape(-1) for n in space.free_names])
-    return space.to_unit(theta)
+    idata = az.from_netcdf(str(run_dir / "posterior" / "posterior.nc"))
+
+    def unit(group: Any) -> np.ndarray:
+        return space.to_unit(np.column_stack([group[n].values.reshape(-1) for n in space.free_names]))
+
+    reported = unit(idata.posterior)
+    if "importance" not in idata.groups():
+        return {"reported": reported, "emulator": reported, "weighted": None}
+    imp = idata.importance
+    w = np.exp(imp["log_weight"].values.reshape(-1))
+    keep = w > 0
+    return {"reported": reported, "emulator": unit(idata.emulator_posterior),
+            "weighted": (unit(imp)[keep], w[keep] / w[keep].sum())}
 
 
 def write_result(name: str, payload: Mapping[str, Any]) -> Path:

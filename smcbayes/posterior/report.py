@@ -16,17 +16,10 @@ from smcbayes.posterior.summary import (
     correlations,
     stack_components,
     summarise,
+    summarise_weighted,
     to_inference_data,
     warnings_for,
 )
-
-
-def _draws(ctx: Any, chains: list, count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    unit, _ = stack_components(chains)
-    flat = unit.reshape(-1, unit.shape[-1])
-    theta_all = ctx.space.from_unit(flat)
-    pick = rng.choice(flat.shape[0], size=min(count, flat.shape[0]), replace=False)
-    return theta_all, flat[pick]
 
 
 def write_table(path: Path, rows: list) -> None:
@@ -38,41 +31,126 @@ def write_table(path: Path, rows: list) -> None:
             w.writerow([s.name, s.unit] + [f"{v:.6g}" for v in (s.mean, s.sd, s.q05, s.q50, s.q95, s.r_hat, s.ess)])
 
 
-def write_outputs(ctx: Any, emul: EmulatedPosterior, chains: list, budget: dict[str, Any],
-                  settings: Any, rng: np.random.Generator, out_dir: Path) -> dict[str, Any]:
-    """Write NetCDF, tables and figures; returns the summary dictionary."""
+def correction_info(corrected: Any, settings: Any) -> dict[str, Any]:
+    """The ``correction`` block of the summary."""
+    from smcbayes.posterior.correct import K_HAT_WARN
+
+    if corrected is None:
+        return {"enabled": False, "draws": 0, "evaluations": 0}
+    return {"enabled": True, "draws": settings.correct_draws, "evaluations": corrected.evaluations,
+            "k_hat": corrected.k_hat, "ess": corrected.ess, "reliable": bool(corrected.k_hat <= K_HAT_WARN),
+            "settled": corrected.settled, "points": int(corrected.unit.shape[0]), "history": corrected.history}
+
+
+def correction_warnings(corrected: Any) -> list[str]:
+    """Plain-language warnings about the importance weights."""
+    from smcbayes.posterior.correct import K_HAT_WARN
+
+    if corrected is None:
+        return []
+    out = []
+    if not corrected.k_hat <= K_HAT_WARN:
+        out.append(f"importance correction: Pareto k-hat {corrected.k_hat:.2f} > {K_HAT_WARN}: the emulated "
+                   "posterior misses part of the exact one and the corrected numbers are unreliable; "
+                   "raise --correct-draws or --refine")
+    elif not corrected.settled:
+        out.append(f"importance correction did not settle within --correct-draws (importance ESS "
+                   f"{corrected.ess:.0f}, k-hat {corrected.k_hat:.2f}): the corrected numbers are indicative; "
+                   "raise --correct-draws or --refine")
+    return out
+
+
+def _tables(ctx: Any, chains: list, corrected: Any, rng: np.random.Generator) -> dict[str, Any]:
+    """Raw (emulator) and reported (corrected if available) summaries, correlations, draws."""
+    space = ctx.space
+    raw = summarise(space, chains)
+    unit, _ = stack_components(chains)
+    flat = unit.reshape(-1, unit.shape[-1])
+    out = {"raw": raw, "raw_corr": correlations(space, space.from_unit(flat)), "emulator_unit": flat}
+    if corrected is None:
+        out.update(table=raw, corr=out["raw_corr"], unit=flat, resampled=None)
+        return out
+    r_hat = np.array([s.r_hat for s in raw])
+    table = summarise_weighted(space, corrected.unit, corrected.weights, r_hat, corrected.ess)
+    keep = corrected.weights > 0
+    corr = correlations(space, space.from_unit(corrected.unit[keep]), weights=corrected.weights[keep])
+    resampled = corrected.resample(max(4000, corrected.unit.shape[0]), rng)
+    out.update(table=table, corr=corr, unit=resampled, resampled=resampled)
+    return out
+
+
+def _corr_block(corr: tuple) -> dict[str, Any]:
+    matrix, labels, pairs = corr
+    return {"labels": labels, "matrix": matrix.tolist(), "strongest": [{"a": a, "b": b, "r": r} for a, b, r in pairs]}
+
+
+def _bands_and_figures(ctx: Any, t: dict[str, Any], budget: dict[str, Any], settings: Any,
+                       rng: np.random.Generator, out_dir: Path) -> tuple[dict, int, list[str]]:
+    """Predictive bands from the reported draws, corner, correlation and band figures.
+
+    Returns the bands, the forward runs they took and the validation ids.
+    """
     from smcbayes.commands.common import measured_force
     from smcbayes.posterior.plots import bands_plot, corner_plot, correlation_plot
-    from smcbayes.posterior.stage import true_log_loss
 
-    space = ctx.space
-    table = summarise(space, chains)
-    warns = warnings_for(table, chains)
-    theta_all, draw_unit = _draws(ctx, chains, settings.draws, rng)
-    matrix, labels, pairs = correlations(space, theta_all)
-    idata = to_inference_data(space, chains, {"n_eff": budget["n_eff_total"],
-                                              "functions": emul.functions})
-    idata.to_netcdf(str(out_dir / "posterior.nc"))
-    write_table(out_dir / "summary.csv", table)
-    check = check_emulator(draw_unit, lambda u: emul.log_loss(u),
-                           lambda u: true_log_loss(ctx, space.from_unit(u)), emul.n_eff)
-    p = ctx.problem
+    space, p, unit = ctx.space, ctx.problem, t["unit"]
+    draw_unit = unit[rng.choice(unit.shape[0], size=min(settings.draws, unit.shape[0]), replace=False)]
     val_ids = p.model.ids("validation")
     band_ids = val_ids or p.train_ids
     measured = measured_force(p.project, band_ids)
     noise = {cid: float(np.sqrt(v)) for cid, v in budget["mse_kN2"].items()}
     bands = predictive_bands(p.model, space.from_unit(draw_unit), band_ids, measured, noise, rng)
     fig = out_dir / "figures"
-    corner_plot(space, theta_all[rng.choice(theta_all.shape[0], min(20000, theta_all.shape[0]), replace=False)],
-                fig / "corner", p.truth)
+    corner_unit = unit[rng.choice(unit.shape[0], min(20000, unit.shape[0]), replace=False)]
+    corner_plot(space, space.from_unit(corner_unit), fig / "corner", p.truth)
     if space.dim > 1:
-        correlation_plot(matrix, labels, fig / "correlations")
+        correlation_plot(t["corr"][0], t["corr"][1], fig / "correlations")
     kind = "validation" if val_ids else "training (no validation configuration)"
     bands_plot(bands, fig / "bands", f"posterior predictive bands on {kind} configurations")
+    return bands, int(draw_unit.shape[0]) * len(band_ids), val_ids
+
+
+def write_outputs(ctx: Any, emul: EmulatedPosterior, chains: list, budget: dict[str, Any],
+                  settings: Any, rng: np.random.Generator, out_dir: Path,
+                  corrected: Any = None) -> dict[str, Any]:
+    """Write NetCDF, tables and figures; returns the summary dictionary.
+
+    With ``corrected`` (an importance-corrected sample) the reported posterior (table,
+    correlations, NetCDF ``posterior`` group, corner plot, predictive bands) is the
+    corrected one and the emulator's is kept alongside (``emulator_parameters``,
+    ``emulator_correlation``, ``summary_emulator.csv``, NetCDF ``emulator_posterior``).
+    """
+    from smcbayes.posterior.stage import true_log_loss
+
+    space = ctx.space
+    t = _tables(ctx, chains, corrected, rng)
+    warns = warnings_for(t["raw"], chains)
+    if corrected is not None:
+        # the reported numbers are the corrected ones; the chains only shaped the proposal
+        warns = [f"emulator chains (proposal of the correction): {w}" for w in warns]
+    warns += correction_warnings(corrected)
+    attrs = {"n_eff": budget["n_eff_total"], "functions": emul.functions,
+             "method": "emulator + importance correction" if corrected is not None else "emulator"}
+    if corrected is not None:
+        attrs.update(k_hat=corrected.k_hat, importance_ess=corrected.ess, correction_evaluations=corrected.evaluations)
+    to_inference_data(space, chains, attrs, corrected, t["resampled"]).to_netcdf(str(out_dir / "posterior.nc"))
+    write_table(out_dir / "summary.csv", t["table"])
+    if corrected is not None:
+        write_table(out_dir / "summary_emulator.csv", t["raw"])
+    emu = t["emulator_unit"]
+    check_unit = emu[rng.choice(emu.shape[0], size=min(settings.draws, emu.shape[0]), replace=False)]
+    check = check_emulator(check_unit, lambda u: emul.log_loss(u),
+                           lambda u: true_log_loss(ctx, space.from_unit(u)), emul.n_eff)
+    bands, band_runs, val_ids = _bands_and_figures(ctx, t, budget, settings, rng, out_dir)
+    corr_info = correction_info(corrected, settings)
     return {
-        "parameters": [asdict(s) for s in table], "warnings": warns,
-        "correlation": {"labels": labels, "matrix": matrix.tolist(),
-                        "strongest": [{"a": a, "b": b, "r": r} for a, b, r in pairs]},
+        "method": attrs["method"],
+        "parameters": [asdict(s) for s in t["table"]], "warnings": warns,
+        "correlation": _corr_block(t["corr"]),
+        "emulator_parameters": [asdict(s) for s in t["raw"]], "emulator_correlation": _corr_block(t["raw_corr"]),
+        "correction": corr_info,
+        "forward_evaluations": {"correction": corr_info["evaluations"], "emulator_check": check.points,
+                                "bands": band_runs},
         "effective_points": budget, "emulator_check": check.as_dict(),
         "sampler": [{"steps": c.steps, "burn": c.burn, "thin": c.thin, "converged": c.converged,
                      "tau_max": float(np.max(c.tau)), "acceptance_median": float(np.median(c.acceptance))}
@@ -80,5 +158,5 @@ def write_outputs(ctx: Any, emul: EmulatedPosterior, chains: list, budget: dict[
         "bands": {cid: {"coverage50": b.coverage50, "coverage90": b.coverage90, "noise_kN": b.noise_kN,
                         "draws": b.draws, "role": "validation" if val_ids else "train"}
                   for cid, b in bands.items()},
-        "truth": p.truth,
+        "truth": ctx.problem.truth,
     }

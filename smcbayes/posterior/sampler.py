@@ -24,6 +24,8 @@ class SamplerSettings:
         check_every: steps between autocorrelation checks.
         tau_factor: stop once steps > tau_factor * tau_max ...
         tau_rtol: ... and tau changed by less than this fraction since the last check.
+        moves: ``stretch`` (emcee's default) or ``de`` (differential evolution 80 % +
+            snooker 20 %, which mixes faster along narrow correlated ridges).
     """
 
     walkers: int = 32
@@ -32,6 +34,7 @@ class SamplerSettings:
     check_every: int = 250
     tau_factor: float = 50.0
     tau_rtol: float = 0.05
+    moves: str = "stretch"
 
 
 @dataclass(frozen=True)
@@ -79,7 +82,10 @@ def run_ensemble(log_prob: Callable[[Array], Array], d: int, settings: SamplerSe
     import emcee
 
     walkers = max(settings.walkers, 2 * d + 2)
-    sampler = emcee.EnsembleSampler(walkers, d, log_prob, vectorize=True)
+    moves = None
+    if settings.moves == "de":
+        moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
+    sampler = emcee.EnsembleSampler(walkers, d, log_prob, vectorize=True, moves=moves)
     # emcee draws its moves from its own RandomState: seed it from our generator
     sampler.random_state = np.random.RandomState(int(rng.integers(2**31 - 1))).get_state()
     state = _start(log_prob, d, walkers, rng, centre)

@@ -9,8 +9,10 @@ measure emulator uncertainty, not sampler convergence.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -55,20 +57,63 @@ def stack_components(chains: Sequence[Chains]) -> tuple[Array, Array]:
     return samples, logp
 
 
-def to_inference_data(space: ParameterSpace, chains: Sequence[Chains], attrs: dict):
-    """arviz InferenceData with the posterior in user units and sampler statistics."""
-    import arviz as az
-
+def _chain_groups(space: ParameterSpace, chains: Sequence[Chains]) -> tuple[dict, dict, Array]:
+    """Posterior and sample-stats dictionaries of the emcee chains (user units)."""
     unit, logp = stack_components(chains)
     n_chain, n_draw, d = unit.shape
     theta = space.from_unit(unit.reshape(-1, d)).reshape(n_chain, n_draw, d)
     posterior = {name: theta[..., j] for j, name in enumerate(space.free_names)}
     acceptance = np.concatenate([c.acceptance for c in chains])
-    sample_stats = {"lp": logp, "acceptance_fraction": np.repeat(acceptance[:, None], n_draw, axis=1)}
+    stats = {"lp": logp, "acceptance_fraction": np.repeat(acceptance[:, None], n_draw, axis=1)}
     component = np.repeat(np.arange(len(chains)), [c.samples.shape[1] for c in chains])
+    return posterior, stats, component
+
+
+def to_inference_data(space: ParameterSpace, chains: Sequence[Chains], attrs: dict, corrected=None,
+                      resampled: Array | None = None):
+    """arviz InferenceData with the posterior in user units and sampler statistics.
+
+    Without a correction the ``posterior`` group holds the emcee chains of the emulated
+    posterior.  With one (``corrected``, an
+    :class:`~smcbayes.posterior.correct.ImportanceSample`, and ``resampled``, its
+    equal-weight resample ``(R, d)`` in the unit cube) the ``posterior`` group is the
+    resample (one chain, exact log posterior as ``lp``), the emcee chains move to the
+    groups ``emulator_posterior`` and ``emulator_sample_stats``, and the weighted sample
+    itself is in ``importance`` (parameters, ``log_weight`` Pareto-smoothed and normalised,
+    ``log_target``, ``iteration``).
+    """
+    import arviz as az
+
+    with warnings.catch_warnings():
+        # arviz guesses the layout from the shapes and warns when an ensemble has more
+        # walkers than draws; the arrays are (chain, draw) by construction
+        warnings.simplefilter("ignore", UserWarning)
+        return _inference_data(az, space, chains, attrs, corrected, resampled)
+
+
+def _inference_data(az: Any, space: ParameterSpace, chains: Sequence[Chains], attrs: dict, corrected: Any,
+                    resampled: Array | None) -> Any:
+    posterior, stats, component = _chain_groups(space, chains)
     clean = {k: (float(v) if isinstance(v, np.floating) else v) for k, v in attrs.items()}
-    return az.from_dict(posterior=posterior, sample_stats=sample_stats,
-                        coords={"component": component}, attrs=clean)
+    if corrected is None:
+        return az.from_dict(posterior=posterior, sample_stats=stats, coords={"component": component}, attrs=clean)
+    theta = space.from_unit(resampled)
+    lp = corrected.log_target[_rows_of(corrected.unit, resampled)]
+    idata = az.from_dict(posterior={n: theta[None, :, j] for j, n in enumerate(space.free_names)},
+                         sample_stats={"lp": lp[None, :]}, attrs=clean)
+    weighted = space.from_unit(np.clip(corrected.unit, 0.0, 1.0))
+    importance = {n: weighted[None, :, j] for j, n in enumerate(space.free_names)}
+    importance.update(log_weight=corrected.log_weight[None, :], log_target=corrected.log_target[None, :],
+                      iteration=corrected.iteration[None, :].astype(float))
+    idata.add_groups({"emulator_posterior": posterior, "emulator_sample_stats": stats,
+                      "importance": importance}, coords={"component": component})
+    return idata
+
+
+def _rows_of(unit: Array, picked: Array) -> Array:
+    """Row index in ``unit`` ``(N, d)`` of every row of ``picked`` ``(R, d)`` (resampled copies)."""
+    lookup = {row.tobytes(): i for i, row in enumerate(unit)}
+    return np.array([lookup[row.tobytes()] for row in picked], dtype=int)
 
 
 def summarise(space: ParameterSpace, chains: Sequence[Chains]) -> list[ParameterSummary]:
@@ -94,12 +139,35 @@ def summarise(space: ParameterSpace, chains: Sequence[Chains]) -> list[Parameter
     return out
 
 
-def correlations(space: ParameterSpace, theta: Array, top: int = 3,
-                 threshold: float = 0.3) -> tuple[Array, list[str], list[tuple[str, str, float]]]:
+def summarise_weighted(space: ParameterSpace, unit: Array, weights: Array, r_hat: Array,
+                       ess: float) -> list[ParameterSummary]:
+    """Summary of a weighted sample (the importance-corrected posterior).
+
+    Args:
+        unit: points in the unit cube, ``(N, d)``.
+        weights: normalised importance weights, ``(N,)``.
+        r_hat: R-hat of the emulator chains that seeded the proposal, ``(d,)``.
+        ess: importance effective sample size (the same for every parameter).
+    """
+    from smcbayes.posterior.correct import weighted_moments, weighted_quantile
+
+    theta = space.from_unit(unit)
+    mean, sd, _ = weighted_moments(theta, weights)
+    out = []
+    for j, p in enumerate(space.free):
+        q = weighted_quantile(theta[:, j], weights, [0.05, 0.5, 0.95])
+        out.append(ParameterSummary(p.name, p.unit, float(mean[j]), float(sd[j]), float(q[0]), float(q[1]),
+                                    float(q[2]), float(r_hat[j]), float(ess)))
+    return out
+
+
+def correlations(space: ParameterSpace, theta: Array, top: int = 3, threshold: float = 0.3,
+                 weights: Array | None = None) -> tuple[Array, list[str], list[tuple[str, str, float]]]:
     """Correlation matrix in sampled coordinates and the strongest pairs (|r| >= threshold).
 
     Args:
         theta: draws in user units, ``(N, d)``.
+        weights: normalised importance weights ``(N,)``, or None for equal weights.
 
     Returns:
         ``(matrix (d, d), labels, [(name_i, name_j, r), ...])`` strongest first.
@@ -107,7 +175,12 @@ def correlations(space: ParameterSpace, theta: Array, top: int = 3,
     x, labels = sampled_coordinates(space, theta)
     if x.shape[1] < 2:
         return np.ones((1, 1)), labels, []
-    r = np.corrcoef(x, rowvar=False)
+    if weights is None:
+        r = np.corrcoef(x, rowvar=False)
+    else:
+        from smcbayes.posterior.correct import weighted_moments
+
+        r = weighted_moments(x, weights)[2]
     pairs = [(space.free_names[i], space.free_names[j], float(r[i, j]))
              for i in range(r.shape[0]) for j in range(i + 1, r.shape[0])]
     pairs = [pq for pq in sorted(pairs, key=lambda t: -abs(t[2])) if abs(pq[2]) >= threshold]

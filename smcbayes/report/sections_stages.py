@@ -21,6 +21,25 @@ def _num(x: Any) -> float:
     return float(x) if isinstance(x, (int, float)) and x == x else float("nan")
 
 
+def _correction_paragraph(corr: dict[str, Any]) -> Paragraph:
+    """Plain words on the importance correction of the emulated posterior."""
+    k_hat = _num(corr.get("k_hat"))
+    if corr.get("reliable") and corr.get("settled"):
+        verdict = "the weights are reliable and the corrected posterior can be trusted"
+    elif k_hat > 0.7:
+        verdict = ("the weights are unreliable (k-hat above 0.7): the proposal misses part of "
+                   "the posterior, so treat the numbers as indicative")
+    else:
+        verdict = ("the correction did not settle within its draws: treat the numbers as "
+                   "indicative")
+    return Paragraph(
+        f"The emulated posterior was corrected by importance sampling with the forward model: "
+        f"{fmt(corr.get('evaluations'))} forward runs, Pareto k-hat {fmt(k_hat, 2)}, importance "
+        f"effective sample size {fmt(corr.get('ess'), 3)}; {verdict}. The table and figures "
+        "show the corrected posterior."
+    )
+
+
 def _diagnostics(post: dict[str, Any]) -> list:
     params = post.get("parameters") or []
     sampler = post.get("sampler") or []
@@ -38,12 +57,23 @@ def _diagnostics(post: dict[str, Any]) -> list:
         if r_hat <= R_HAT_LIMIT
         else "the walkers do not yet agree, so treat the numbers as indicative"
     )
-    blocks: list = [
-        Paragraph(
-            f"{words} (steps per chain: {steps}); the largest R-hat is {fmt(r_hat, 3)} "
-            f"and the smallest effective sample size {fmt(ess, 3)}: {quality}."
-        )
-    ]
+    corr = post.get("correction") or {}
+    if corr.get("enabled"):
+        # R-hat belongs to the emulator chains, the effective sample size to the weights
+        blocks: list = [
+            Paragraph(
+                f"{words} on the emulator (steps per chain: {steps}); the largest R-hat of its "
+                f"chains is {fmt(r_hat, 3)}: {quality}."
+            ),
+            _correction_paragraph(corr),
+        ]
+    else:
+        blocks = [
+            Paragraph(
+                f"{words} (steps per chain: {steps}); the largest R-hat is {fmt(r_hat, 3)} "
+                f"and the smallest effective sample size {fmt(ess, 3)}: {quality}."
+            )
+        ]
     check = post.get("emulator_check") or {}
     if check:
         blocks.append(

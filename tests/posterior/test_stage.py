@@ -53,7 +53,11 @@ def test_netcdf_opens_with_arviz(run_dir: Path) -> None:
 
     idata = az.from_netcdf(str(run_dir / "posterior" / "posterior.nc"))
     assert set(idata.posterior.data_vars) == {"tau_c_MPa", "m"}
-    assert "acceptance_fraction" in idata.sample_stats
+    # the corrected posterior is reported; the emcee chains of the emulator are kept
+    assert "acceptance_fraction" in idata.emulator_sample_stats
+    assert set(idata.emulator_posterior.data_vars) == {"tau_c_MPa", "m"}
+    w = np.exp(idata.importance["log_weight"].values.reshape(-1))
+    assert abs(w.sum() - 1.0) < 1e-9
     summary = az.summary(idata)
     assert np.all(np.isfinite(summary["mean"]))
 
@@ -66,6 +70,17 @@ def test_outputs_written(run_dir: Path) -> None:
     info = json.loads((out / "summary.json").read_text())
     assert info["emulator_check"]["points"] > 0
     assert info["effective_points"]["n_eff_total"] > 0
+    assert (out / "summary_emulator.csv").is_file()
+
+
+def test_correction_is_reported(run_dir: Path) -> None:
+    info = json.loads((run_dir / "posterior" / "summary.json").read_text())
+    corr = info["correction"]
+    assert corr["enabled"] and 0 < corr["evaluations"] <= corr["draws"]
+    assert np.isfinite(corr["k_hat"]) and corr["ess"] > 1
+    assert info["forward_evaluations"]["correction"] == corr["evaluations"]
+    assert info["forward_evaluations"]["total"] >= corr["evaluations"] + info["forward_evaluations"]["refine"]
+    assert [p["name"] for p in info["emulator_parameters"]] == [p["name"] for p in info["parameters"]]
 
 
 def test_missing_run_dir_is_input_error(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

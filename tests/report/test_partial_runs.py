@@ -153,3 +153,20 @@ def test_rebuilt_command_lines_parse(tmp_path: Path) -> None:
     assert parsed[0].effect == ["press_compliance"] and parsed[0].set == ["n=0.3"]
     assert parsed[0].seed == 3 and parsed[0].budget == 5 and parsed[0].external is None
     assert parsed[1].walkers == 8 and parsed[1].seed == 2
+
+
+@pytest.mark.parametrize(("correction", "expected"), [
+    ({"enabled": True, "evaluations": 671, "k_hat": 0.06, "ess": 512.0, "reliable": True,
+      "settled": True}, "can be trusted"),
+    ({"enabled": True, "evaluations": 6000, "k_hat": 0.9, "ess": 20.0, "reliable": False,
+      "settled": False}, "unreliable (k-hat above 0.7)"),
+])
+def test_posterior_section_states_the_importance_correction(tmp_path: Path, correction: dict,
+                                                            expected: str) -> None:
+    run = fake_run(tmp_path)
+    (run / "posterior").mkdir()
+    summary = {"parameters": [{"name": "n", "r_hat": 1.01, "ess": 512.0}], "correction": correction}
+    (run / "posterior" / "summary.json").write_text(json.dumps(summary), encoding="utf-8")
+    write_report(run, formats=("md",))
+    text = next(run.glob("report*.md")).read_text(encoding="utf-8")
+    assert f"{correction['evaluations']} forward runs" in text and expected in text

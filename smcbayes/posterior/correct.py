@@ -1,0 +1,371 @@
+"""Importance-sampling correction of the emulated posterior with the forward model.
+
+The emulated posterior (GP of log(loss) + emcee) is cheap but inherits the emulator's
+errors: where the GP is wrong the posterior is too narrow or offset.  The forward model
+itself gives the *exact* unnormalised posterior on the unit cube of the sampled
+coordinates,
+
+    pi(u) = 1[u in cube] * exp(-(N_eff / 2) * log L(u)),
+
+(the same likelihood the emulator approximates, with the same N_eff and uniform prior),
+at one batched forward run per point.  The correction uses the emulated posterior only
+as a *proposal* and reweights with pi: adaptive multiple importance sampling (AMIS;
+Cornuet, Marin, Mira and Robert, Scand. J. Stat. 39, 2012) with a defensive proposal
+
+    q_t(u) = (1 - beta) * (1/M) * sum_m t_nu(u; c_m, h_t^2 Sigma_t) + beta * 1[u in cube],
+
+a mixture of M Student-t kernels (nu = 5, heavy tails) centred at points c_m drawn from
+the current sample (the emcee draws of the emulator at t = 0, then the weighted exact
+sample), with the sample's covariance Sigma_t and Scott's bandwidth h_t (widened at
+t = 0, where the emulator may be offset), plus a share beta of the uniform prior so that
+no region of the prior box has zero proposal density.  After each iteration every point
+evaluated so far, u_i with i = 1..N, is weighted against the mixture of all proposals used
+(the "deterministic mixture" or balance-heuristic weights, which recycle every forward
+run):
+
+    log w_i = log pi(u_i) - log sum_s (D_s / N) q_s(u_i),
+
+D_s being the number of points drawn from q_s.  The next proposal is fitted to the
+weighted sample with the weights tempered, w^gamma with the largest gamma <= 1 that keeps
+an effective sample size of at least ``ess_floor``, so that a few heavy points cannot
+collapse it.
+
+The final weights are Pareto-smoothed (PSIS; Vehtari, Simpson, Gelman, Yao and Gabry,
+JMLR 25, 2024): the largest raw weights are replaced by expected order statistics of a
+generalised Pareto distribution fitted to them.  Its shape k-hat is the reliability
+diagnostic: k-hat < 0.5 the weighted estimates are reliable, 0.5-0.7 usable, > 0.7 the
+proposal misses part of the posterior (more draws or refinement needed).  The importance
+effective sample size is ESS = 1 / sum_i w~_i^2 with w~ the normalised smoothed weights.
+Iterations stop once ESS and k-hat meet their targets (after at least two) or when the
+draws are spent.
+"""
+
+from __future__ import annotations
+
+import sys
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import gammaln, logsumexp
+
+Array = NDArray[np.float64]
+K_HAT_WARN = 0.7
+"""Pareto k-hat above which the corrected estimates are unreliable."""
+
+
+@dataclass(frozen=True)
+class CorrectionSettings:
+    """Settings of the importance-sampling correction.
+
+    Attributes:
+        draws: most proposal draws in total (points outside the prior box cost no forward run).
+        per_iteration: proposal draws per AMIS iteration.
+        ess_target, k_target: stop early, after at least two iterations, once the smoothed
+            weights have an ESS >= ess_target and a Pareto k-hat <= k_target.
+        centres: kernels M of the mixture proposal.
+        nu: degrees of freedom of the Student-t kernels.
+        defensive: share beta of the uniform prior in every proposal.
+        widen_first: bandwidth factor of the first proposal (fitted to emulator draws).
+        widen: bandwidth factor of the later proposals.
+        ess_floor: minimum effective sample size of the tempered weights a proposal is fitted to.
+        local: kernels shaped by the centres' nearest neighbours (see :func:`fit_proposal`).
+        batch: points per forward call.
+    """
+
+    draws: int = 6000
+    per_iteration: int = 500
+    ess_target: float = 500.0
+    k_target: float = 0.5
+    centres: int = 200
+    nu: float = 5.0
+    defensive: float = 0.1
+    widen_first: float = 1.5
+    widen: float = 1.0
+    ess_floor: float = 50.0
+    batch: int = 500
+    local: bool = False
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """Defensive mixture of Student-t kernels on the unit cube.
+
+    Attributes:
+        centres: kernel centres, ``(M, d)``.
+        chol: Cholesky factors of the kernel scale matrices, ``(M, d, d)``.
+        nu: degrees of freedom.
+        defensive: share of the uniform density on the unit cube.
+    """
+
+    centres: Array
+    chol: Array
+    nu: float
+    defensive: float
+
+    def sample(self, count: int, rng: np.random.Generator) -> Array:
+        """``count`` points ``(count, d)`` (some may fall outside the cube)."""
+        m, d = self.centres.shape
+        uniform = rng.random(count) < self.defensive
+        out = rng.random((count, d))
+        k = int((~uniform).sum())
+        if k:
+            idx = rng.integers(m, size=k)
+            z = np.einsum("kde,ke->kd", self.chol[idx], rng.standard_normal((k, d)))
+            z *= np.sqrt(self.nu / rng.chisquare(self.nu, size=(k, 1)))
+            out[~uniform] = self.centres[idx] + z
+        return out
+
+    def log_pdf(self, u: Array, chunk: int = 1000) -> Array:
+        """Log density at ``u`` ``(N, d)``, ``(N,)``."""
+        u = np.atleast_2d(u)
+        m, d = self.centres.shape
+        nu = self.nu
+        logdet = np.sum(np.log(np.diagonal(self.chol, axis1=1, axis2=2)), axis=1)
+        const = (gammaln(0.5 * (nu + d)) - gammaln(0.5 * nu) - 0.5 * d * np.log(nu * np.pi) - logdet - np.log(m))
+        inv = np.linalg.inv(self.chol)  # (M, d, d)
+        out = np.empty(u.shape[0])
+        for s in range(0, u.shape[0], chunk):
+            diff = u[s:s + chunk, None, :] - self.centres[None, :, :]  # (n, M, d)
+            z = np.einsum("mde,nme->nmd", inv, diff)
+            maha = np.sum(z * z, axis=2)
+            out[s:s + chunk] = logsumexp(const[None, :] - 0.5 * (nu + d) * np.log1p(maha / nu), axis=1)
+        inside = np.all((u >= 0.0) & (u <= 1.0), axis=1)
+        log_uniform = np.where(inside, 0.0, -np.inf)
+        with np.errstate(divide="ignore"):
+            return np.logaddexp(np.log1p(-self.defensive) + out, np.log(self.defensive) + log_uniform)
+
+
+def ess_of(log_w: Array) -> float:
+    """Effective sample size 1 / sum w~^2 of (unnormalised) log weights."""
+    lw = np.asarray(log_w, dtype=float)
+    lw = lw[np.isfinite(lw)]
+    if lw.size == 0:
+        return 0.0
+    w = np.exp(lw - logsumexp(lw))
+    return float(1.0 / np.sum(w * w))
+
+
+def temper(log_w: Array, floor: float) -> Array:
+    """``gamma * log_w`` with the largest gamma in (0, 1] whose ESS is at least ``floor``."""
+    lw = np.asarray(log_w, dtype=float)
+    floor = min(floor, 0.5 * np.isfinite(lw).sum())
+    if ess_of(lw) >= floor:
+        return lw
+    lo, hi = 0.0, 1.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ess_of(mid * lw) >= floor else (lo, mid)
+    return lo * lw
+
+
+def _weighted_cov(x: Array, w: Array) -> Array:
+    """Weighted covariance ``(d, d)`` of ``x`` ``(N, d)`` with normalised weights ``w``."""
+    mean = w @ x
+    return (x - mean).T @ ((x - mean) * w[:, None]) / max(1.0 - np.sum(w * w), 1e-12)
+
+
+def _local_covs(u: Array, w: Array, centres: Array, cov: Array, neighbours: int) -> Array:
+    """Weighted covariance of the ``neighbours`` nearest points (global Mahalanobis metric)
+    around each centre, ``(M, d, d)``: the kernels follow a curved ridge."""
+    live = w > 0
+    x, wl = u[live], w[live]
+    k = min(neighbours, x.shape[0])
+    prec = np.linalg.inv(cov)
+    out = np.empty((centres.shape[0], u.shape[1], u.shape[1]))
+    for i, c in enumerate(centres):
+        diff = x - c
+        near = np.argpartition(np.einsum("nd,de,ne->n", diff, prec, diff), k - 1)[:k]
+        wn = wl[near] / wl[near].sum()
+        out[i] = _weighted_cov(x[near], wn)
+    return out
+
+
+def fit_proposal(u: Array, log_w: Array | None, settings: CorrectionSettings, rng: np.random.Generator,
+                 widen: float = 1.0) -> Proposal:
+    """Mixture proposal fitted to a (weighted) sample ``u`` ``(N, d)``.
+
+    Centres are drawn from the sample with the tempered weights.  Kernel scales: the
+    weighted covariance times Scott's bandwidth squared (for the effective number of
+    centres) times ``widen`` squared.  With ``settings.local`` (weighted samples only), half
+    of it is replaced by the covariance of each centre's weighted nearest neighbours, so the
+    kernels follow a curved ridge while keeping the global spread as a floor.
+    """
+    n, d = u.shape
+    lw = np.zeros(n) if log_w is None else temper(log_w, settings.ess_floor)
+    ok = np.isfinite(lw)
+    w = np.zeros(n)
+    w[ok] = np.exp(lw[ok] - logsumexp(lw[ok]))
+    cov = _weighted_cov(u, w)
+    # a floor keeps a degenerate sample (one heavy point, a parameter at a bound) from
+    # producing a singular kernel
+    cov += np.diag(np.maximum(1e-4 - np.diag(cov), 0.0)) + 1e-9 * np.eye(d)
+    m = min(settings.centres, n)
+    centres = u[rng.choice(n, size=m, replace=True, p=w)]
+    ess = ess_of(lw) if log_w is not None else float(n)
+    m_eff = min(m, ess)
+    h = widen * max(m_eff, 1.0) ** (-1.0 / (d + 4))
+    scale = np.broadcast_to(h * h * cov, (m, d, d)).copy()
+    if log_w is not None and settings.local and ess >= 4 * d:
+        local = _local_covs(u, w, centres, cov, max(4 * d, int(ess // 2)))
+        scale = 0.5 * scale + 0.5 * local * (widen * 1.5) ** 2 + 1e-9 * np.eye(d)
+    return Proposal(centres, np.linalg.cholesky(scale), settings.nu, settings.defensive)
+
+
+@dataclass
+class ImportanceSample:
+    """Weighted exact posterior sample.
+
+    Attributes:
+        unit: points in the unit cube, ``(N, d)``.
+        log_target: exact log posterior (unnormalised) at the points, ``(N,)``; -inf outside
+            the cube or where the forward model failed.
+        log_weight: Pareto-smoothed normalised log weights, ``(N,)``.
+        iteration: AMIS iteration that drew each point, ``(N,)``.
+        k_hat: Pareto shape of the weight tail.
+        ess: importance effective sample size of the smoothed weights.
+        evaluations: forward evaluations used (points inside the cube).
+        history: per iteration: draws, evaluations, ESS and k-hat of the smoothed weights so far.
+        settled: the ESS and k-hat targets were met (else the draws ran out first).
+    """
+
+    unit: Array
+    log_target: Array
+    log_weight: Array
+    iteration: Array
+    k_hat: float
+    ess: float
+    evaluations: int
+    history: list[dict[str, float]] = field(default_factory=list)
+    settled: bool = False
+
+    @property
+    def weights(self) -> Array:
+        """Normalised weights, ``(N,)``."""
+        return np.exp(self.log_weight)
+
+    def resample(self, count: int, rng: np.random.Generator) -> Array:
+        """Equal-weight set of ``count`` points ``(count, d)`` (systematic resampling)."""
+        cdf = np.cumsum(self.weights)
+        cdf /= cdf[-1]
+        pos = (rng.random() + np.arange(count)) / count
+        return self.unit[np.minimum(np.searchsorted(cdf, pos), self.unit.shape[0] - 1)]
+
+
+def _evaluate(log_target: Callable[[Array], Array], u: Array, batch: int) -> tuple[Array, int]:
+    """Exact log posterior at ``u`` ``(N, d)``: -inf outside the cube, forward runs inside."""
+    out = np.full(u.shape[0], -np.inf)
+    inside = np.flatnonzero(np.all((u >= 0.0) & (u <= 1.0), axis=1))
+    for s in range(0, inside.size, batch):
+        idx = inside[s:s + batch]
+        val = np.asarray(log_target(u[idx]), dtype=float)
+        out[idx] = np.where(np.isfinite(val), val, -np.inf)
+    return out, int(inside.size)
+
+
+def pareto_smooth(log_w: Array) -> tuple[Array, float]:
+    """PSIS of the finite log weights; returns normalised log weights ``(N,)`` and k-hat."""
+    import arviz as az
+
+    out = np.full(log_w.shape, -np.inf)
+    ok = np.isfinite(log_w)
+    if ok.sum() < 5:
+        out[ok] = log_w[ok] - logsumexp(log_w[ok]) if ok.any() else 0.0
+        return out, float("inf")
+    with warnings.catch_warnings():
+        # arviz warns itself when k-hat is large; the stage reports it in its own words
+        warnings.simplefilter("ignore")
+        smoothed, k = az.psislw(log_w[ok])
+    out[ok] = smoothed
+    return out, float(np.asarray(k).reshape(-1)[0])
+
+
+def seed_weights(start: Array, known: tuple[Array, Array] | None, floor: float = 20.0) -> tuple[Array, Array | None]:
+    """Points and log weights the first proposal is fitted to.
+
+    Without ``known`` the emulator draws ``start`` with equal weights.  With known exact
+    evaluations ``known = (unit (K, d), log_target (K,))`` (the GP's training points, whose
+    exact log posterior is already known), half of the weight goes to them, tempered to an
+    ESS of at least ``floor``: the first proposal then also covers regions the exact
+    likelihood favours even where the emulator misses them.
+    """
+    if known is None or not np.isfinite(known[1]).any():
+        return start, None
+    x, lt = known
+    ok = np.isfinite(lt)
+    lw_known = temper(lt[ok] - np.max(lt[ok]), floor)
+    lw_known = np.log(0.5) + lw_known - logsumexp(lw_known)
+    lw_start = np.full(start.shape[0], np.log(0.5 / start.shape[0]))
+    return np.vstack([start, x[ok]]), np.concatenate([lw_start, lw_known])
+
+
+def correct(log_target: Callable[[Array], Array], start: Array, settings: CorrectionSettings,
+            rng: np.random.Generator, known: tuple[Array, Array] | None = None) -> ImportanceSample:
+    """AMIS from the emulator draws ``start`` ``(N0, d)`` (unit cube) to the exact posterior.
+
+    Iterations of ``settings.per_iteration`` draws run until ``settings.draws`` are spent
+    or, after at least two, the Pareto-smoothed weights are good enough (ESS and k-hat
+    targets of :class:`CorrectionSettings`).
+
+    Args:
+        log_target: exact unnormalised log posterior, ``(P, d) -> (P,)`` (points inside
+            the cube only; NaN or -inf where the forward model failed).
+        start: draws of the emulated posterior.
+        known: exact log posterior already known at some points, ``(unit (K, d), (K,))``;
+            they shape the first proposal (see :func:`seed_weights`), not the estimate.
+    """
+    d = start.shape[1]
+    per = max(1, min(settings.per_iteration, settings.draws))
+    sizes = [per] * (settings.draws // per) + ([settings.draws % per] if settings.draws % per else [])
+    proposals: list[Proposal] = [fit_proposal(*seed_weights(start, known), settings, rng, settings.widen_first)]
+    unit, target, it = np.empty((0, d)), np.empty(0), np.empty(0, dtype=int)
+    evaluations, history = 0, []
+    dens: list[Array] = []  # log q_s at every point so far, one row per proposal
+    smoothed, k_hat, settled = np.empty(0), float("inf"), False
+    for t, size in enumerate(sizes):
+        new = proposals[-1].sample(size, rng)
+        val, used = _evaluate(log_target, new, settings.batch)
+        unit, target = np.vstack([unit, new]), np.concatenate([target, val])
+        it = np.concatenate([it, np.full(size, t)])
+        evaluations += used
+        dens = [np.concatenate([row, q.log_pdf(new)]) for row, q in zip(dens, proposals, strict=False)]
+        dens.append(proposals[-1].log_pdf(unit))
+        share = np.array(sizes[: t + 1], dtype=float) / sum(sizes[: t + 1])
+        log_q = logsumexp(np.stack(dens) + np.log(share)[:, None], axis=0)
+        log_w = np.where(np.isfinite(target), target - log_q, -np.inf)
+        smoothed, k_hat = pareto_smooth(log_w)
+        history.append({"iteration": t, "draws": size, "evaluations": used, "ess": ess_of(smoothed), "k_hat": k_hat})
+        print(f"\r  correcting: {evaluations} forward evaluations, importance ESS {history[-1]['ess']:.0f}, "
+              f"k-hat {k_hat:.2f}", end="", file=sys.stderr, flush=True)
+        settled = history[-1]["ess"] >= settings.ess_target and k_hat <= settings.k_target
+        if t >= 1 and settled:
+            break
+        if t + 1 < len(sizes):
+            fitted = np.isfinite(log_w).any()
+            proposals.append(fit_proposal(unit, log_w, settings, rng, settings.widen) if fitted else proposals[-1])
+    print("", file=sys.stderr)
+    return ImportanceSample(unit, target, smoothed, it, k_hat, ess_of(smoothed), evaluations, history, settled)
+
+
+def weighted_quantile(x: Array, w: Array, q: Array | list[float]) -> Array:
+    """Quantiles of ``x`` ``(N,)`` under normalised weights ``w`` ``(N,)`` (midpoint rule)."""
+    keep = w > 0
+    x, w = x[keep], w[keep]
+    order = np.argsort(x)
+    xs, ws = x[order], w[order]
+    cdf = np.cumsum(ws) - 0.5 * ws
+    cdf /= np.sum(ws)
+    return np.interp(np.asarray(q, dtype=float), cdf, xs)
+
+
+def weighted_moments(x: Array, w: Array) -> tuple[Array, Array, Array]:
+    """Weighted mean ``(d,)``, standard deviation ``(d,)`` and correlation ``(d, d)`` of ``x`` ``(N, d)``."""
+    w = w / np.sum(w)
+    mean = w @ x
+    cov = (x - mean).T @ ((x - mean) * w[:, None])
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corr = cov / np.outer(sd, sd)
+    return mean, sd, np.where(np.isfinite(corr), corr, 0.0)

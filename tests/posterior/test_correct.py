@@ -1,0 +1,148 @@
+"""Importance-sampling correction of an emulated posterior on analytic targets."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import multivariate_t
+
+from smcbayes.posterior.correct import (
+    CorrectionSettings,
+    Proposal,
+    correct,
+    ess_of,
+    fit_proposal,
+    seed_weights,
+    temper,
+    weighted_moments,
+    weighted_quantile,
+)
+
+MU = np.array([0.45, 0.3, 0.6])
+SD = np.array([0.08, 0.12, 0.06])
+R12 = -0.85
+
+
+def _target() -> tuple[np.ndarray, np.ndarray]:
+    cov = np.diag(SD**2)
+    cov[1, 2] = cov[2, 1] = R12 * SD[1] * SD[2]
+    return cov, np.linalg.inv(cov)
+
+
+def log_target(u: np.ndarray) -> np.ndarray:
+    """Correlated Gaussian well inside the unit cube (truncation negligible)."""
+    _, prec = _target()
+    z = np.atleast_2d(u) - MU
+    return -0.5 * np.einsum("ij,jk,ik->i", z, prec, z)
+
+
+def biased_start(rng: np.random.Generator) -> np.ndarray:
+    """A too narrow, offset and uncorrelated 'emulated posterior'."""
+    return rng.normal(MU + np.array([0.1, -0.1, 0.05]), 0.4 * SD, size=(3000, 3))
+
+
+def test_correction_recovers_exact_moments_from_biased_proposal() -> None:
+    rng = np.random.default_rng(0)
+    start = biased_start(rng)
+    res = correct(log_target, start, CorrectionSettings(draws=1600, per_iteration=400, ess_target=np.inf), rng)
+    mean, sd, corr = weighted_moments(res.unit[res.weights > 0], res.weights[res.weights > 0])
+    # the uncorrected draws are off by >= 0.05 in the mean and have no correlation ...
+    assert np.max(np.abs(start.mean(0) - MU)) > 0.09
+    # ... the corrected sample has the exact mean, spread and correlation
+    np.testing.assert_allclose(mean, MU, atol=0.02)
+    np.testing.assert_allclose(sd, SD, rtol=0.2)
+    assert abs(corr[1, 2] - R12) < 0.1
+    assert res.k_hat < 0.7 and res.ess > 200
+    assert res.evaluations <= 1600
+    assert len(res.history) == 4 and res.history[-1]["ess"] > res.history[0]["ess"]
+    assert abs(res.weights.sum() - 1.0) < 1e-9
+
+
+def test_weighted_quantiles_contain_truth_and_match_exact() -> None:
+    rng = np.random.default_rng(1)
+    res = correct(log_target, biased_start(rng), CorrectionSettings(draws=1600, per_iteration=400), rng)
+    w = res.weights
+    for j in range(3):
+        q05, q50, q95 = weighted_quantile(res.unit[:, j], w, [0.05, 0.5, 0.95])
+        assert q05 < MU[j] < q95
+        assert abs(q50 - MU[j]) < 0.25 * SD[j]
+        assert abs((q95 - q05) - 2 * 1.645 * SD[j]) < 0.25 * 2 * 1.645 * SD[j]
+
+
+def test_same_seed_same_result_and_failed_runs_get_zero_weight() -> None:
+    def flaky(u: np.ndarray) -> np.ndarray:
+        out = log_target(u)
+        out[u[:, 0] > 0.6] = np.nan  # the forward model "failed" there
+        return out
+
+    a = correct(flaky, biased_start(np.random.default_rng(2)), CorrectionSettings(draws=400, per_iteration=200),
+                np.random.default_rng(3))
+    b = correct(flaky, biased_start(np.random.default_rng(2)), CorrectionSettings(draws=400, per_iteration=200),
+                np.random.default_rng(3))
+    np.testing.assert_array_equal(a.unit, b.unit)
+    np.testing.assert_array_equal(a.log_weight, b.log_weight)
+    assert np.all(a.weights[a.unit[:, 0] > 0.6] == 0.0)
+    outside = ~np.all((a.unit >= 0) & (a.unit <= 1), axis=1)
+    assert np.all(a.weights[outside] == 0.0)
+
+
+def test_proposal_density_is_the_defensive_t_mixture() -> None:
+    rng = np.random.default_rng(4)
+    centre = np.array([[0.5, 0.4]])
+    chol = np.linalg.cholesky(np.array([[0.01, 0.004], [0.004, 0.02]]))
+    q = Proposal(centre, chol[None], nu=5.0, defensive=0.2)
+    u = rng.random((50, 2))
+    expected = np.log(0.8 * multivariate_t(centre[0], chol @ chol.T, df=5.0).pdf(u) + 0.2)
+    np.testing.assert_allclose(q.log_pdf(u), expected, rtol=1e-10)
+    x = q.sample(20000, rng)
+    inside = np.all((x >= 0) & (x <= 1), axis=1)
+    # the uniform share plus the t mass inside the cube
+    assert 0.2 < inside.mean() <= 1.0
+    assert abs(np.median(x[:, 0]) - 0.5) < 0.02
+
+
+def test_temper_keeps_an_effective_sample() -> None:
+    lw = np.array([0.0, -50.0, -60.0, -70.0] + [-80.0] * 96)
+    assert ess_of(lw) < 1.01
+    t = temper(lw, 20.0)
+    assert ess_of(t) >= 20.0 - 1e-6
+    assert np.argmax(t) == 0
+
+
+def test_fit_proposal_covers_a_degenerate_sample() -> None:
+    rng = np.random.default_rng(5)
+    u = np.tile([[0.3, 0.7]], (10, 1))
+    q = fit_proposal(u, None, CorrectionSettings(), rng)
+    assert np.all(np.isfinite(q.log_pdf(rng.random((10, 2)))))
+
+
+@pytest.mark.parametrize("q", [0.05, 0.5, 0.95])
+def test_weighted_quantile_equal_weights(q: float) -> None:
+    x = np.random.default_rng(6).standard_normal(4001)
+    assert abs(weighted_quantile(x, np.full(x.size, 1 / x.size), [q])[0] - np.quantile(x, q)) < 0.01
+
+
+def test_stops_early_once_the_weights_are_good() -> None:
+    rng = np.random.default_rng(7)
+    start = rng.normal(MU, SD, size=(3000, 3))  # a good emulator: little to correct
+    res = correct(log_target, start, CorrectionSettings(draws=5000, per_iteration=500, ess_target=300), rng)
+    assert len(res.history) < 10 and res.evaluations < 5000
+    assert res.ess >= 300 and res.k_hat <= 0.5
+
+
+def test_local_kernels_follow_the_sample() -> None:
+    rng = np.random.default_rng(8)
+    res = correct(log_target, biased_start(rng), CorrectionSettings(draws=1600, per_iteration=400, local=True), rng)
+    mean = res.weights @ res.unit
+    np.testing.assert_allclose(mean, MU, atol=0.03)
+
+
+def test_known_points_shape_the_first_proposal() -> None:
+    rng = np.random.default_rng(9)
+    far = rng.normal([0.8, 0.8, 0.2], 0.02, size=(2000, 3))  # an emulator that is plain wrong
+    known_x = rng.random((60, 3))
+    known = (known_x, log_target(known_x))
+    res = correct(log_target, far, CorrectionSettings(draws=2000, per_iteration=500), rng, known)
+    np.testing.assert_allclose(res.weights @ res.unit, MU, atol=0.03)
+    x, lw = seed_weights(far, known)
+    assert x.shape[0] == 2060 and abs(np.exp(lw[2000:]).sum() - 0.5) < 1e-9
