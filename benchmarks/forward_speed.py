@@ -118,7 +118,7 @@ def _effect_rows(bench: Bench, effects: tuple[str, ...], label: str) -> list[Row
     model = bench.model(effects)
     single, outputs = bench.time(model, None)
     base = bench.cache.get("base_single")
-    ratio = "" if base is None else f"{single / base:.0f}x the base run"
+    ratio = "" if base is None else f"{single / base:.2g}x the base run"
     rows = [Row(f"1d {label}: one run", single, 1, outputs, None, "", ratio)]
     if effects == ("compressibility",) and base is not None:
         rows[0].target_s, rows[0].target = 5 * base, "<= 5x base run"
@@ -144,7 +144,7 @@ def numpy_reference(bench: Bench) -> list[Row]:
         model = bench.model(effects, compiled=False)
         single, outputs = bench.time(model, None, 3)
         base = bench.cache.get("base_single")
-        note = "" if base is None else f"{single / base:.0f}x the base run"
+        note = "" if base is None else f"{single / base:.2g}x the base run"
         rows.append(Row(f"1d {label}, NumPy march: one run", single, 1, outputs, None, "", note))
         batch, outputs = bench.time(model, bench.thetas(model, bench.batch), 1)
         rows.append(Row(f"1d {label}, NumPy march: batch of {bench.batch}", batch, bench.batch, outputs))
@@ -249,12 +249,13 @@ def convergence(bench: Bench) -> dict[str, object]:
 
 # -- output ----------------------------------------------------------------------------------
 def print_table(rows: list[Row]) -> None:
-    print(f"{'case':<36}{'median':>11}{'per set':>11}{'outputs':>9}  {'target':<18}{'status':<8}"
+    width = max(len("case"), *(len(r.name) for r in rows)) + 2
+    print(f"{'case':<{width}}{'median':>11}{'per set':>11}{'outputs':>9}  {'target':<18}{'status':<8}"
           f"{'vs Moldflow':>14}  note")
     for r in rows:
         per_set = r.seconds / r.sets
         status = "" if r.met is None else ("met" if r.met else "MISSED")
-        print(f"{r.name:<36}{r.seconds * 1e3:>9.1f}ms{per_set * 1e3:>9.2f}ms{r.outputs:>9d}  "
+        print(f"{r.name:<{width}}{r.seconds * 1e3:>9.1f}ms{per_set * 1e3:>9.2f}ms{r.outputs:>9d}  "
               f"{r.target:<18}{status:<8}{MOLDFLOW_S / per_set:>13.3g}x  {r.note}")
 
 
