@@ -14,7 +14,8 @@ significant), the held-out shrink per case and the held-out loss of the named ef
 against the noise floor (the held-out loss of the true model on the same data).
 Written: ``benchmarks/results/diagnosis_confusion.json``.
 
-Run: ``python benchmarks/diagnosis_confusion.py [--seeds 2] [--none-seeds 3]``.
+Run: ``python benchmarks/diagnosis_confusion.py [--seeds 2] [--none-seeds 3] [--restarts 2]
+[--effects NAME,...] [--name diagnosis_confusion]``.
 """
 
 from __future__ import annotations
@@ -64,7 +65,8 @@ def run_case(project, effect: str | None, seed: int, args: argparse.Namespace, w
     synth = make_case(project, IDS, effect, NOISE, seed, work / f"{effect or 'none'}-{seed}")
     rng = np.random.default_rng(1000 + seed)
     ctx = calibrate_base(synth, args.calib_population, args.calib_generations, rng)
-    fit = FitSettings(population=args.population, generations=args.generations)
+    fit = FitSettings(population=args.population, generations=args.generations,
+                      restarts=args.restarts)
     settings = DiagnoseSettings(candidates=EFFECTS, seed=seed, fit=fit, figures=False)
     summary = diagnose(ctx, settings, None, log=lambda m: print("   ", m, flush=True))
     top = summary["decision"]["best"]
@@ -88,11 +90,14 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=2, help="noise seeds per effect")
     ap.add_argument("--none-seeds", type=int, default=3, help="noise seeds without an effect")
-    ap.add_argument("--population", type=int, default=24)
-    ap.add_argument("--generations", type=int, default=10)
+    ap.add_argument("--population", type=int, default=FitSettings.population)
+    ap.add_argument("--generations", type=int, default=FitSettings.generations)
+    ap.add_argument("--restarts", type=int, default=FitSettings.restarts)
     ap.add_argument("--calib-population", type=int, default=40)
     ap.add_argument("--calib-generations", type=int, default=30)
     ap.add_argument("--effects", default=",".join(EFFECTS), help="effect cases to run")
+    ap.add_argument("--name", default="diagnosis_confusion",
+                    help="results file benchmarks/results/NAME.json")
     args = ap.parse_args()
     project = load_project(ROOT / "configs" / "thesis.toml")
     cases = [(e, s) for e in args.effects.split(",") if e for s in range(args.seeds)]
@@ -136,7 +141,7 @@ def write(cases: list[dict], args: argparse.Namespace, partial: bool, **summary:
     result = {"configurations": IDS, "noise": asdict(NOISE), "effect_truth": EFFECT_TRUTH,
               "base_truth": BASE_TRUTH, "settings": vars(args), "partial": partial,
               "cases": cases, **summary}
-    path = ROOT / "benchmarks" / "results" / "diagnosis_confusion.json"
+    path = ROOT / "benchmarks" / "results" / f"{args.name}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(result, indent=2, default=float) + "\n", encoding="utf-8")
     return path

@@ -43,8 +43,9 @@ def main() -> int:
     ap.add_argument("--data-dir", default=str(ROOT / ".." / "shared" / "data" / "thesis-press"))
     ap.add_argument("--pair", action="store_true", help="also fit the best two effects together")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--population", type=int, default=24)
-    ap.add_argument("--generations", type=int, default=12)
+    ap.add_argument("--population", type=int, default=FitSettings.population)
+    ap.add_argument("--generations", type=int, default=FitSettings.generations)
+    ap.add_argument("--restarts", type=int, default=FitSettings.restarts)
     ap.add_argument("--calib-population", type=int, default=40)
     ap.add_argument("--calib-generations", type=int, default=30)
     args = ap.parse_args()
@@ -59,7 +60,9 @@ def main() -> int:
     print(f"base calibration on {len(ctx.ids)} configurations: {t_cal:.0f} s; "
           + ", ".join(f"{k}={v:.4g}" for k, v in ctx.base_params.items()), flush=True)
     settings = DiagnoseSettings(candidates=CANDIDATES, holdout=HOLDOUT, pair=args.pair, seed=args.seed,
-                                fit=FitSettings(population=args.population, generations=args.generations))
+                                fit=FitSettings(population=args.population,
+                                                generations=args.generations,
+                                                restarts=args.restarts))
     out = ROOT / "benchmarks" / "results" / "diagnosis_real"
     t1 = time.perf_counter()
     summary = diagnose(ctx, settings, out, log=lambda m: print("  ", m, flush=True))

@@ -30,9 +30,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pair", action="store_true",
                    help="also re-calibrate the best two effects together")
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same ranking)")
-    p.add_argument("--population", type=int, default=24, help="parameter sets per generation")
-    p.add_argument("--generations", type=int, default=12,
-                   help="optimiser generations per re-calibration")
+    p.add_argument("--population", type=int, default=64,
+                   help="parameter sets per generation (default 64)")
+    p.add_argument("--generations", type=int, default=50,
+                   help="optimiser generations per re-calibration (default 50)")
+    p.add_argument("--restarts", type=int, default=2,
+                   help="independent evolutions per re-calibration, the best kept (default 2)")
     p.add_argument("--min-score", type=float, default=3.0,
                    help="penalised held-out score (log Bayes factor) needed to name an effect "
                         "(default 3)")
@@ -86,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{run_dir}: run directory not found; pass the --out folder of "
                           "`smcbayes calibrate`")
     chosen = candidates(args.effects)
-    fit = FitSettings(population=args.population, generations=args.generations)
+    fit = FitSettings(population=args.population, generations=args.generations,
+                      restarts=args.restarts)
     fit.check()
     holdout = None
     if args.holdout is not None:

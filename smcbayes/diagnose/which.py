@@ -83,8 +83,8 @@ def signature(ctx: DiagnosisContext, effect: str, base: Fit, ids: Sequence[str],
     space = model.space
     u0 = np.clip(space.to_unit(ctx.start([effect], base.params))[0], 0.0, 1.0)
     cols_e = effect_columns(ctx, (effect,))
-    probe = FitSettings(population=probes + 1, lhs_starts=probes)
-    starts = initial_population(u0, cols_e, probe, rng)
+    probe = FitSettings(population=probes + 1, lhs_starts=probes, global_starts=0)
+    starts = initial_population(u0, cols_e, probe, rng, share=False)
     loss0 = np.mean(ctx.losses([effect], space.from_unit(starts), ids), axis=1)
     u0 = starts[int(np.nanargmin(np.where(np.isfinite(loss0), loss0, np.inf)))]
     d = u0.size

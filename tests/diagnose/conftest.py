@@ -17,7 +17,8 @@ REPO = Path(__file__).resolve().parents[2]
 IDS = ["60-bar-03", "60-bar-07", "60-bar-11"]
 NOISE = NoiseSpec(white_kN=2.0, correlated_kN=3.0, correlation_s=0.5)
 #: A budget small enough for tests; the benchmark uses the defaults.
-TINY = FitSettings(population=10, generations=3, lhs_starts=4, polish=3)
+TINY = FitSettings(population=10, generations=3, lhs_starts=4, global_starts=2, restarts=1,
+                   polish=3)
 
 
 def coarse(project: ProjectConfig) -> ProjectConfig:
