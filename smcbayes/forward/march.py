@@ -104,6 +104,7 @@ class _Context:
     gap_end: Array
     v_ref: float
     t_close: Array
+    travel: Array
     shape_correction: bool = True
 
     def solid(self, gap: Array, area: Array) -> Array:
@@ -167,10 +168,12 @@ def _speed_control(ft: FlowTable, a0: Array, t0: Array, pc: Array, zeta: Array, 
             # the force of the present state: without the end-of-step part of P_c
             f1 = s1.force - area * (zeta_eff - zeta) * (v1 - s1.speed) / gap
             f2 = np.where(comp, area * pc, 1.0)
-            s2 = ft.solve(one, zero, f2)
+        # a flat compaction law without bulk viscosity: the pressure holds at P_c
+        rigid = comp & ~visc
+        s2_speed = ft.solve(one, zero, f2).speed if np.any(rigid) else spread
         balance = np.where(comp, np.where(visc, s1.force, f2), force)
         force = np.where(comp, np.where(visc, f1, f2), force)
-        spread = np.where(comp, np.where(visc, s1.speed, s2.speed), spread)
+        spread = np.where(comp, np.where(visc, s1.speed, s2_speed), spread)
         speed = np.where(comp, np.where(visc, v1, t0 - a0 * f2), speed)
     return _Rates(force, speed, spread, None, balance)
 
@@ -245,9 +248,10 @@ def _setup(case: Case, p: dict[str, Array], effects: EffectStack, table: Materia
     gap_end = solid0 * case.gap_full
     v_ref = case.speed if case.profile is None else case.profile.position[-1] / case.profile.time[-1]
     dt_close = (case.gap0 - gap_end) / (v_ref * steps)
+    inv_k = effects.compliance(case, p, P)
     return _Context(case, p, effects, table, solid0, compressible,
-                    effects.compliance(case, p, P), dt_close, gap_end, v_ref,
-                    dt_close * steps, shape_correction)
+                    inv_k, dt_close, gap_end, v_ref, dt_close * steps,
+                    1.0 + case.force_limit * inv_k / (case.gap0 - gap_end), shape_correction)
 
 
 def _closing_step(ctx: _Context, ram: Array, force_rate: Array, ram_rate: Array) -> Array:
@@ -265,8 +269,7 @@ def _closing_step(ctx: _Context, ram: Array, force_rate: Array, ram_rate: Array)
     values over the last step (inf or NaN: none yet).
     """
     with np.errstate(divide="ignore", invalid="ignore"):
-        travel = 1.0 + ctx.case.force_limit * ctx.inv_k / (ctx.case.gap0 - ctx.gap_end)
-        rate = np.maximum(np.maximum(ram / travel, ram_rate * ctx.t_close) / ctx.v_ref,
+        rate = np.maximum(np.maximum(ram / ctx.travel, ram_rate * ctx.t_close) / ctx.v_ref,
                           force_rate * ctx.t_close / ctx.case.force_limit)
         stretch = np.clip(np.nan_to_num(1.0 / rate, nan=1.0, posinf=MAX_STRETCH), 1.0, MAX_STRETCH)
     return ctx.dt_close * stretch
