@@ -16,7 +16,7 @@ datasets fit in about half an hour on two shared cores; the forward model is the
 1-D solver of the accuracy benchmark.
 
     python benchmarks/posterior_coverage.py [--datasets 20] [--quick] [--free n,B_Pa_s,tau_c_MPa]
-        [--correct-draws 6000]
+        [--correct-draws 6000] [--jobs 2] [--workdir DIR]
 
 Prints a table and writes benchmarks/results/posterior_coverage.json.
 """
@@ -27,6 +27,7 @@ import argparse
 import json
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -104,6 +105,33 @@ def one_dataset(i: int, free: list[str], args: argparse.Namespace, tmp: Path) ->
     return row
 
 
+def map_datasets(free: list[str], args: argparse.Namespace, work: Path) -> Iterator[dict[str, Any]]:
+    """Rows of every dataset, as they finish; ``--jobs`` processes share the datasets.
+
+    Each dataset depends only on its index (seeds, folder), so the rows are the same
+    whatever the number of processes; only their order of completion changes.
+    """
+    if args.jobs <= 1:
+        for i in range(args.datasets):
+            yield one_dataset(i, free, args, work)
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn"),
+                             initializer=_single_thread) as pool:
+        futures = [pool.submit(one_dataset, i, free, args, work) for i in range(args.datasets)]
+        for fut in as_completed(futures):
+            yield fut.result()
+
+
+def _single_thread() -> None:
+    """One thread per worker process (the workers already share the cores)."""
+    import torch
+
+    torch.set_num_threads(1)
+
+
 def binomial_ci(hits: int, n: int) -> tuple[float, float]:
     """Clopper-Pearson 95 % interval of a share ``hits / n``."""
     from scipy.stats import binomtest
@@ -162,6 +190,7 @@ def main() -> int:
     ap.add_argument("--refine", type=int, default=20, help="refinement evaluations")
     ap.add_argument("--correct-draws", type=int, default=6000, help="most forward evaluations of the correction")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=1, help="datasets run in parallel processes")
     ap.add_argument("--workdir", default=None,
                     help="keep datasets and calibrations here and reuse them when rerun (same --seed/--free)")
     args = ap.parse_args()
@@ -172,16 +201,16 @@ def main() -> int:
           f"the others fixed at {', '.join(f'{k}={v:g}' for k, v in DEFAULTS.items() if k not in free)})")
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.workdir) if args.workdir else Path(tmp)
-        for i in range(args.datasets):
-            rows.append(one_dataset(i, free, args, work))
-            r = rows[-1]
+        for r in map_datasets(free, args, work):
+            rows.append(r)
             rep = r.get("corrected", r["raw"])
-            print(f"  dataset {i:>2}: truth unit {np.round(r['truth_unit'], 3).tolist()} in90 raw {r['raw']['in90']} "
+            print(f"  dataset {r['dataset']:>2}: truth unit {np.round(r['truth_unit'], 3).tolist()} in90 raw {r['raw']['in90']} "
                   f"corrected {rep['in90']}, in50 corrected {rep['in50']}, "
                   f"band90 {np.nanmean(list(r['band_coverage90'].values())):.2f}, "
                   f"k-hat {r['correction'].get('k_hat', float('nan')):.2f}, "
                   f"check {r['emulator_check_nats']:.2f} nats, {r['seconds']:.0f} s", flush=True)
             write_result("posterior_coverage", {"settings": vars(args), "free": free, "datasets": rows})
+    rows.sort(key=lambda r: r["dataset"])
     raw, corrected, b = tabulate(free, rows, "raw"), tabulate(free, rows, "corrected"), tabulate_bands(rows)
     print_table("raw emulated posterior (emcee on the GP)", raw)
     if corrected:

@@ -91,7 +91,7 @@ def _diagnostics(post: dict[str, Any]) -> list:
             Paragraph(
                 f"Effective number of independent points in the likelihood: "
                 f"{fmt(eff.get('n_eff_total'), 3)} (residuals are autocorrelated, so "
-                "this is far fewer than the resampled points)."
+                f"this is far fewer than the resampled points; {_n_eff_source(eff)})."
             )
         )
     warns = [str(w) for w in post.get("warnings") or []]
@@ -303,3 +303,15 @@ def bands_section(run: RunFiles) -> Section | None:
             )
         )
     return sec
+
+
+def _n_eff_source(eff: dict) -> str:
+    """How the effective number of points was estimated, in words."""
+    sandwich, residual = eff.get("n_eff_sandwich"), eff.get("n_eff_residual")
+    if sandwich is None or residual is None:
+        return "from the residuals' autocorrelation"
+    if not np.isfinite(float(sandwich)):
+        return "from the residuals' autocorrelation (the sensitivity runs failed)"
+    return ("the smaller of two estimates at the best point: from the curvature of the likelihood "
+            f"against the scatter of its score, {fmt(sandwich, 3)}, and from the residuals' "
+            f"autocorrelation, {fmt(residual, 3)}")

@@ -87,3 +87,14 @@ def test_missing_run_dir_is_input_error(tmp_path: Path, capsys: pytest.CaptureFi
     assert main(["posterior", str(tmp_path / "nowhere")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "calibrate" in err[0]
+
+
+def test_likelihood_uses_the_smaller_estimate(run_dir: Path) -> None:
+    info = json.loads((run_dir / "posterior" / "summary.json").read_text())
+    eff = info["effective_points"]
+    # correlated residuals: fewer independent points than grid points, but some
+    points = 400 * len(eff["config_ids"])
+    assert 1.0 < eff["n_eff_sandwich"] < points and 1.0 < eff["n_eff_residual"] < points
+    assert eff["n_eff_total"] == min(eff["n_eff_sandwich"], eff["n_eff_residual"])
+    # the best point and two central differences per free parameter
+    assert info["forward_evaluations"]["residual_budget"] == 2 * 2 + 1

@@ -163,10 +163,25 @@ def test_rebuilt_command_lines_parse(tmp_path: Path) -> None:
 ])
 def test_posterior_section_states_the_importance_correction(tmp_path: Path, correction: dict,
                                                             expected: str) -> None:
+    text = posterior_report_text(tmp_path, {"correction": correction})
+    assert f"{correction['evaluations']} forward runs" in text and expected in text
+
+
+def posterior_report_text(tmp_path: Path, extra: dict) -> str:
+    """Markdown report of a fake run whose posterior summary holds ``extra``."""
     run = fake_run(tmp_path)
     (run / "posterior").mkdir()
-    summary = {"parameters": [{"name": "n", "r_hat": 1.01, "ess": 512.0}], "correction": correction}
+    summary = {"parameters": [{"name": "n", "r_hat": 1.01, "ess": 512.0}], **extra}
     (run / "posterior" / "summary.json").write_text(json.dumps(summary), encoding="utf-8")
     write_report(run, formats=("md",))
-    text = next(run.glob("report*.md")).read_text(encoding="utf-8")
-    assert f"{correction['evaluations']} forward runs" in text and expected in text
+    return next(run.glob("report*.md")).read_text(encoding="utf-8")
+
+
+@pytest.mark.parametrize(("budget", "expected"), [
+    ({"n_eff_total": 91.0, "n_eff_sandwich": 91.0, "n_eff_residual": 107.5},
+     "the smaller of two estimates"),
+    ({"n_eff_total": 107.5, "n_eff_sandwich": None, "n_eff_residual": 107.5}, "residuals' autocorrelation"),
+])
+def test_posterior_section_states_how_n_eff_was_estimated(tmp_path: Path, budget: dict, expected: str) -> None:
+    text = posterior_report_text(tmp_path, {"effective_points": budget})
+    assert "Effective number of independent points in the likelihood" in text and expected in text
