@@ -19,7 +19,8 @@ N_eff is estimated at the best calibrated point in two ways, and the smaller is 
   is calibrated when its curvature matches the sampling variance of its score, which is
   computed from the residuals r_ki and the force sensitivities s_ki (central differences
   of the forward model), lag covariances included.  It weights the error correlation where
-  each parameter acts, and it reduces to sum_k N_k for white residuals.  It fails when the
+  each parameter acts, and it reduces to sum_k N_k for white residuals on curves of
+  equal length.  It fails when the
   residuals are correlated over a whole curve (a systematic model error, as on the thesis
   press data): the lag sums then span the record, and at the optimum the score sums nearly
   cancel, so the score variance is underestimated and N_eff overstated (4205 against 23 on
@@ -27,17 +28,17 @@ N_eff is estimated at the best calibrated point in two ways, and the smaller is 
 * sum_k N_k / tau_k, with tau_k the integrated autocorrelation time of the residual
   series of configuration k (Sokal's adaptive window, the estimator emcee uses for
   chains: tau = 1 + 2 sum_{t=1}^{M} rho(t) with the smallest window M >= c tau(M), c = 5).
-  It overstates N_eff when the misfit concentrates where a parameter acts.  Its
-  autocovariance is taken about zero, not about the record's mean: the error model says the
-residuals have mean zero, and a press curve lasts only a few correlation times of the force
-error (1.1 mm/s closes in about 3 s against a drift correlated over 0.5 s), so subtracting
-the mean removes the low-frequency error power that makes neighbouring points redundant.
+  It overstates N_eff when the misfit concentrates where a parameter acts (the steep end
+  of a closing), which the sandwich sees.  Its autocovariance is taken about zero, not
+  about the record's mean: the error model says the residuals have mean zero, and a press
+  curve lasts only a few correlation times of the force error (1.1 mm/s closes in about
+  3 s against a drift correlated over 0.5 s), so subtracting the mean removes the
+  low-frequency error power that makes neighbouring points redundant.
+
 On synthetic white + Ornstein-Uhlenbeck force noise over three such closings (tested),
 against the generalised-least-squares information of the raw samples, the centred
-estimate overstated N_eff 1.6-fold, the estimate about zero by 3 % and the sandwich
-estimate understated it by 22 % (medians; slightly conservative).  Unlike the residual
-estimate, the sandwich also sees systematic misfit concentrated where a parameter acts
-(the steep end of a closing), which is what matters for that parameter's interval.
+residual estimate overstated N_eff 1.6-fold, the estimate about zero by 3 % and the
+sandwich estimate understated it by 22 % (medians; slightly conservative).
 
 Emulator uncertainty: log L(psi) is known only through the GP, f ~ GP(mu, k).  Averaging
 the likelihood over the GP's pointwise predictive distribution (a lognormal mean,
@@ -131,7 +132,8 @@ def sandwich_points(residuals: Sequence[Array], sensitivities: Sequence[Array], 
     score series g_ki = r_ki s_ki: its lag covariances summed about zero over Sokal's window
     of the residual series.  Unlike sum_k N_k / tau_k it weights the error correlation
     where each parameter acts (a parameter seen only in the last second of a curve gets
-    that second's error structure).  With white residuals it reduces to sum_k N_k.
+    that second's error structure).  With white residuals it reduces to K^2 / sum_k (1/N_k)
+    (the loss averages each curve's MSE), sum_k N_k for curves of equal length.
     Directions of A below 1e-8 of its largest eigenvalue (parameters the data do not
     see at all) are left out and d counts the rest.
 

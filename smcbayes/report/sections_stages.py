@@ -311,7 +311,7 @@ def _n_eff_source(eff: dict) -> str:
     if sandwich is None or residual is None:
         return "from the residuals' autocorrelation"
     if not np.isfinite(float(sandwich)):
-        return "from the residuals' autocorrelation (the sensitivity runs failed)"
+        return "from the residuals' autocorrelation (the sandwich estimate was unavailable)"
     return ("the smaller of two estimates at the best point: from the curvature of the likelihood "
             f"against the scatter of its score, {fmt(sandwich, 3)}, and from the residuals' "
             f"autocorrelation, {fmt(residual, 3)}")
