@@ -25,7 +25,7 @@ converged, whereas the uniform component of the importance proposals keeps drawi
 Targets: per-parameter 5/50/95 % quantiles within 10 % of the prior width (unit-cube
 coordinates: log10 for tau*, B, tau_c), pairwise correlations within 0.15.  A case is
 judged only when its reference can be trusted: both importance-sampling references have
-k-hat <= 0.7 and agree with each other within the same targets.  Otherwise the case is
+k-hat <= 0.7 and agree with each other within half the targets.  Otherwise the case is
 reported as not judged, with all differences.
 
     python benchmarks/posterior_accuracy.py [--cases 2 | --case K] [--refine 150]
@@ -173,7 +173,7 @@ def is_reference(run_dir: Path, folder: Path, n_eff: float, start: np.ndarray | 
     from smcbayes.posterior.correct import CorrectionSettings, correct
     from smcbayes.posterior.stage import exact_log_posterior
 
-    kind = "uniform" if start is None else "mcmc"
+    kind = "uniform" if start is None else f"mcmc{start.shape[0]}"
     cache = folder / f"isref-{kind}-{draws}-neff{n_eff:.2f}.npz"
     if cache.is_file():
         z = np.load(cache)
@@ -316,8 +316,9 @@ def print_case(r: dict[str, Any]) -> None:
         for sr in r["seeds"]:
             cells = [f"{key} {sr[key]['max_quantile_diff']:.3f} / {sr[key]['max_correlation_diff']:.2f} "
                      f"{'met' if sr[key]['met'] else 'MISSED'}" for key in ("raw", "corrected") if key in sr]
+            k_hat = "n/a" if sr["k_hat"] is None else f"{sr['k_hat']:.2f}"
             print(f"    seed {sr['seed']:>4}: {'; '.join(cells)}; correction {sr['correction_evaluations']} "
-                  f"forward runs, k-hat {sr['k_hat']:.2f}")
+                  f"forward runs, k-hat {k_hat}")
 
 
 def main() -> int:
@@ -353,8 +354,9 @@ def main() -> int:
             print(f"\ncase {r['case']}: NOT JUDGED - its two importance-sampling references disagree with "
                   "each other by more than the targets (or their weights are unreliable), so no comparison "
                   "with them can pass or fail")
-    print(f"\noverall over {len(judged)} judged case(s): raw emulator {'met' if judged and met['raw'] else 'MISSED'}; "
-          f"corrected {'met' if judged and met['corrected'] else 'MISSED'}")
+    verdict = {key: ("NOT JUDGED" if not judged else "met" if met[key] else "MISSED") for key in met}
+    print(f"\noverall over {len(judged)} judged case(s) and every posterior seed: raw emulator {verdict['raw']}; "
+          f"corrected {verdict['corrected']}")
     payload = {"settings": vars(args), "train": TRAIN, "solver": "coarsened 1-D (see _posterior_common)",
                "targets": {"quantile_share_of_prior_width": Q_TARGET, "correlation": R_TARGET},
                "cases": rows, "judged_cases": [r["case"] for r in judged],
@@ -364,11 +366,13 @@ def main() -> int:
 
 
 def reference_trusted(r: dict[str, Any]) -> bool:
-    """Both importance-sampling references have reliable weights (k-hat <= 0.7) and agree
-    with each other within the comparison's own targets."""
+    """Both importance-sampling references have reliable weights (finite k-hat <= 0.7) and
+    agree with each other within half the comparison's targets (so that a verdict does not
+    turn on the reference's own error)."""
     agree = r["references_agree"]["is_uniform_vs_is_mcmc"]
-    return bool(max(r["is_reference_uniform_start"]["k_hat"], r["is_reference_mcmc_start"]["k_hat"]) <= 0.7
-                and agree["max_quantile_diff"] <= Q_TARGET and agree["max_correlation_diff"] <= R_TARGET)
+    k_hats = np.array([r["is_reference_uniform_start"]["k_hat"], r["is_reference_mcmc_start"]["k_hat"]], dtype=float)
+    return bool(np.all(np.isfinite(k_hats)) and np.all(k_hats <= 0.7)
+                and agree["max_quantile_diff"] <= 0.5 * Q_TARGET and agree["max_correlation_diff"] <= 0.5 * R_TARGET)
 
 
 if __name__ == "__main__":

@@ -128,12 +128,14 @@ def sandwich_points(residuals: Sequence[Array], sensitivities: Sequence[Array], 
 
     with K configurations of N_k points, residuals r_ki (measured - simulated, kN),
     sensitivities s_ki = d sim_ki / d psi (kN per unit of the sampled coordinates),
-    L = (1/K) sum_k (1/N_k) sum_i r_ki^2 the loss, and V_k the long-run covariance of the
-    score series g_ki = r_ki s_ki: its lag covariances summed about zero over Sokal's window
-    of the residual series.  Unlike sum_k N_k / tau_k it weights the error correlation
+    L = (1/K) sum_k (1/N_k) sum_i r_ki^2 the loss, and V_k = sum_{|l| <= M} sum_i g_ki
+    g_k,i+l' the variance of the sum of the score series g_ki = r_ki s_ki (lag products
+    about zero over Sokal's window M of the residual series).  Unlike sum_k N_k / tau_k it weights the error correlation
     where each parameter acts (a parameter seen only in the last second of a curve gets
-    that second's error structure).  With white residuals it reduces to K^2 / sum_k (1/N_k)
-    (the loss averages each curve's MSE), sum_k N_k for curves of equal length.
+    that second's error structure).  With white residuals on curves of equal length it
+    reduces to sum_k N_k (every curve is read on the same number of loss grid points).
+    It is taken at the best calibrated point, not an exact optimum: a remaining mean score
+    adds to B and lowers N_eff (the safe direction).
     Directions of A below 1e-8 of its largest eigenvalue (parameters the data do not
     see at all) are left out and d counts the rest.
 

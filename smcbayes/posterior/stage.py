@@ -130,7 +130,8 @@ def residual_budget(ctx: RunContext) -> dict[str, Any]:
     Two estimates: ``n_eff_residual`` = sum_k N_k / tau_k from the residuals' integrated
     autocorrelation times, and the sandwich estimate of
     :func:`~smcbayes.posterior.likelihood.sandwich_points`, which also uses the force
-    sensitivities (central differences, 2 d + 1 forward runs per configuration).  The
+    sensitivities (central differences: 2 d + 1 parameter rows, each simulated on every
+    training configuration; the perturbed forces are read on the best point's grid).  The
     likelihood uses the smaller of the two (``n_eff_total``), the residual one alone where
     a perturbed run fails or the data inform no direction.  Each can overstate N_eff: the
     residual estimate when the misfit concentrates where a parameter acts, the sandwich

@@ -307,10 +307,11 @@ def bands_section(run: RunFiles) -> Section | None:
 
 def _n_eff_source(eff: dict) -> str:
     """How the effective number of points was estimated, in words."""
-    sandwich, residual = eff.get("n_eff_sandwich"), eff.get("n_eff_residual")
-    if sandwich is None or residual is None:
+    if "n_eff_sandwich" not in eff or eff.get("n_eff_residual") is None:
         return "from the residuals' autocorrelation"
-    if not np.isfinite(float(sandwich)):
+    sandwich, residual = eff["n_eff_sandwich"], eff["n_eff_residual"]
+    # a failed sandwich estimate is NaN in the stage and null in summary.json
+    if sandwich is None or not np.isfinite(float(sandwich)):
         return "from the residuals' autocorrelation (the sandwich estimate was unavailable)"
     return ("the smaller of two estimates at the best point: from the curvature of the likelihood "
             f"against the scatter of its score, {fmt(sandwich, 3)}, and from the residuals' "

@@ -68,7 +68,8 @@ def sensitivity(x: np.ndarray) -> np.ndarray:
 
 def test_sandwich_points_of_white_residuals_count_every_point() -> None:
     # the loss averages each curve's MSE, so with white residuals a point of a short curve
-    # weighs more: N_eff = K^2 / sum_k (1/N_k), which is sum_k N_k for curves of equal length
+    # weighs more: with the same sensitivities on every curve N_eff = K^2 / sum_k (1/N_k),
+    # which is sum_k N_k for curves of equal length
     rng = np.random.default_rng(4)
     for lengths in ((400, 400, 400), (400, 250, 400)):
         grids = [np.linspace(0.0, 1.0, n) for n in lengths]

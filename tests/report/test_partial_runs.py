@@ -177,11 +177,15 @@ def posterior_report_text(tmp_path: Path, extra: dict) -> str:
     return next(run.glob("report*.md")).read_text(encoding="utf-8")
 
 
-@pytest.mark.parametrize(("budget", "expected"), [
+@pytest.mark.parametrize(("budget", "expected", "absent"), [
     ({"n_eff_total": 91.0, "n_eff_sandwich": 91.0, "n_eff_residual": 107.5},
-     "the smaller of two estimates"),
-    ({"n_eff_total": 107.5, "n_eff_sandwich": None, "n_eff_residual": 107.5}, "residuals' autocorrelation"),
+     "the smaller of two estimates", "unavailable"),
+    ({"n_eff_total": 107.5, "n_eff_sandwich": None, "n_eff_residual": 107.5},
+     "the sandwich estimate was unavailable", "the smaller of two"),
+    ({"n_eff_total": 107.5, "n_eff_residual": 107.5}, "from the residuals' autocorrelation)", "unavailable"),
 ])
-def test_posterior_section_states_how_n_eff_was_estimated(tmp_path: Path, budget: dict, expected: str) -> None:
+def test_posterior_section_states_how_n_eff_was_estimated(tmp_path: Path, budget: dict, expected: str,
+                                                          absent: str) -> None:
     text = posterior_report_text(tmp_path, {"effective_points": budget})
+    assert absent not in text
     assert "Effective number of independent points in the likelihood" in text and expected in text
