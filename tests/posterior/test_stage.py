@@ -98,3 +98,15 @@ def test_likelihood_uses_the_smaller_estimate(run_dir: Path) -> None:
     assert eff["n_eff_total"] == min(eff["n_eff_sandwich"], eff["n_eff_residual"])
     # the best point and two central differences per free parameter
     assert info["forward_evaluations"]["residual_budget"] == 2 * 2 + 1
+
+
+def test_residual_budget_with_a_parameter_on_its_bound(run_dir: Path) -> None:
+    from smcbayes.posterior.stage import load_run, residual_budget
+
+    ctx = load_run(run_dir)
+    u = ctx.space.to_unit(ctx.best_theta)
+    u[0, 0] = 1.0  # one-sided difference for the first parameter
+    ctx.best_theta = ctx.space.from_unit(u)
+    eff = residual_budget(ctx)
+    assert np.isfinite(eff["n_eff_sandwich"]) and eff["n_eff_sandwich"] > 0
+    assert eff["n_eff_total"] == min(eff["n_eff_sandwich"], eff["n_eff_residual"])
