@@ -16,7 +16,7 @@ datasets fit in about half an hour on two shared cores; the forward model is the
 1-D solver of the accuracy benchmark.
 
     python benchmarks/posterior_coverage.py [--datasets 20] [--quick] [--free n,B_Pa_s,tau_c_MPa]
-        [--correct-draws 6000] [--jobs 2] [--workdir DIR]
+        [--correct-draws 14000] [--jobs 2] [--workdir DIR]
 
 Prints a table and writes benchmarks/results/posterior_coverage.json.
 """
@@ -188,7 +188,7 @@ def main() -> int:
     ap.add_argument("--free", default="n,B_Pa_s,tau_c_MPa", help="free parameters (comma-separated)")
     ap.add_argument("--budget", type=int, default=0, help="calibration evaluations (0: 12 per parameter)")
     ap.add_argument("--refine", type=int, default=20, help="refinement evaluations")
-    ap.add_argument("--correct-draws", type=int, default=6000, help="most forward evaluations of the correction")
+    ap.add_argument("--correct-draws", type=int, default=14000, help="most proposal draws of the correction")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1, help="datasets run in parallel processes")
     ap.add_argument("--workdir", default=None,

@@ -8,6 +8,9 @@ from pathlib import Path
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the subcommand."""
+    # the correction module is light (numpy, scipy); the stage would pull in torch
+    from smcbayes.posterior.correct import CorrectionSettings
+
     p = sub.add_parser(
         "posterior", help="posterior of the parameters from a calibration run (GP emulator + emcee)",
         description="Reuse the calibration's GP as an emulator of the likelihood, sample it with "
@@ -25,10 +28,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="forward evaluations where the posterior is probable and the GP unsure")
     p.add_argument("--draws", type=int, default=100,
                    help="posterior draws through the forward model for bands and checks")
-    p.add_argument("--correct-draws", type=int, default=6000, metavar="D",
-                   help="most forward evaluations of the importance-sampling correction of the emulated "
-                        "posterior; it stops earlier once the importance ESS >= 500 and the Pareto "
-                        "k-hat <= 0.5 (default 6000; 0 reports the emulated posterior uncorrected)")
+    p.add_argument("--correct-draws", type=int, default=CorrectionSettings.draws, metavar="D",
+                   help="most proposal draws (each inside the prior box costs a forward evaluation) of the "
+                        "importance-sampling correction of the emulated posterior; it stops earlier once "
+                        f"the importance ESS >= {CorrectionSettings.ess_target:.0f} and the Pareto k-hat "
+                        f"<= {CorrectionSettings.k_target} (default {CorrectionSettings.draws}; "
+                        "0 reports the emulated posterior uncorrected)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.set_defaults(run=run)
 

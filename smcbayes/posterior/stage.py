@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from smcbayes.config import ProjectConfig
 from smcbayes.errors import ConfigError
+from smcbayes.posterior.correct import CorrectionSettings
 from smcbayes.posterior.likelihood import EmulatedPosterior, effective_points, sandwich_points
 from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
 
@@ -45,10 +46,10 @@ class PosteriorSettings:
         seed: random seed.
         refine_tolerance_nats: refinement stops early once the emulator's out-of-sample
             error at fresh posterior draws is below this (mean absolute, nats) twice in a row.
-        correct_draws: most proposal draws (forward evaluations) of the importance-sampling
-            correction of the emulated posterior (:mod:`smcbayes.posterior.correct`); it
-            stops earlier once the weights are good; 0 reports the emulated posterior
-            uncorrected.
+        correct_draws: most proposal draws (each inside the prior box costs a forward
+            evaluation) of the importance-sampling correction of the emulated posterior
+            (:mod:`smcbayes.posterior.correct`); it stops earlier once the weights are good;
+            0 reports the emulated posterior uncorrected.
     """
 
     walkers: int = 32
@@ -58,7 +59,7 @@ class PosteriorSettings:
     draws: int = 100
     seed: int = 0
     refine_tolerance_nats: float = 1.0
-    correct_draws: int = 6000
+    correct_draws: int = CorrectionSettings.draws
 
 
 @dataclass
@@ -217,7 +218,7 @@ def correct_posterior(ctx: RunContext, chains: list, n_eff: float, settings: Pos
     ``data`` are the GP's training points ``(x_unit (K, d), log_loss (K,))``: their exact
     log posterior is known and helps shape the first proposal.
     """
-    from smcbayes.posterior.correct import CorrectionSettings, correct
+    from smcbayes.posterior.correct import correct
     from smcbayes.posterior.summary import stack_components
 
     unit, _ = stack_components(chains)

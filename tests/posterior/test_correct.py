@@ -146,3 +146,22 @@ def test_known_points_shape_the_first_proposal() -> None:
     np.testing.assert_allclose(res.weights @ res.unit, MU, atol=0.03)
     x, lw = seed_weights(far, known)
     assert x.shape[0] == 2060 and abs(np.exp(lw[2000:]).sum() - 0.5) < 1e-9
+
+
+def _two_regions(u: np.ndarray) -> np.ndarray:
+    """A main region and a thin second one turned another way, holding 5 % of the mass."""
+    from scipy.stats import multivariate_normal
+
+    cov2 = np.array([[0.0004, 0.0, 0.0], [0.0, 0.004, 0.0035], [0.0, 0.0035, 0.004]])
+    u = np.atleast_2d(u)
+    return np.logaddexp(np.log(0.95) + multivariate_normal(MU, _target()[0]).logpdf(u),
+                        np.log(0.05) + multivariate_normal([0.8, 0.75, 0.25], cov2).logpdf(u))
+
+
+def test_second_region_missed_by_the_emulator_gets_its_mass() -> None:
+    rng = np.random.default_rng(10)
+    start = rng.normal(MU, SD, size=(3000, 3))  # the emulator saw the main region only
+    res = correct(_two_regions, start, CorrectionSettings(draws=6000, per_iteration=500), rng)
+    second = res.unit[:, 0] > 0.65
+    assert abs(res.weights[second].sum() - 0.05) < 0.015
+    assert res.k_hat < 0.7
