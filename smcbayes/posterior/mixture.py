@@ -123,7 +123,8 @@ def fit_mixture(x: Array, w: Array, components: int, rng: np.random.Generator,
         max_points: larger samples are thinned to about this many points first (:func:`thin`).
 
     Returns:
-        The fitted mixture; with ``components == 1`` the weighted mean and covariance.
+        The fitted mixture; with ``components == 1`` the weighted mean and (up to the
+        unbiasing factor 1 / (1 - sum w_i^2) of ``S``) the weighted covariance.
     """
     keep = w > 0
     x, w = thin(x[keep], w[keep], max_points, rng)
