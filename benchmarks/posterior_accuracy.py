@@ -49,6 +49,7 @@ import argparse
 import json
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -167,6 +168,30 @@ def exact_reference(run_dir: Path, folder: Path, n_eff: float, steps: int, k: in
     return exact, evals, diag
 
 
+def cached_importance_run(cache: Path, run_dir: Path, n_eff: float,
+                          first: Callable[[np.random.Generator, int], np.ndarray], settings: Any, seed: int,
+                          label: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Adaptive importance sampling on the forward model, loaded from ``cache`` when present.
+
+    ``first(rng, d)`` gives the points ``(N, d)`` the first proposal is fitted to; ``label``
+    is added to the diagnostics.  Returns unit-cube points ``(N, d)``, normalised weights
+    ``(N,)`` and diagnostics (k-hat, ESS, forward evaluations).
+    """
+    from smcbayes.posterior.correct import correct
+    from smcbayes.posterior.stage import exact_log_posterior
+
+    if cache.is_file():
+        z = np.load(cache)
+        return z["unit"], z["w"], json.loads(str(z["diag"]))
+    ctx = load_run(run_dir)
+    rng = np.random.default_rng(seed)
+    res = correct(exact_log_posterior(ctx, n_eff), first(rng, ctx.space.dim), settings, rng)
+    keep = res.weights > 0
+    diag = {"k_hat": res.k_hat, "ess": res.ess, "evaluations": res.evaluations, **label}
+    np.savez(cache, unit=res.unit[keep], w=res.weights[keep], diag=json.dumps(diag))
+    return res.unit[keep], res.weights[keep], diag
+
+
 def is_reference(run_dir: Path, folder: Path, n_eff: float, start: np.ndarray | None, draws: int,
                  seed: int) -> tuple[np.ndarray, np.ndarray, dict]:
     """An explorer: adaptive importance sampling on the forward model (``draws``
@@ -174,28 +199,20 @@ def is_reference(run_dir: Path, folder: Path, n_eff: float, start: np.ndarray | 
 
     ``start``: exact MCMC draws, pooled with as many uniform draws of the prior box for the
     first proposal; None: the first proposal is fitted to 4000 uniform draws only (it then
-    owes nothing to the MCMC either).  Cached in ``folder``.
-
-    Returns unit-cube points ``(N, d)``, normalised weights ``(N,)`` and diagnostics.
+    owes nothing to the MCMC either).  Cached in ``folder``; returns as
+    :func:`cached_importance_run`.
     """
-    from smcbayes.posterior.correct import CorrectionSettings, correct
-    from smcbayes.posterior.stage import exact_log_posterior
+    from smcbayes.posterior.correct import CorrectionSettings
 
     kind = "uniform" if start is None else f"mcmc{start.shape[0]}"
-    cache = folder / f"isref-{kind}-{draws}-neff{n_eff:.2f}.npz"
-    if cache.is_file():
-        z = np.load(cache)
-        return z["unit"], z["w"], json.loads(str(z["diag"]))
-    ctx = load_run(run_dir)
-    rng = np.random.default_rng(seed)
-    first = rng.random((4000, ctx.space.dim)) if start is None else np.vstack([start, rng.random(start.shape)])
+
+    def first(rng: np.random.Generator, d: int) -> np.ndarray:
+        return rng.random((4000, d)) if start is None else np.vstack([start, rng.random(start.shape)])
+
     settings = CorrectionSettings(draws=draws, per_iteration=draws // 10, ess_target=np.inf, widen_first=1.0,
                                   defensive=0.1)
-    res = correct(exact_log_posterior(ctx, n_eff), first, settings, rng)
-    keep = res.weights > 0
-    diag = {"k_hat": res.k_hat, "ess": res.ess, "evaluations": res.evaluations, "start": kind}
-    np.savez(cache, unit=res.unit[keep], w=res.weights[keep], diag=json.dumps(diag))
-    return res.unit[keep], res.weights[keep], diag
+    return cached_importance_run(folder / f"isref-{kind}-{draws}-neff{n_eff:.2f}.npz", run_dir, n_eff, first,
+                                 settings, seed, {"start": kind})
 
 
 def pooled_reference(run_dir: Path, folder: Path, n_eff: float, explorers: list[tuple[np.ndarray, np.ndarray]],
@@ -203,30 +220,22 @@ def pooled_reference(run_dir: Path, folder: Path, n_eff: float, explorers: list[
     """A large importance-sampling reference whose first proposal is fitted to the pooled
     ``explorers`` (each a (points ``(N, d)``, weights ``(N,)``) pair with equal share).
 
-    ``draws`` proposals, 10 % uniform on the box, 1000 kernel centres; cached in ``folder``.
-    Returns unit-cube points ``(N, d)``, normalised weights ``(N,)`` and diagnostics.
+    ``draws`` proposals, 10 % uniform on the box, 1000 kernel centres; cached in ``folder``;
+    returns as :func:`cached_importance_run`.
     """
-    from smcbayes.posterior.correct import CorrectionSettings, correct
-    from smcbayes.posterior.stage import exact_log_posterior
+    from smcbayes.posterior.correct import CorrectionSettings
 
-    sizes = "-".join(str(e[0].shape[0]) for e in explorers)
-    cache = folder / f"pooledref-{sizes}-{draws}-s{seed}-neff{n_eff:.2f}.npz"
-    if cache.is_file():
-        z = np.load(cache)
-        return z["unit"], z["w"], json.loads(str(z["diag"]))
-    ctx = load_run(run_dir)
-    rng = np.random.default_rng(seed)
     unit = np.vstack([e[0] for e in explorers])
     w = np.concatenate([e[1] / e[1].sum() for e in explorers])
-    first = unit[rng.choice(unit.shape[0], size=8000, p=w / w.sum())]
+
+    def first(rng: np.random.Generator, d: int) -> np.ndarray:
+        return unit[rng.choice(unit.shape[0], size=8000, p=w / w.sum())]
+
     settings = CorrectionSettings(draws=draws, per_iteration=draws // 10, ess_target=np.inf, widen_first=1.0,
                                   defensive=0.1, centres=1000, ess_floor=500.0)
-    res = correct(exact_log_posterior(ctx, n_eff), first, settings, rng)
-    keep = res.weights > 0
-    diag = {"k_hat": res.k_hat, "ess": res.ess, "evaluations": res.evaluations, "start": "pooled explorers",
-            "seed": seed}
-    np.savez(cache, unit=res.unit[keep], w=res.weights[keep], diag=json.dumps(diag))
-    return res.unit[keep], res.weights[keep], diag
+    sizes = "-".join(str(e[0].shape[0]) for e in explorers)
+    return cached_importance_run(folder / f"pooledref-{sizes}-{draws}-s{seed}-neff{n_eff:.2f}.npz", run_dir,
+                                 n_eff, first, settings, seed, {"start": "pooled explorers", "seed": seed})
 
 
 def run_case(k: int, truth: dict[str, float], args: argparse.Namespace, tmp: Path) -> dict[str, Any]:
