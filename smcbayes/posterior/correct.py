@@ -25,8 +25,8 @@ gets a share of the centres proportional to sqrt(alpha_k), its mass alpha_k.  A 
 with a second, thinner region turned another way is then drawn with kernels shaped like
 each region, and a region of small mass is drawn often enough to measure it.
 
-After each iteration every point evaluated so far, u_i with i = 1..N, is weighted against the mixture of all proposals used
-(the "deterministic mixture" or balance-heuristic weights, which recycle every forward
+After each iteration every point evaluated so far, u_i with i = 1..N, is weighted against
+the mixture of all proposals used (the "deterministic mixture" or balance-heuristic weights, which recycle every forward
 run):
 
     log w_i = log pi(u_i) - log sum_s (D_s / N) q_s(u_i),
@@ -56,6 +56,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 from scipy.special import gammaln, logsumexp
+
+from smcbayes.posterior.mixture import fit_mixture
 
 Array = NDArray[np.float64]
 K_HAT_WARN = 0.7
@@ -214,8 +216,6 @@ def _cluster_centres(u: Array, w: Array, m: int, m_eff: float, clusters: int, wi
     points with probabilities ``w_i r_ik``; a centre of component k gets the scale
     ``(widen h_k)^2 S_k`` with Scott's factor ``h_k = (s_k m_eff)^(-1 / (d + 4))``.
     """
-    from smcbayes.posterior.mixture import fit_mixture
-
     d = u.shape[1]
     mix = fit_mixture(u, w, clusters, rng)
     resp = np.exp(mix.log_resp(u)) * w[:, None]  # (N, K)

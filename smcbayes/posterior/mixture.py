@@ -55,9 +55,13 @@ class Mixture:
     mean: Array
     cov: Array
 
+    def log_joint(self, x: Array) -> Array:
+        """log alpha_k + log N(x_i; mu_k, S_k), ``(N, K)``, at the points ``x`` ``(N, d)``."""
+        return np.log(np.maximum(self.weight, 1e-300))[None, :] + _log_normal(x, self.mean, self.cov)
+
     def log_resp(self, x: Array) -> Array:
         """Log responsibilities ``(N, K)`` of the components for the points ``x`` ``(N, d)``."""
-        joint = np.log(np.maximum(self.weight, 1e-300))[None, :] + _log_normal(x, self.mean, self.cov)
+        joint = self.log_joint(x)
         return joint - logsumexp(joint, axis=1, keepdims=True)
 
 
@@ -141,7 +145,7 @@ def fit_mixture(x: Array, w: Array, components: int, rng: np.random.Generator,
     mix = Mixture(np.full(k, 1.0 / k), mean, np.broadcast_to(glob, (k, d, d)).copy())
     last = -np.inf
     for _ in range(iterations):
-        joint = np.log(np.maximum(mix.weight, 1e-300))[None, :] + _log_normal(x, mix.mean, mix.cov)
+        joint = mix.log_joint(x)
         norm = logsumexp(joint, axis=1, keepdims=True)
         loglik = float(w @ norm[:, 0])
         resp = np.exp(joint - norm) * w[:, None]  # (N, K) weighted responsibilities
