@@ -9,6 +9,7 @@ from scipy.stats import multivariate_t
 from smcbayes.posterior.correct import (
     CorrectionSettings,
     Proposal,
+    _Chains,
     correct,
     ess_of,
     fit_proposal,
@@ -99,6 +100,27 @@ def test_proposal_density_is_the_defensive_t_mixture() -> None:
     # the uniform share plus the t mass inside the cube
     assert 0.2 < inside.mean() <= 1.0
     assert abs(np.median(x[:, 0]) - 0.5) < 0.02
+
+
+def test_chains_moved_by_kernel_draws_sample_the_exact_posterior() -> None:
+    """Metropolis with the proposal's own kernel draws leaves the target invariant: 50 chains
+    started far off, 600 iterations, give the target's mean, spread and correlation."""
+    rng = np.random.default_rng(11)
+    cov, _ = _target()
+    chains = _Chains(np.tile([0.9, 0.9, 0.1], (50, 1)))
+    chol = np.broadcast_to(np.linalg.cholesky(0.5 * cov), (50, 3, 3))
+    kept = []
+    for step in range(600):
+        q = Proposal(chains.position.copy(), chol, nu=5.0, defensive=0.1)
+        draws, kernel = q.sample_indexed(120, rng)
+        inside = np.all((draws >= 0.0) & (draws <= 1.0), axis=1)
+        chains.advance(q, draws, kernel, np.where(inside, log_target(draws), -np.inf), rng)
+        if step >= 100:
+            kept.append(chains.position.copy())
+    x = np.concatenate(kept)
+    np.testing.assert_allclose(x.mean(axis=0), MU, atol=0.015)
+    np.testing.assert_allclose(x.std(axis=0), SD, rtol=0.1)
+    assert abs(np.corrcoef(x[:, 1], x[:, 2])[0, 1] - R12) < 0.05
 
 
 def test_temper_keeps_an_effective_sample() -> None:
