@@ -25,13 +25,20 @@ gets a share of the centres proportional to sqrt(alpha_k), its mass alpha_k.  A 
 with a second, thinner region turned another way is then drawn with kernels shaped like
 each region, and a region of small mass is drawn often enough to measure it.
 
-The first C centres (100 of 200 by default) are not redrawn but carried by random-walk Metropolis chains on
-pi: the draw from the kernel centred at chain c is a symmetric proposal for that chain,
-accepted with probability min(1, pi(x) / pi(c)), so the chains cost no forward run.  A
-posterior can have a long thin arm that the weighted sample sees only near its root;
-centres drawn from the sample stay there, while a chain that reaches the arm walks along
-it and takes its kernel with it.  The centres may depend on earlier draws in any way: the
-weights below use the densities of the proposals actually drawn from.
+The first C centres (100 of 200 by default) are not redrawn but carried by Metropolis-
+Hastings chains on pi.  The draw y from the kernel centred at chain c's position x is that
+chain's proposal, accepted with probability
+
+    min(1, pi(y) t(x; y, V(y)) / (pi(x) t(y; x, V(x)))),
+
+V(x) being the kernel scale the current fit gives a centre at x (the scale of its most
+responsible mixture component), so the chains reuse the draws and cost no forward run of
+their own.  A posterior can have a long thin arm that the weighted sample sees mostly near
+its root; centres drawn afresh from the sample stay there, while a chain that reaches the
+arm walks along it and takes its kernel with it.  Chains cannot jump to a separate region,
+so the fresh centres top each component up to its share sqrt(alpha_k).  The centres may
+depend on earlier draws in any way: the weights below use the densities of the proposals
+actually drawn from.
 
 After each iteration every point evaluated so far, u_i with i = 1..N, is weighted against
 the mixture of all proposals used (the "deterministic mixture" or balance-heuristic
@@ -101,15 +108,13 @@ class CorrectionSettings:
             in proportion to the weights.  With 1, the accuracy benchmark's thin second
             region was drawn with kernels shaped for the main one: correlation errors of
             0.15-0.21 remained after 10,500 forward runs (four seeds).
-        chains: centres carried by random-walk Metropolis chains on the exact posterior
-            (the rest are drawn afresh from the weighted sample every iteration).  Each
-            kernel draw is its chain's proposal, so the chains cost no forward run, and a
-            chain that reaches a thin arm of the posterior walks along it: in the accuracy
-            benchmark, an arm holding about 5 % of the mass and running to the prior bound
-            was otherwise drawn mostly near its root and came out at a third of its mass in
-            the worst seeds: correlation errors over eight seeds 0.08-0.24 without chains
-            (four within 0.15), 0.05-0.25 with 100 (seven within 0.15), for about 7,700
-            and 10,300 forward runs.
+        chains: centres carried by Metropolis-Hastings chains on the exact posterior (the
+            rest are drawn afresh every iteration; at most ``centres``; 0: none).  A chain
+            moves at most once per iteration, with the first draw of its own kernel, so it
+            costs no forward run; a chain that reaches a thin arm of the posterior walks
+            along it (see the module docstring and ``benchmarks/posterior_accuracy.py``).
+            The correction then needs more draws to reach its ESS target, since chains
+            started where the emulator was wrong walk in slowly.
         batch: points per forward call.
     """
 
@@ -138,12 +143,16 @@ class Proposal:
         chol: Cholesky factors of the kernel scale matrices, ``(M, d, d)``.
         nu: degrees of freedom.
         defensive: share of the uniform density on the unit cube.
+        chol_at: Cholesky factors ``(n, d, d)`` of the scale a kernel centred at each of the
+            points ``(n, d)`` would get from the same fit, when the scale depends on the
+            centre's position (the Hastings term of the chains); None when it does not.
     """
 
     centres: Array
     chol: Array
     nu: float
     defensive: float
+    chol_at: Callable[[Array], Array] | None = field(default=None, compare=False)
 
     def sample(self, count: int, rng: np.random.Generator) -> Array:
         """``count`` points ``(count, d)`` (some may fall outside the cube)."""
@@ -152,7 +161,7 @@ class Proposal:
     def sample_indexed(self, count: int, rng: np.random.Generator) -> tuple[Array, Array]:
         """``count`` points ``(count, d)`` and the kernel each came from ``(count,)`` (-1: uniform)."""
         m, d = self.centres.shape
-        kernel = np.full(count, -1)
+        kernel = np.full(count, -1, dtype=np.intp)
         uniform = rng.random(count) < self.defensive
         out = rng.random((count, d))
         k = int((~uniform).sum())
@@ -230,10 +239,13 @@ def _local_covs(u: Array, w: Array, centres: Array, cov: Array, neighbours: int)
 
 
 def _cluster_centres(u: Array, w: Array, m: int, m_eff: float, clusters: int, widen: float,
-                     rng: np.random.Generator, fixed: Array | None = None) -> tuple[Array, Array]:
-    """Centres ``(m, d)`` and kernel scales ``(m, d, d)`` from a Gaussian mixture fitted to the
-    weighted sample ``u`` ``(N, d)``, ``w`` ``(N,)``; the first centres are ``fixed``
-    ``(C, d)`` when given, with the scale of their most responsible component.
+                     rng: np.random.Generator, fixed: Array | None = None,
+                     ) -> tuple[Array, Array, Callable[[Array], Array]]:
+    """Centres ``(m, d)``, kernel scales ``(m, d, d)`` and the scale function of fixed centres
+    from a Gaussian mixture fitted to the weighted sample ``u`` ``(N, d)``, ``w`` ``(N,)``.
+
+    The first centres are ``fixed`` ``(C, d)`` when given; they get the scale of the
+    component most responsible at their position, ``scale_at(points (n, d)) -> (n, d, d)``.
 
     Component k receives a share ``s_k = sqrt(alpha_k) / sum_j sqrt(alpha_j)`` of the centres
     (more than its mass alpha_k when that is small, so that a region holding a few per cent
@@ -245,17 +257,40 @@ def _cluster_centres(u: Array, w: Array, m: int, m_eff: float, clusters: int, wi
     mix = fit_mixture(u, w, clusters, rng)
     resp = np.exp(mix.log_resp(u)) * w[:, None]  # (N, K)
     share = np.sqrt(mix.weight) / np.sum(np.sqrt(mix.weight))
-    comp = rng.choice(share.size, size=m, p=share)
+    fixed = None if fixed is None else fixed[:m]
+    held = np.zeros(share.size) if fixed is None else np.bincount(
+        np.argmax(mix.log_joint(fixed), axis=1), minlength=share.size)
+    # the fresh centres top each component up to its share: chains cannot jump to a
+    # separate region, so one the emulator missed would otherwise get only part of it
+    deficit = np.maximum(share * m - held, 0.0)
+    top_up = deficit / deficit.sum() if deficit.sum() > 0.0 else share
+    comp = rng.choice(share.size, size=m, p=top_up)
     centres = np.empty((m, d))
     for k in np.unique(comp):
         # a component whose responsibilities underflow everywhere falls back to the weights
         p = resp[:, k] / resp[:, k].sum() if resp[:, k].sum() > 0.0 else w
         centres[comp == k] = u[rng.choice(u.shape[0], size=int(np.sum(comp == k)), p=p)]
+    h = widen * np.maximum(share * m_eff, 1.0) ** (-1.0 / (d + 4))
+
+    def scale_at(points: Array) -> Array:
+        owner = np.argmax(mix.log_joint(points), axis=1)
+        return (h[owner, None, None] ** 2) * mix.cov[owner] + 1e-9 * np.eye(d)
+
+    scale = (h[comp, None, None] ** 2) * mix.cov[comp] + 1e-9 * np.eye(d)
     if fixed is not None:
         centres[: fixed.shape[0]] = fixed
-        comp[: fixed.shape[0]] = np.argmax(mix.log_joint(fixed), axis=1)
-    h = widen * np.maximum(share * m_eff, 1.0) ** (-1.0 / (d + 4))
-    return centres, (h[comp, None, None] ** 2) * mix.cov[comp] + 1e-9 * np.eye(d)
+        scale[: fixed.shape[0]] = scale_at(fixed)
+    return centres, scale, scale_at
+
+
+def _with_local(base: Callable[[Array], Array], u: Array, w: Array, cov: Array, neighbours: int,
+                factor: float) -> Callable[[Array], Array]:
+    """The kernel scale at given centres ``(n, d) -> (n, d, d)``: half ``base``, half ``factor``
+    times the covariance of the centres' weighted nearest neighbours (see :func:`_local_covs`)."""
+    def scale_at(points: Array) -> Array:
+        local = _local_covs(u, w, points, cov, neighbours)
+        return 0.5 * base(points) + 0.5 * factor * local + 1e-9 * np.eye(u.shape[1])
+    return scale_at
 
 
 def fit_proposal(u: Array, log_w: Array | None, settings: CorrectionSettings, rng: np.random.Generator,
@@ -283,18 +318,22 @@ def fit_proposal(u: Array, log_w: Array | None, settings: CorrectionSettings, rn
     m = min(settings.centres, n)
     ess = ess_of(lw) if log_w is not None else float(n)
     m_eff = min(m, ess)
+    scale_at: Callable[[Array], Array] | None = None
     if settings.clusters > 1:
-        centres, scale = _cluster_centres(u, w, m, m_eff, settings.clusters, widen, rng, fixed)
+        centres, scale, scale_at = _cluster_centres(u, w, m, m_eff, settings.clusters, widen, rng, fixed)
     else:
         centres = u[rng.choice(n, size=m, replace=True, p=w)]
         if fixed is not None:
-            centres[: fixed.shape[0]] = fixed
-        h = widen * max(m_eff, 1.0) ** (-1.0 / (d + 4))
-        scale = np.broadcast_to(h * h * cov, (m, d, d)).copy()
+            centres[: min(m, fixed.shape[0])] = fixed[:m]
+        const = (widen * max(m_eff, 1.0) ** (-1.0 / (d + 4))) ** 2 * cov
+        scale = np.broadcast_to(const, (m, d, d)).copy()
     if log_w is not None and settings.local and ess >= 4 * d:
-        local = _local_covs(u, w, centres, cov, max(4 * d, int(ess // 2)))
-        scale = 0.5 * scale + 0.5 * local * (widen * 1.5) ** 2 + 1e-9 * np.eye(d)
-    return Proposal(centres, np.linalg.cholesky(scale), settings.nu, settings.defensive)
+        k = max(4 * d, int(ess // 2))
+        scale = 0.5 * scale + 0.5 * _local_covs(u, w, centres, cov, k) * (widen * 1.5) ** 2 + 1e-9 * np.eye(d)
+        scale_at = _with_local(scale_at if scale_at is not None else (lambda p: np.broadcast_to(const, (p.shape[0], d, d))),
+                               u, w, cov, k, (widen * 1.5) ** 2)
+    chol_at = None if scale_at is None else (lambda p: np.linalg.cholesky(scale_at(p)))
+    return Proposal(centres, np.linalg.cholesky(scale), settings.nu, settings.defensive, chol_at)
 
 
 @dataclass
@@ -384,14 +423,25 @@ def seed_weights(start: Array, known: tuple[Array, Array] | None, floor: float =
     return np.vstack([start, x[ok]]), np.concatenate([lw_start, lw_known])
 
 
+def _log_t(x: Array, centre: Array, chol: Array, nu: float) -> Array:
+    """Log density ``(n,)`` of Student-t kernels (centres ``(n, d)``, Cholesky factors
+    ``(n, d, d)``, ``nu`` degrees of freedom) at the points ``x`` ``(n, d)``, pairwise."""
+    d = x.shape[1]
+    z = np.linalg.solve(chol, (x - centre)[:, :, None])[:, :, 0]
+    logdet = np.sum(np.log(np.diagonal(chol, axis1=1, axis2=2)), axis=1)
+    return (gammaln(0.5 * (nu + d)) - gammaln(0.5 * nu) - 0.5 * d * np.log(nu * np.pi) - logdet
+            - 0.5 * (nu + d) * np.log1p(np.sum(z * z, axis=1) / nu))
+
+
 @dataclass
 class _Chains:
-    """Random-walk Metropolis chains on the exact posterior that carry the first centres.
+    """Metropolis-Hastings chains on the exact posterior that carry the first centres.
 
-    A draw from the Student-t kernel centred at a chain's position is a symmetric
-    random-walk proposal for that chain, so each iteration moves every chain whose kernel
-    was drawn from (with its first such draw) at no extra forward run.  A chain starts at an
-    emulator draw with an unknown target value and takes its first draw inside the box.
+    A draw from the Student-t kernel centred at a chain's position is that chain's proposal
+    (see :meth:`advance`), so each iteration moves every chain whose kernel was drawn from
+    at no extra forward run.  A chain starts at a centre of the first proposal (an emulator
+    draw or a GP training point) with an unknown target value and accepts its first draw
+    with a finite target.
 
     Attributes:
         position: chain positions in the unit cube, ``(C, d)``.
@@ -407,19 +457,30 @@ class _Chains:
 
     def advance(self, proposal: Proposal, draws: Array, kernel: Array, log_target: Array,
                 rng: np.random.Generator) -> None:
-        """One Metropolis step per chain from the ``draws`` ``(n, d)`` of ``proposal``, the
-        kernel each came from ``(n,)`` and their exact log posterior ``(n,)``.  A chain whose
-        kernel is not centred at its position (a proposal kept from an earlier iteration)
-        does not move: the draw would not be a symmetric proposal for it."""
-        count = self.position.shape[0]
-        centred = np.all(proposal.centres[:count] == self.position, axis=1)
+        """One Metropolis-Hastings step per chain from the ``draws`` ``(n, d)`` of ``proposal``,
+        the kernel each came from ``(n,)`` and their exact log posterior ``(n,)``.
+
+        Chain c at x proposes y, the first draw of kernel c, and accepts with probability
+        ``min(1, pi(y) t(x; y, V(y)) / (pi(x) t(y; x, V(x))))``, V the kernel scale the fit
+        gives a centre at that position (``proposal.chol_at``; equal scales cancel).  A chain
+        whose kernel is not centred at its position (a proposal kept from an earlier
+        iteration) does not move.
+        """
+        count = min(self.position.shape[0], proposal.centres.shape[0])
+        centred = np.all(proposal.centres[:count] == self.position[:count], axis=1)
         own = np.flatnonzero((kernel >= 0) & (kernel < count))
         own = own[centred[kernel[own]]]
         _, first = np.unique(kernel[own], return_index=True)
-        for i in own[first]:
-            c = kernel[i]
-            if np.isfinite(log_target[i]) and np.log(rng.random()) < log_target[i] - self.log_target[c]:
-                self.position[c], self.log_target[c] = draws[i], log_target[i]
+        pick = own[first]
+        chain, y = kernel[pick], draws[pick]
+        with np.errstate(invalid="ignore"):
+            log_ratio = log_target[pick] - self.log_target[chain]
+        if proposal.chol_at is not None and pick.size:
+            x = self.position[chain]
+            log_ratio += (_log_t(x, y, proposal.chol_at(y), proposal.nu)
+                          - _log_t(y, x, proposal.chol[chain], proposal.nu))
+        move = np.isfinite(log_target[pick]) & (np.log(rng.random(pick.size)) < np.nan_to_num(log_ratio, nan=-np.inf))
+        self.position[chain[move]], self.log_target[chain[move]] = y[move], log_target[pick][move]
 
 
 def correct(log_target: Callable[[Array], Array], start: Array, settings: CorrectionSettings,

@@ -102,25 +102,50 @@ def test_proposal_density_is_the_defensive_t_mixture() -> None:
     assert abs(np.median(x[:, 0]) - 0.5) < 0.02
 
 
-def test_chains_moved_by_kernel_draws_sample_the_exact_posterior() -> None:
-    """Metropolis with the proposal's own kernel draws leaves the target invariant: 50 chains
-    started far off, 600 iterations, give the target's mean, spread and correlation."""
-    rng = np.random.default_rng(11)
-    cov, _ = _target()
+def _run_chains(chol_at, steps: int, seed: int) -> np.ndarray:
+    """Positions of 50 chains (started far off) moved by their own kernels' draws for
+    ``steps`` iterations, the first 100 dropped, ``(50 (steps - 100), 3)``."""
+    rng = np.random.default_rng(seed)
     chains = _Chains(np.tile([0.9, 0.9, 0.1], (50, 1)))
-    chol = np.broadcast_to(np.linalg.cholesky(0.5 * cov), (50, 3, 3))
     kept = []
-    for step in range(600):
-        q = Proposal(chains.position.copy(), chol, nu=5.0, defensive=0.1)
+    for step in range(steps):
+        q = Proposal(chains.position.copy(), chol_at(chains.position), nu=5.0, defensive=0.1, chol_at=chol_at)
         draws, kernel = q.sample_indexed(120, rng)
         inside = np.all((draws >= 0.0) & (draws <= 1.0), axis=1)
         chains.advance(q, draws, kernel, np.where(inside, log_target(draws), -np.inf), rng)
         if step >= 100:
             kept.append(chains.position.copy())
-    x = np.concatenate(kept)
-    np.testing.assert_allclose(x.mean(axis=0), MU, atol=0.015)
-    np.testing.assert_allclose(x.std(axis=0), SD, rtol=0.1)
+    return np.concatenate(kept)
+
+
+def test_chains_moved_by_kernel_draws_sample_the_exact_posterior() -> None:
+    """Metropolis with the proposal's own kernel draws leaves the target invariant."""
+    cov, _ = _target()
+    x = _run_chains(lambda p: np.broadcast_to(np.linalg.cholesky(0.5 * cov), (p.shape[0], 3, 3)), 600, 11)
+    np.testing.assert_allclose(x.mean(axis=0), MU, atol=0.01)
+    np.testing.assert_allclose(x.std(axis=0), SD, rtol=0.06)
     assert abs(np.corrcoef(x[:, 1], x[:, 2])[0, 1] - R12) < 0.05
+
+
+def test_chains_with_position_dependent_kernels_keep_the_target() -> None:
+    """Kernels 8x wider (in variance) above the mean of u_1 than below: without the Hastings
+    term the chains spend about 60 % of their time in the wide half instead of 50 %."""
+    cov, _ = _target()
+    narrow, wide = np.linalg.cholesky(0.5 * cov), np.linalg.cholesky(4.0 * cov)
+
+    def chol_at(p: np.ndarray) -> np.ndarray:
+        return np.where((p[:, 1] > MU[1])[:, None, None], wide, narrow)
+
+    x = _run_chains(chol_at, 800, 12)
+    assert abs(np.mean(x[:, 1] > MU[1]) - 0.5) < 0.03
+    np.testing.assert_allclose(x.std(axis=0), SD, rtol=0.08)
+
+
+def test_more_chains_than_points_per_iteration() -> None:
+    """100 chains with 50 draws per iteration: the proposals have fewer centres than chains."""
+    rng = np.random.default_rng(13)
+    res = correct(log_target, biased_start(rng), CorrectionSettings(draws=300, per_iteration=50), rng)
+    assert res.evaluations > 0 and np.isfinite(res.ess)
 
 
 def test_temper_keeps_an_effective_sample() -> None:
@@ -181,9 +206,14 @@ def _two_regions(u: np.ndarray) -> np.ndarray:
 
 
 def test_second_region_missed_by_the_emulator_gets_its_mass() -> None:
-    rng = np.random.default_rng(10)
-    start = rng.normal(MU, SD, size=(3000, 3))  # the emulator saw the main region only
-    res = correct(_two_regions, start, CorrectionSettings(draws=6000, per_iteration=500), rng)
-    second = res.unit[:, 0] > 0.65
-    assert abs(res.weights[second].sum() - 0.05) < 0.015
-    assert res.k_hat < 0.7
+    """Over four seeds (one estimate is noisy: 2-6 % at this budget), the region the emulator
+    missed is found every time and its mass is right on average."""
+    mass = []
+    for seed in (10, 11, 12, 13):
+        rng = np.random.default_rng(seed)
+        start = rng.normal(MU, SD, size=(3000, 3))  # the emulator saw the main region only
+        res = correct(_two_regions, start, CorrectionSettings(draws=6000, per_iteration=500), rng)
+        mass.append(res.weights[res.unit[:, 0] > 0.65].sum())
+        assert res.k_hat < 0.7
+    assert min(mass) > 0.02
+    assert abs(np.mean(mass) - 0.05) < 0.01
