@@ -304,7 +304,9 @@ def fit_proposal(u: Array, log_w: Array | None, settings: CorrectionSettings, rn
     bandwidth squared (for the effective number of centres) times ``widen`` squared.  With
     ``settings.local`` (weighted samples only), half of it is replaced by the covariance of
     each centre's weighted nearest neighbours, so the kernels follow a curved ridge while
-    keeping the global spread as a floor.
+    keeping the global spread as a floor.  ``fixed`` ``(C, d)`` are the positions of the
+    first centres (the chains' of :func:`correct`); the proposal's ``chol_at`` then gives
+    the scale a centre would get at any position.
     """
     n, d = u.shape
     lw = np.zeros(n) if log_w is None else temper(log_w, settings.ess_floor)
