@@ -25,10 +25,9 @@ The explorers alone are not accurate enough to judge against: in the first case 
 posterior has a long thin arm (tau* from about 0.65 up to the prior bound, in unit-cube
 coordinates, at nearly constant density along it, with n spread wide) holding about 5 %
 of the mass, and an explorer that samples it sparsely misplaces the quantiles and
-correlations it moves (in
-the first case the uniform-start explorer differed from the reference by 0.11 in a
-quantile and 0.16 in a correlation).  The MCMC is reported but does not judge: an ensemble
-started near the best point can stay out of that arm while its R-hat and
+correlations it moves (there the uniform-start explorer differed from the reference by
+0.11 in a quantile and 0.16 in a correlation).  The MCMC is reported but does not judge:
+an ensemble started near the best point can stay out of that arm while its R-hat and
 autocorrelation look converged.
 
 Targets: per-parameter 5/50/95 % quantiles within 10 % of the prior width (unit-cube

@@ -258,8 +258,8 @@ def _cluster_centres(u: Array, w: Array, m: int, m_eff: float, clusters: int, wi
     resp = np.exp(mix.log_resp(u)) * w[:, None]  # (N, K)
     share = np.sqrt(mix.weight) / np.sum(np.sqrt(mix.weight))
     fixed = None if fixed is None else fixed[:m]
-    held = np.zeros(share.size) if fixed is None else np.bincount(
-        np.argmax(mix.log_joint(fixed), axis=1), minlength=share.size)
+    owner = None if fixed is None else np.argmax(mix.log_joint(fixed), axis=1)
+    held = np.zeros(share.size) if owner is None else np.bincount(owner, minlength=share.size)
     # the fresh centres top each component up to its share: chains cannot jump to a
     # separate region, so one the emulator missed would otherwise get only part of it
     deficit = np.maximum(share * m - held, 0.0)
@@ -272,15 +272,13 @@ def _cluster_centres(u: Array, w: Array, m: int, m_eff: float, clusters: int, wi
         centres[comp == k] = u[rng.choice(u.shape[0], size=int(np.sum(comp == k)), p=p)]
     h = widen * np.maximum(share * m_eff, 1.0) ** (-1.0 / (d + 4))
 
-    def scale_at(points: Array) -> Array:
-        owner = np.argmax(mix.log_joint(points), axis=1)
-        return (h[owner, None, None] ** 2) * mix.cov[owner] + 1e-9 * np.eye(d)
+    def scale_of(k: NDArray[np.intp]) -> Array:
+        return (h[k, None, None] ** 2) * mix.cov[k] + 1e-9 * np.eye(d)
 
-    scale = (h[comp, None, None] ** 2) * mix.cov[comp] + 1e-9 * np.eye(d)
     if fixed is not None:
         centres[: fixed.shape[0]] = fixed
-        scale[: fixed.shape[0]] = scale_at(fixed)
-    return centres, scale, scale_at
+        comp[: fixed.shape[0]] = owner
+    return centres, scale_of(comp), lambda points: scale_of(np.argmax(mix.log_joint(points), axis=1))
 
 
 def _with_local(base: Callable[[Array], Array], u: Array, w: Array, cov: Array, neighbours: int,
