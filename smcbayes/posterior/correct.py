@@ -46,10 +46,18 @@ weights, which recycle every forward run):
 
     log w_i = log pi(u_i) - log sum_s (D_s / N) q_s(u_i),
 
-D_s being the number of points drawn from q_s.  The next proposal is fitted to the
-weighted sample with the weights tempered, w^gamma with the largest gamma <= 1 that keeps
-an effective sample size of at least ``ess_floor``, so that a few heavy points cannot
-collapse it.
+D_s being the number of points drawn from q_s.  The next proposal is fitted not to pi but
+to the tempered posterior pi^T (T = ``fit_temperature``, 1/2 by default), the same points
+weighted by pi(u_i)^T / sum_s (D_s / N) q_s(u_i).  Fitted to pi, the proposals stay where
+mass has already been found: a region that the draws see only at its edge keeps few
+kernels, and its mass comes out too small in the same direction on every seed (a flat arm
+of 4.4 % of the accuracy benchmark's posterior came out at 1.4-2.8 % over six seeds,
+with ESS 2000 and k-hat below 0.3).  pi^T lowers the contrast between densities (a
+ratio r becomes r^T), so the proposals spread into such regions; for a Gaussian posterior
+pi^(1/2) is sqrt(2) times wider (the thesis posterior still reached its ESS target
+after the same number of forward runs).  Those weights are further tempered, w^gamma with the largest
+gamma <= 1 that keeps an effective sample size of at least ``ess_floor``, so that a few
+heavy points cannot collapse the fit.  The estimates always use the weights of pi itself.
 
 The final weights are Pareto-smoothed (PSIS; Vehtari, Simpson, Gelman, Yao and Gabry,
 JMLR 25, 2024): the largest raw weights are replaced by expected order statistics of a
@@ -72,6 +80,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import gammaln, logsumexp
 
+from smcbayes.errors import ConfigError
 from smcbayes.posterior.mixture import fit_mixture
 
 Array = NDArray[np.float64]
@@ -102,6 +111,12 @@ class CorrectionSettings:
         widen_first: bandwidth factor of the first proposal (fitted to emulator draws).
         widen: bandwidth factor of the later proposals.
         ess_floor: minimum effective sample size of the tempered weights a proposal is fitted to.
+        fit_temperature: exponent T of the tempered posterior pi^T the proposals are fitted
+            to (see the module docstring; 1: fitted to pi).  With 1/2 the accuracy
+            benchmark's quantile and correlation errors over eight seeds (fixed emulator
+            start) fell from 0.086 and 0.130 on average to 0.069 and 0.081 in its first case
+            and from 0.061 and 0.116 to 0.053 and 0.097 in its second, for the same number of
+            forward runs; the thesis posterior still stops at ESS 2000 after about 2,300 runs.
         local: kernels shaped by the centres' nearest neighbours (see :func:`fit_proposal`).
         clusters: components of the Gaussian mixture that shapes the kernels and shares out
             the centres (see :func:`fit_proposal`); 1: one global covariance, centres drawn
@@ -132,6 +147,11 @@ class CorrectionSettings:
     local: bool = False
     clusters: int = 8
     chains: int = 100
+    fit_temperature: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.fit_temperature <= 1.0:
+            raise ConfigError(f"fit_temperature must lie in (0, 1], got {self.fit_temperature}")
 
 
 @dataclass(frozen=True)
@@ -528,7 +548,8 @@ def correct(log_target: Callable[[Array], Array], start: Array, settings: Correc
             break
         if t + 1 < len(sizes):
             fitted = np.isfinite(log_w).any()
-            proposals.append(fit_proposal(unit, log_w, settings, rng, settings.widen, chains.position)
+            fit_w = np.where(np.isfinite(target), settings.fit_temperature * target - log_q, -np.inf)
+            proposals.append(fit_proposal(unit, fit_w, settings, rng, settings.widen, chains.position)
                              if fitted else proposals[-1])
     print("", file=sys.stderr)
     return ImportanceSample(unit, target, smoothed, it, k_hat, ess_of(smoothed), evaluations, history, settled)
