@@ -217,3 +217,33 @@ def test_second_region_missed_by_the_emulator_gets_its_mass() -> None:
         assert res.k_hat < 0.7
     assert min(mass) > 0.02
     assert abs(np.mean(mass) - 0.05) < 0.01
+
+
+def test_proposals_fit_the_tempered_posterior_and_estimates_the_exact_one() -> None:
+    """With T = 1/2 the proposals follow pi^(1/2), sqrt(2) times wider for a Gaussian than
+    with T = 1, while the weighted estimates are those of pi in both cases."""
+    spread = {}
+    for temp in (1.0, 0.5):
+        rng = np.random.default_rng(4)
+        settings = CorrectionSettings(draws=4000, per_iteration=500, ess_target=np.inf, chains=0, clusters=1,
+                                      fit_temperature=temp)
+        res = correct(log_target, biased_start(rng), settings, rng)
+        live = res.weights > 0
+        mean, sd, corr = weighted_moments(res.unit[live], res.weights[live])
+        np.testing.assert_allclose(mean, MU, atol=0.02)
+        np.testing.assert_allclose(sd, SD, rtol=0.15)
+        assert abs(corr[1, 2] - R12) < 0.1
+        # the kernel draws of the last proposals (the uniform quarter barely moves the quartiles)
+        late = res.unit[res.iteration >= 5]
+        q25, q75 = np.quantile(late, [0.25, 0.75], axis=0)
+        spread[temp] = q75 - q25
+    ratio = spread[0.5] / spread[1.0]
+    assert np.all((ratio > 1.2) & (ratio < 1.7)), ratio
+
+
+def test_fit_temperature_outside_unit_interval_is_refused() -> None:
+    from smcbayes.errors import ConfigError
+
+    for bad in (0.0, -0.5, 1.5):
+        with pytest.raises(ConfigError, match="fit_temperature"):
+            CorrectionSettings(fit_temperature=bad)
