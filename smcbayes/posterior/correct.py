@@ -52,12 +52,13 @@ weighted by pi(u_i)^T / sum_s (D_s / N) q_s(u_i).  Fitted to pi, the proposals s
 mass has already been found: a region that the draws see only at its edge keeps few
 kernels, and its mass comes out too small in the same direction on every seed (a flat arm
 of 4.4 % of the accuracy benchmark's posterior came out at 1.4-2.8 % over six seeds,
-with ESS 2000 and k-hat below 0.3).  pi^T lowers the contrast between densities (a
-ratio r becomes r^T), so the proposals spread into such regions; for a Gaussian posterior
-pi^(1/2) is sqrt(2) times wider (the thesis posterior still reached its ESS target
-after the same number of forward runs).  Those weights are further tempered, w^gamma with the largest
-gamma <= 1 that keeps an effective sample size of at least ``ess_floor``, so that a few
-heavy points cannot collapse the fit.  The estimates always use the weights of pi itself.
+while the ESS reached 2000 and k-hat stayed low).  pi^T lowers the contrast between
+densities (a ratio r becomes r^T), so the proposals spread into such regions; for a
+Gaussian posterior pi^(1/2) is sqrt(2) times wider (the thesis posterior still reached
+its ESS target after the same number of forward runs).  Those weights are further
+tempered, w^gamma with the largest gamma <= 1 that keeps an effective sample size of at
+least ``ess_floor``, so that a few heavy points cannot collapse the fit.  The estimates
+always use the weights of pi itself.
 
 The final weights are Pareto-smoothed (PSIS; Vehtari, Simpson, Gelman, Yao and Gabry,
 JMLR 25, 2024): the largest raw weights are replaced by expected order statistics of a
@@ -115,8 +116,8 @@ class CorrectionSettings:
             to (see the module docstring; 1: fitted to pi).  With 1/2 the accuracy
             benchmark's quantile and correlation errors over eight seeds (fixed emulator
             start) fell from 0.086 and 0.130 on average to 0.069 and 0.081 in its first case
-            and from 0.061 and 0.116 to 0.053 and 0.097 in its second, for the same number of
-            forward runs; the thesis posterior still stops at ESS 2000 after about 2,300 runs.
+            and from 0.057 and 0.116 to 0.053 and 0.097 in its second, for about the same
+            number of forward runs; the thesis posterior still stops at ESS 2000 after about 2,300 runs.
         local: kernels shaped by the centres' nearest neighbours (see :func:`fit_proposal`).
         clusters: components of the Gaussian mixture that shapes the kernels and shares out
             the centres (see :func:`fit_proposal`); 1: one global covariance, centres drawn

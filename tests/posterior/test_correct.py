@@ -219,7 +219,7 @@ def test_second_region_missed_by_the_emulator_gets_its_mass() -> None:
     assert abs(np.mean(mass) - 0.05) < 0.01
 
 
-def test_proposals_fit_the_tempered_posterior_and_estimates_the_exact_one() -> None:
+def test_proposals_follow_the_tempered_posterior_while_estimates_follow_the_exact_one() -> None:
     """With T = 1/2 the proposals follow pi^(1/2), sqrt(2) times wider for a Gaussian than
     with T = 1, while the weighted estimates are those of pi in both cases."""
     spread = {}
@@ -233,7 +233,7 @@ def test_proposals_fit_the_tempered_posterior_and_estimates_the_exact_one() -> N
         np.testing.assert_allclose(mean, MU, atol=0.02)
         np.testing.assert_allclose(sd, SD, rtol=0.15)
         assert abs(corr[1, 2] - R12) < 0.1
-        # the kernel draws of the last proposals (the uniform quarter barely moves the quartiles)
+        # the spread of the last proposals' draws (their uniform quarter is the same for both)
         late = res.unit[res.iteration >= 5]
         q25, q75 = np.quantile(late, [0.25, 0.75], axis=0)
         spread[temp] = q75 - q25
