@@ -15,8 +15,8 @@ Cornuet, Marin, Mira and Robert, Scand. J. Stat. 39, 2012) with a defensive prop
     q_t(u) = (1 - beta) * (1/M) * sum_m t_nu(u; c_m, V_m) + beta * 1[u in cube],
 
 a mixture of M Student-t kernels (nu = 5, heavy tails) centred at points c_m drawn from
-the current sample (the emcee draws of the emulator at t = 0, then the weighted exact
-sample), plus a share beta of the uniform prior so that no region of the prior box has
+the current sample (the emcee draws of the emulator at t = 0, then the exact sample
+weighted for the tempered posterior, see below), plus a share beta of the uniform prior so that no region of the prior box has
 zero proposal density.  The kernel scales V_m come from a Gaussian mixture fitted to the
 sample (:mod:`smcbayes.posterior.mixture`): a centre drawn from component k has
 V_m = h_k^2 S_k, the component's covariance times Scott's bandwidth for the component's
@@ -37,8 +37,9 @@ their own.  A posterior can have a long thin arm that the weighted sample sees m
 its root; centres drawn afresh from the sample stay there, while a chain that reaches the
 arm walks along it and takes its kernel with it.  Chains cannot jump to a separate region,
 so the fresh centres top each component up to its share sqrt(alpha_k).  The centres may
-depend on earlier draws in any way: the weights below use the densities of the proposals
-actually drawn from.
+depend on earlier draws: the weights below use the densities of the proposals actually
+drawn from (consistent as the draws per iteration grow; Marin, Pudlo and Sedki,
+Bernoulli 25, 2019).
 
 After each iteration every point evaluated so far, u_i with i = 1..N, is weighted against
 the mixture of all proposals used (the "deterministic mixture" or balance-heuristic
@@ -57,8 +58,10 @@ densities (a ratio r becomes r^T), so the proposals spread into such regions; fo
 Gaussian posterior pi^(1/2) is sqrt(2) times wider (the thesis posterior still reached
 its ESS target after the same number of forward runs).  Those weights are further
 tempered, w^gamma with the largest gamma <= 1 that keeps an effective sample size of at
-least ``ess_floor``, so that a few heavy points cannot collapse the fit.  The estimates
-always use the weights of pi itself.
+least ``ess_floor``, so that a few heavy points cannot collapse the fit.  The chains
+above still target pi; the fresh centres, the kernel scales and the components' masses
+alpha_k follow pi^T, so a region of small mass gains twice, from T and from
+sqrt(alpha_k).  The estimates always use the weights of pi itself.
 
 The final weights are Pareto-smoothed (PSIS; Vehtari, Simpson, Gelman, Yao and Gabry,
 JMLR 25, 2024): the largest raw weights are replaced by expected order statistics of a
@@ -116,8 +119,10 @@ class CorrectionSettings:
             to (see the module docstring; 1: fitted to pi).  With 1/2 the accuracy
             benchmark's quantile and correlation errors over eight seeds (fixed emulator
             start) fell from 0.086 and 0.130 on average to 0.069 and 0.081 in its first case
-            and from 0.057 and 0.116 to 0.053 and 0.097 in its second, for about the same
-            number of forward runs; the thesis posterior still stops at ESS 2000 after about 2,300 runs.
+            and from 0.057 and 0.116 to 0.053 and 0.097 in its second.  The cost: the draws now
+            run out on both (10,200-10,900 forward runs, were 8,900-10,900), and the coverage
+            benchmark spends 7,200 runs per dataset (was 5,500); the thesis posterior still
+            stops at ESS 2000 after about 2,300 runs.
         local: kernels shaped by the centres' nearest neighbours (see :func:`fit_proposal`).
         clusters: components of the Gaussian mixture that shapes the kernels and shares out
             the centres (see :func:`fit_proposal`); 1: one global covariance, centres drawn
