@@ -22,7 +22,7 @@ Exact posteriors are computed on the forward model, none of them using the emula
   R-hat, ESS and autocorrelation stopping rule.
 
 The explorers alone are not accurate enough to judge against: in the first case the
-posterior has a long thin arm (tau* from about 0.65 up to the prior bound, in unit-cube
+posterior has a flat arm (tau* from about 0.65 up to the prior bound, in unit-cube
 coordinates, at nearly constant density along it, with n spread wide) holding about 5 %
 of the mass, and an explorer that samples it sparsely misplaces the quantiles and
 correlations it moves (there the uniform-start explorer differed from the reference by

@@ -16,8 +16,8 @@ Cornuet, Marin, Mira and Robert, Scand. J. Stat. 39, 2012) with a defensive prop
 
 a mixture of M Student-t kernels (nu = 5, heavy tails) centred at points c_m drawn from
 the current sample (the emcee draws of the emulator at t = 0, then the exact sample
-weighted for the tempered posterior, see below), plus a share beta of the uniform prior so that no region of the prior box has
-zero proposal density.  The kernel scales V_m come from a Gaussian mixture fitted to the
+weighted for the tempered posterior, see below), plus a share beta of the uniform prior
+so that no region of the prior box has zero proposal density.  The kernel scales V_m come from a Gaussian mixture fitted to the
 sample (:mod:`smcbayes.posterior.mixture`): a centre drawn from component k has
 V_m = h_k^2 S_k, the component's covariance times Scott's bandwidth for the component's
 share of the centres (widened at t = 0, where the emulator may be offset), and component k
@@ -33,8 +33,8 @@ chain's proposal, accepted with probability
 
 V(x) being the kernel scale the current fit gives a centre at x (the scale of its most
 responsible mixture component), so the chains reuse the draws and cost no forward run of
-their own.  A posterior can have a long thin arm that the weighted sample sees mostly near
-its root; centres drawn afresh from the sample stay there, while a chain that reaches the
+their own.  A posterior can have a long arm that the weighted sample sees mostly near its
+root; centres drawn afresh from the sample stay there, while a chain that reaches the
 arm walks along it and takes its kernel with it.  Chains cannot jump to a separate region,
 so the fresh centres top each component up to its share sqrt(alpha_k).  The centres may
 depend on earlier draws: the weights below use the densities of the proposals actually
@@ -132,7 +132,7 @@ class CorrectionSettings:
         chains: centres carried by Metropolis-Hastings chains on the exact posterior (the
             rest are drawn afresh every iteration; at most ``centres``; 0: none).  A chain
             moves at most once per iteration, with the first draw of its own kernel, so it
-            costs no forward run; a chain that reaches a thin arm of the posterior walks
+            costs no forward run; a chain that reaches a long arm of the posterior walks
             along it (see the module docstring and ``benchmarks/posterior_accuracy.py``).
             The correction then needs more draws to reach its ESS target, since chains
             started where the emulator was wrong walk in slowly.
@@ -158,6 +158,14 @@ class CorrectionSettings:
     def __post_init__(self) -> None:
         if not 0.0 < self.fit_temperature <= 1.0:
             raise ConfigError(f"fit_temperature must lie in (0, 1], got {self.fit_temperature}")
+
+
+def _log_t_norm(chol: Array, nu: float) -> Array:
+    """Log normalising constants ``(M,)`` of d-variate Student-t kernels with Cholesky
+    factors ``chol`` ``(M, d, d)`` of their scale matrices."""
+    d = chol.shape[-1]
+    logdet = np.sum(np.log(np.diagonal(chol, axis1=1, axis2=2)), axis=1)
+    return gammaln(0.5 * (nu + d)) - gammaln(0.5 * nu) - 0.5 * d * np.log(nu * np.pi) - logdet
 
 
 @dataclass(frozen=True)
@@ -204,8 +212,7 @@ class Proposal:
         u = np.atleast_2d(u)
         m, d = self.centres.shape
         nu = self.nu
-        logdet = np.sum(np.log(np.diagonal(self.chol, axis1=1, axis2=2)), axis=1)
-        const = (gammaln(0.5 * (nu + d)) - gammaln(0.5 * nu) - 0.5 * d * np.log(nu * np.pi) - logdet - np.log(m))
+        const = _log_t_norm(self.chol, nu) - np.log(m)
         inv = np.linalg.inv(self.chol)  # (M, d, d)
         out = np.empty(u.shape[0])
         for s in range(0, u.shape[0], chunk):
@@ -454,9 +461,7 @@ def _log_t(x: Array, centre: Array, chol: Array, nu: float) -> Array:
     ``(n, d, d)``, ``nu`` degrees of freedom) at the points ``x`` ``(n, d)``, pairwise."""
     d = x.shape[1]
     z = np.linalg.solve(chol, (x - centre)[:, :, None])[:, :, 0]
-    logdet = np.sum(np.log(np.diagonal(chol, axis1=1, axis2=2)), axis=1)
-    return (gammaln(0.5 * (nu + d)) - gammaln(0.5 * nu) - 0.5 * d * np.log(nu * np.pi) - logdet
-            - 0.5 * (nu + d) * np.log1p(np.sum(z * z, axis=1) / nu))
+    return _log_t_norm(chol, nu) - 0.5 * (nu + d) * np.log1p(np.sum(z * z, axis=1) / nu)
 
 
 @dataclass
