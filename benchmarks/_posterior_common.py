@@ -79,9 +79,9 @@ def make_dataset(folder: Path, doc: Mapping[str, Any], truth: Mapping[str, float
 def calibrate_run(project_toml: Path, run_dir: Path, budget: int, init: int, seed: int,
                   local_evaluations: int = 0, local_radius: float = 0.1) -> dict[str, Any]:
     """``smcbayes calibrate`` in Python (no figures, quiet); returns its summary."""
-    from smcbayes.surrogate.executors.base import make_executor
+    from smcbayes.simulation.executors.base import make_executor
     from smcbayes.surrogate.loop import BOSettings
-    from smcbayes.surrogate.problem import build_problem
+    from smcbayes.simulation.problem import build_problem
     from smcbayes.surrogate.rundir import calibrate, prepare
 
     project = load_project(project_toml)

@@ -29,10 +29,10 @@ from pathlib import Path
 import numpy as np
 
 from smcbayes.config import load_project
-from smcbayes.surrogate.executors.local import LocalExecutor
+from smcbayes.simulation.executors.local import LocalExecutor
 from smcbayes.surrogate.loop import BOSettings
-from smcbayes.surrogate.objective import SimulatorObjective, Task, combine
-from smcbayes.surrogate.problem import build_problem
+from smcbayes.simulation.objective import SimulatorObjective, Task, combine
+from smcbayes.simulation.problem import build_problem
 from smcbayes.surrogate.rundir import calibrate, prepare
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,11 +1,19 @@
-"""One exception tree for the whole package.
+"""One exception tree and one warning tree for the whole package.
 
 Every error raised on purpose by smcbayes derives from :class:`SmcBayesError`.
 Errors caused by what the user gave us (a config, a data file, a command-line value)
 derive from :class:`InputError`; the CLI turns those into exit code 2 and a single line.
+Failures of the computation itself (a solver, the surrogate, an external command) are
+:class:`SolverError` or :class:`SurrogateError`: exit code 1 and a short message.
+
+Every warning derives from :class:`SmcBayesWarning`, so a user can filter them all or one
+kind, e.g. ``warnings.simplefilter("ignore", smcbayes.errors.SlowPathWarning)``.
 """
 
 from __future__ import annotations
+
+import difflib
+from collections.abc import Sequence
 
 
 class SmcBayesError(Exception):
@@ -25,8 +33,38 @@ class DataError(InputError):
 
 
 class SolverError(SmcBayesError, RuntimeError):
-    """A forward solver could not produce a result."""
+    """A forward solver (native or external) could not produce a result."""
 
 
 class SurrogateError(SmcBayesError, RuntimeError):
-    """Fitting or optimising the surrogate model failed."""
+    """Fitting, sampling or optimising the surrogate or the posterior failed."""
+
+
+class SmcBayesWarning(UserWarning):
+    """Root of all smcbayes warnings."""
+
+
+class ConvergenceWarning(SmcBayesWarning):
+    """An iterative method (optimiser, sampler, importance correction) did not settle."""
+
+
+class UnreliablePosteriorWarning(SmcBayesWarning):
+    """A posterior's own diagnostics say its numbers should not be trusted."""
+
+
+class ParameterOnBoundWarning(SmcBayesWarning):
+    """A calibrated parameter lies at a search bound: the data want it beyond the box."""
+
+
+class SlowPathWarning(SmcBayesWarning):
+    """A forward run takes a slower solver path than it could (e.g. not the compiled one)."""
+
+
+class DataWarning(SmcBayesWarning):
+    """Measured data were accepted but look suspicious."""
+
+
+def closest(name: str, choices: Sequence[str]) -> str:
+    """Return a ``" (did you mean 'x'?)"`` hint for a misspelt ``name``, or ``""``."""
+    match = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.5)
+    return f" (did you mean '{match[0]}'?)" if match else ""

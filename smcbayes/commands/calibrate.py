@@ -61,8 +61,8 @@ def settings_from(project: ProjectConfig, args: argparse.Namespace) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``calibrate``."""
-    from smcbayes.surrogate.executors.base import make_executor
-    from smcbayes.surrogate.problem import ExternalSpec, build_problem
+    from smcbayes.simulation.executors.base import make_executor
+    from smcbayes.simulation.problem import ExternalSpec, build_problem
     from smcbayes.surrogate.rundir import calibrate, prepare
 
     project = load_project(args.config, args.data_dir)

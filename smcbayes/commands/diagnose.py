@@ -47,7 +47,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def candidates(spec: str | None) -> tuple[str, ...] | None:
     """Validated candidate names (None: all); unknown names raise with the closest match."""
     from smcbayes.forward.effects import available
-    from smcbayes.forward.parameters import closest
+    from smcbayes.errors import closest
 
     if spec is None:
         return None

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from smcbayes.data.dataset import Dataset
 from smcbayes.data.loss import force_pair
-from smcbayes.data.specs import LossSpec
+from smcbayes.config.specs import LossSpec
 from smcbayes.forward.result import PHASE_NAMES, SimulationResult
 
 Array = NDArray[np.float64]

@@ -21,7 +21,7 @@ from smcbayes.data.curve import Curve
 from smcbayes.data.readers.csv import read_csv
 from smcbayes.data.readers.moldflow import read_moldflow
 from smcbayes.data.readers.press import read_press
-from smcbayes.data.specs import PreprocessSpec
+from smcbayes.config.specs import PreprocessSpec
 from smcbayes.errors import DataError
 from smcbayes.forward.case import Case
 from smcbayes.units import MM

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from smcbayes.data.dataset import Dataset, Measurement
 from smcbayes.data.preprocess import crossing_time
-from smcbayes.data.specs import LossSpec
+from smcbayes.config.specs import LossSpec
 from smcbayes.errors import DataError
 from smcbayes.forward.nodes import interp_rows
 from smcbayes.forward.result import PHASE_FORCE, SimulationResult

@@ -75,7 +75,7 @@ def default_holdout(ctx: DiagnosisContext) -> list[str]:
 
 def check_holdout(ctx: DiagnosisContext, holdout: Sequence[str]) -> list[str]:
     """Validated held-out ids; at least one held out and one left to fit."""
-    from smcbayes.forward.parameters import closest
+    from smcbayes.errors import closest
 
     for cid in holdout:
         if cid not in ctx.ids:

@@ -15,14 +15,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from smcbayes.config import MaterialSpec, ProjectConfig, SolverSpec
-from smcbayes.errors import ConfigError, SolverError
+from smcbayes.errors import ConfigError, SolverError, closest
 from smcbayes.forward.case import Case
 from smcbayes.forward.effects.base import EffectStack, get_effect
 from smcbayes.forward.parameters import (
     BASE_PARAMETERS,
     Parameter,
     ParameterSpace,
-    closest,
     to_si,
     validate_batch,
 )

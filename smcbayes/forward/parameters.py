@@ -7,14 +7,13 @@ unit cube (log-scaled where ``log`` is set) for the optimiser and to SI for the 
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from smcbayes.errors import ConfigError
+from smcbayes.errors import ConfigError, closest
 
 
 @dataclass(frozen=True)
@@ -66,12 +65,6 @@ BASE_PARAMETERS: tuple[Parameter, ...] = (
     Parameter("m", "m", "-", 1.0, 1.0, 1.9, False, 1.5, (0.0, np.inf),
               "slip exponent"),
 )
-
-
-def closest(name: str, choices: Sequence[str]) -> str:
-    """Return a ``" (did you mean 'x'?)"`` hint for a misspelt ``name``, or ``""``."""
-    match = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.5)
-    return f" (did you mean '{match[0]}'?)" if match else ""
 
 
 @dataclass(frozen=True)

@@ -78,7 +78,7 @@ class RunContext:
 
 def load_run(run_dir: Path) -> RunContext:
     """Rebuild the calibration problem of ``run_dir`` from its ``config.json``."""
-    from smcbayes.surrogate.problem import ExternalSpec, build_problem
+    from smcbayes.simulation.problem import ExternalSpec, build_problem
 
     cfg, summ = run_dir / "config.json", run_dir / "summary.json"
     if not cfg.is_file() or not summ.is_file():

@@ -21,8 +21,8 @@ from numpy.typing import NDArray
 
 from smcbayes.errors import ConfigError
 from smcbayes.surrogate.design import latin_hypercube, round_rng, round_seed
-from smcbayes.surrogate.executors.base import Executor
-from smcbayes.surrogate.objective import Objective, Task, TaskResult, combine
+from smcbayes.simulation.executors.base import Executor
+from smcbayes.simulation.objective import Objective, Task, TaskResult, combine
 from smcbayes.surrogate.runlog import LogState, RunLog
 
 Array = NDArray[np.float64]

@@ -26,9 +26,9 @@ import numpy as np
 
 from smcbayes.errors import ConfigError
 from smcbayes.surrogate.design import round_seed
-from smcbayes.surrogate.executors.base import Executor
+from smcbayes.simulation.executors.base import Executor
 from smcbayes.surrogate.loop import BayesOpt, BOSettings, Progress, training_data
-from smcbayes.surrogate.problem import Problem
+from smcbayes.simulation.problem import Problem
 from smcbayes.surrogate.runlog import LOG_NAME, RunLog, write_json
 
 IDENTITY_KEYS = ("project", "effects", "overrides", "fidelity", "external", "seed", "init",

@@ -15,7 +15,7 @@ from smcbayes.data.dataset import load_dataset
 from smcbayes.data.readers.csv import write_csv
 from smcbayes.data.readers.moldflow import write_moldflow
 from smcbayes.data.readers.press import write_press
-from smcbayes.data.specs import PreprocessSpec
+from smcbayes.config.specs import PreprocessSpec
 
 LIMIT = 300.0
 

@@ -12,9 +12,9 @@ import pytest
 
 from smcbayes.cli import main
 from smcbayes.config import load_project
-from smcbayes.surrogate.executors.external import ExternalSimulator
-from smcbayes.surrogate.objective import SimulatorObjective, Task
-from smcbayes.surrogate.problem import build_problem
+from smcbayes.simulation.executors.external import ExternalSimulator
+from smcbayes.simulation.objective import SimulatorObjective, Task
+from smcbayes.simulation.problem import build_problem
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "configs" / "verify-slip-2d.toml"

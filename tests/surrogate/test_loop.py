@@ -10,9 +10,9 @@ import pytest
 
 from smcbayes.errors import ConfigError
 from smcbayes.forward.parameters import BASE_PARAMETERS, ParameterSpace
-from smcbayes.surrogate.executors.local import LocalExecutor
+from smcbayes.simulation.executors.local import LocalExecutor
 from smcbayes.surrogate.loop import BayesOpt, BOSettings, training_data
-from smcbayes.surrogate.objective import QuadraticObjective, Task, TaskResult
+from smcbayes.simulation.objective import QuadraticObjective, Task, TaskResult
 from smcbayes.surrogate.runlog import RunLog
 
 

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 
 from smcbayes.config import load_project
-from smcbayes.surrogate.executors.local import LocalExecutor
+from smcbayes.simulation.executors.local import LocalExecutor
 from smcbayes.surrogate.loop import BayesOpt, BOSettings
-from smcbayes.surrogate.objective import Task, TaskResult
-from smcbayes.surrogate.problem import build_problem
+from smcbayes.simulation.objective import Task, TaskResult
+from smcbayes.simulation.problem import build_problem
 from smcbayes.surrogate.rundir import calibrate
 from smcbayes.surrogate.runlog import RunLog
 

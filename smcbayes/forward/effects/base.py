@@ -16,7 +16,8 @@ from numpy.typing import NDArray
 
 from smcbayes.errors import ConfigError
 from smcbayes.forward.case import Case
-from smcbayes.forward.parameters import Parameter, closest
+from smcbayes.errors import closest
+from smcbayes.forward.parameters import Parameter
 
 Array = NDArray[np.float64]
 State = dict[str, Array]

@@ -1,6 +1,6 @@
 """Typed options of the pre-processing and of the loss (``[preprocess]`` and ``[loss]``).
 
-Kept free of other package imports so that :mod:`smcbayes.config` can embed them.
+Part of the configuration layer: no imports from the rest of the package.
 """
 
 from __future__ import annotations

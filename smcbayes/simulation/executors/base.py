@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from typing import Protocol
 
-from smcbayes.surrogate.objective import Objective, Task, TaskResult
+from smcbayes.simulation.objective import Objective, Task, TaskResult
 
 
 class Executor(Protocol):
@@ -34,9 +34,9 @@ class Executor(Protocol):
 def make_executor(workers: int = 1, scheduler: str | None = None) -> Executor:
     """A Dask executor when ``scheduler`` is given, else a local one with ``workers`` processes."""
     if scheduler:
-        from smcbayes.surrogate.executors.dask import DaskExecutor
+        from smcbayes.simulation.executors.dask import DaskExecutor
 
         return DaskExecutor(scheduler)
-    from smcbayes.surrogate.executors.local import LocalExecutor
+    from smcbayes.simulation.executors.local import LocalExecutor
 
     return LocalExecutor(workers)

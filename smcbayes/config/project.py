@@ -17,9 +17,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from smcbayes.data.specs import LossSpec, PreprocessSpec
-from smcbayes.errors import ConfigError
-from smcbayes.forward.parameters import closest
+from smcbayes.config.specs import LossSpec, PreprocessSpec
+from smcbayes.errors import ConfigError, closest
 
 
 class Strict(BaseModel):

@@ -6,7 +6,7 @@ from collections.abc import Iterator, Sequence
 from typing import Any
 
 from smcbayes.errors import ConfigError
-from smcbayes.surrogate.objective import Objective, Task, TaskResult
+from smcbayes.simulation.objective import Objective, Task, TaskResult
 
 
 def _import_distributed() -> Any:

@@ -8,7 +8,7 @@ from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 
 from smcbayes.errors import ConfigError
-from smcbayes.surrogate.objective import Objective, Task, TaskResult
+from smcbayes.simulation.objective import Objective, Task, TaskResult
 
 _OBJECTIVE: Objective | None = None
 

@@ -18,12 +18,12 @@ import numpy as np
 from smcbayes.config import DataSpec, ProjectConfig
 from smcbayes.errors import ConfigError
 from smcbayes.forward.model import ForwardModel
-from smcbayes.surrogate.objective import SimulatorObjective
+from smcbayes.simulation.objective import SimulatorObjective
 
 
 @dataclass(frozen=True)
 class ExternalSpec:
-    """How to run an external simulator (see :mod:`smcbayes.surrogate.executors.external`)."""
+    """How to run an external simulator (see :mod:`smcbayes.simulation.executors.external`)."""
 
     command: str
     timeout_s: float = 3600.0
@@ -113,7 +113,7 @@ def build_problem(project: ProjectConfig, run_dir: Path, effects: Sequence[str] 
                           "curve: add data.force or set role = \"validation\"")
     simulator = model
     if external is not None:
-        from smcbayes.surrogate.executors.external import ExternalSimulator
+        from smcbayes.simulation.executors.external import ExternalSimulator
 
         simulator = ExternalSimulator(project, model.space, external.command, run_dir / "work",
                                       external.timeout_s, external.output_format)

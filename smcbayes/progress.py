@@ -1,0 +1,127 @@
+"""Progress of long work: one mechanism for every stage.
+
+Library code reports progress through :class:`Progress` and never prints.  Progress is
+shown only once an application switches it on with :func:`enable` (the command line
+does; a notebook user may): on a terminal as a tqdm bar whose remaining-time estimate
+comes from the measured rate, otherwise (a log file, CI) as one plain log line on the
+``smcbayes.progress`` logger at most every ``interval_s`` seconds, so that files are not
+garbled by carriage returns.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from types import TracebackType
+from typing import Any
+
+logger = logging.getLogger("smcbayes.progress")
+
+_STATE = {"enabled": False, "interval_s": 10.0}
+
+
+def enable(on: bool = True, interval_s: float = 10.0) -> None:
+    """Show progress (``on``) of every later :class:`Progress`; ``interval_s`` spaces the
+    plain log lines written when stderr is not a terminal."""
+    _STATE["enabled"] = on
+    _STATE["interval_s"] = float(interval_s)
+
+
+def enabled() -> bool:
+    """Whether progress is shown."""
+    return bool(_STATE["enabled"])
+
+
+def _format_s(seconds: float) -> str:
+    if seconds != seconds or seconds == float("inf"):
+        return "?"
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+class Progress:
+    """Progress of ``total`` units of work (forward runs, evaluations, steps).
+
+    Use as a context manager; :meth:`update` after each finished unit or batch.  The
+    remaining time is estimated from the rate measured since the first update (the first
+    unit often includes a compilation or a pool start-up, so it is left out of the rate).
+
+    Args:
+        total: units expected (``None``: unknown, no remaining-time estimate).
+        desc: what is being done, e.g. ``"calibration"``.
+        unit: name of one unit, e.g. ``"eval"``.
+    """
+
+    def __init__(self, total: int | None, desc: str, unit: str = "run") -> None:
+        self.total = total
+        self.desc = desc
+        self.unit = unit
+        self.done = 0
+        self.postfix = ""
+        self._start = time.perf_counter()
+        self._first: tuple[float, int] | None = None
+        self._last_line = 0.0
+        self._bar: Any = None
+        if enabled() and sys.stderr.isatty():
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=True,
+                             dynamic_ncols=True)
+
+    def __enter__(self) -> Progress:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def remaining_s(self) -> float:
+        """Remaining time (s) from the measured rate; NaN while unknown."""
+        if self.total is None or self._first is None:
+            return float("nan")
+        t0, n0 = self._first
+        done = self.done - n0
+        if done <= 0:
+            return float("nan")
+        rate = (time.perf_counter() - t0) / done
+        return max(self.total - self.done, 0) * rate
+
+    def elapsed_s(self) -> float:
+        """Seconds since the start."""
+        return time.perf_counter() - self._start
+
+    def update(self, n: int = 1, note: str = "") -> None:
+        """``n`` more units done; ``note`` is a short status such as ``"best 12.3 kN^2"``."""
+        if self._first is None:
+            self._first = (time.perf_counter(), self.done + n)
+        self.done += n
+        self.postfix = note
+        if self._bar is not None:
+            self._bar.update(n)
+            if note:
+                self._bar.set_postfix_str(note, refresh=False)
+            return
+        if not enabled():
+            return
+        now = time.perf_counter()
+        finished = self.total is not None and self.done >= self.total
+        if finished or now - self._last_line >= _STATE["interval_s"]:
+            self._last_line = now
+            logger.info("%s", self.line())
+
+    def line(self) -> str:
+        """One plain line: done/total, the note, elapsed and remaining time."""
+        total = "?" if self.total is None else str(self.total)
+        note = f"  {self.postfix}" if self.postfix else ""
+        return (f"{self.desc}: {self.done}/{total} {self.unit}{note}  elapsed {_format_s(self.elapsed_s())}"
+                f"  remaining ~{_format_s(self.remaining_s())}")
+
+    def close(self) -> None:
+        """End the bar (a plain final line is written by the last update)."""
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
