@@ -80,8 +80,8 @@ def calibrate_run(project_toml: Path, run_dir: Path, budget: int, init: int, see
                   local_evaluations: int = 0, local_radius: float = 0.1) -> dict[str, Any]:
     """``smcbayes calibrate`` in Python (no figures, quiet); returns its summary."""
     from smcbayes.simulation.executors.base import make_executor
-    from smcbayes.surrogate.loop import BOSettings
     from smcbayes.simulation.problem import build_problem
+    from smcbayes.surrogate.loop import BOSettings
     from smcbayes.surrogate.rundir import calibrate, prepare
 
     project = load_project(project_toml)

@@ -27,11 +27,11 @@ import numpy as np
 from scipy.optimize import differential_evolution
 
 from smcbayes.config import load_project
-from smcbayes.surrogate.design import latin_hypercube, round_rng
 from smcbayes.simulation.executors.local import LocalExecutor
-from smcbayes.surrogate.loop import BayesOpt, BOSettings
 from smcbayes.simulation.objective import Task, combine
 from smcbayes.simulation.problem import build_problem
+from smcbayes.surrogate.design import latin_hypercube, round_rng
+from smcbayes.surrogate.loop import BayesOpt, BOSettings
 from smcbayes.surrogate.runlog import RunLog
 
 ROOT = Path(__file__).resolve().parents[1]

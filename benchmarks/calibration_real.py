@@ -30,9 +30,9 @@ import numpy as np
 
 from smcbayes.config import load_project
 from smcbayes.simulation.executors.local import LocalExecutor
-from smcbayes.surrogate.loop import BOSettings
 from smcbayes.simulation.objective import SimulatorObjective, Task, combine
 from smcbayes.simulation.problem import build_problem
+from smcbayes.surrogate.loop import BOSettings
 from smcbayes.surrogate.rundir import calibrate, prepare
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -46,8 +46,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def candidates(spec: str | None) -> tuple[str, ...] | None:
     """Validated candidate names (None: all); unknown names raise with the closest match."""
-    from smcbayes.forward.effects import available
     from smcbayes.errors import closest
+    from smcbayes.forward.effects import available
 
     if spec is None:
         return None

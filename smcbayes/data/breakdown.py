@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from smcbayes.config.specs import LossSpec
 from smcbayes.data.dataset import Dataset
 from smcbayes.data.loss import force_pair
-from smcbayes.config.specs import LossSpec
 from smcbayes.forward.result import PHASE_NAMES, SimulationResult
 
 Array = NDArray[np.float64]

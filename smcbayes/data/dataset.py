@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from smcbayes.config import ConfigurationSpec, DataSpec, ProjectConfig
+from smcbayes.config.specs import PreprocessSpec
 from smcbayes.data import preprocess as pp
 from smcbayes.data.curve import Curve
 from smcbayes.data.readers.csv import read_csv
 from smcbayes.data.readers.moldflow import read_moldflow
 from smcbayes.data.readers.press import read_press
-from smcbayes.config.specs import PreprocessSpec
 from smcbayes.errors import DataError
 from smcbayes.forward.case import Case
 from smcbayes.units import MM

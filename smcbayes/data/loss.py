@@ -27,9 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from smcbayes.config.specs import LossSpec
 from smcbayes.data.dataset import Dataset, Measurement
 from smcbayes.data.preprocess import crossing_time
-from smcbayes.config.specs import LossSpec
 from smcbayes.errors import DataError
 from smcbayes.forward.nodes import interp_rows
 from smcbayes.forward.result import PHASE_FORCE, SimulationResult

@@ -20,9 +20,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.errors import ConfigError
-from smcbayes.surrogate.design import latin_hypercube, round_rng, round_seed
 from smcbayes.simulation.executors.base import Executor
 from smcbayes.simulation.objective import Objective, Task, TaskResult, combine
+from smcbayes.surrogate.design import latin_hypercube, round_rng, round_seed
 from smcbayes.surrogate.runlog import LogState, RunLog
 
 Array = NDArray[np.float64]

@@ -25,10 +25,10 @@ from typing import Any
 import numpy as np
 
 from smcbayes.errors import ConfigError
-from smcbayes.surrogate.design import round_seed
 from smcbayes.simulation.executors.base import Executor
-from smcbayes.surrogate.loop import BayesOpt, BOSettings, Progress, training_data
 from smcbayes.simulation.problem import Problem
+from smcbayes.surrogate.design import round_seed
+from smcbayes.surrogate.loop import BayesOpt, BOSettings, Progress, training_data
 from smcbayes.surrogate.runlog import LOG_NAME, RunLog, write_json
 
 IDENTITY_KEYS = ("project", "effects", "overrides", "fidelity", "external", "seed", "init",

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from smcbayes.config import load_project
+from smcbayes.config.specs import PreprocessSpec
 from smcbayes.data import preprocess as pp
 from smcbayes.data.curve import Curve
 from smcbayes.data.dataset import load_dataset
 from smcbayes.data.readers.csv import write_csv
 from smcbayes.data.readers.moldflow import write_moldflow
 from smcbayes.data.readers.press import write_press
-from smcbayes.config.specs import PreprocessSpec
 
 LIMIT = 300.0
 

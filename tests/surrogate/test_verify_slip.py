@@ -8,9 +8,9 @@ import numpy as np
 
 from smcbayes.config import load_project
 from smcbayes.simulation.executors.local import LocalExecutor
-from smcbayes.surrogate.loop import BayesOpt, BOSettings
 from smcbayes.simulation.objective import Task, TaskResult
 from smcbayes.simulation.problem import build_problem
+from smcbayes.surrogate.loop import BayesOpt, BOSettings
 from smcbayes.surrogate.rundir import calibrate
 from smcbayes.surrogate.runlog import RunLog
 

@@ -14,9 +14,8 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from smcbayes.errors import ConfigError
+from smcbayes.errors import ConfigError, closest
 from smcbayes.forward.case import Case
-from smcbayes.errors import closest
 from smcbayes.forward.parameters import Parameter
 
 Array = NDArray[np.float64]
