@@ -79,18 +79,19 @@ def make_dataset(folder: Path, doc: Mapping[str, Any], truth: Mapping[str, float
 def calibrate_run(project_toml: Path, run_dir: Path, budget: int, init: int, seed: int,
                   local_evaluations: int = 0, local_radius: float = 0.1) -> dict[str, Any]:
     """``smcbayes calibrate`` in Python (no figures, quiet); returns its summary."""
+    from smcbayes.run import RunDir, RunIdentity
     from smcbayes.simulation.executors.base import make_executor
     from smcbayes.simulation.problem import build_problem
+    from smcbayes.surrogate.calibration import calibrate
     from smcbayes.surrogate.loop import BOSettings
-    from smcbayes.surrogate.rundir import calibrate, prepare
 
     project = load_project(project_toml)
     settings = BOSettings(budget=budget, init=init, seed=seed, local_evaluations=local_evaluations,
                           local_radius=local_radius)
     settings.check()
-    identity = {"project": project.model_dump(mode="json"), "effects": None, "overrides": {},
-                "fidelity": None, "external": None, **vars(settings)}
-    prepare(run_dir, identity, False)
+    identity = RunIdentity(project.model_dump(mode="json"), None, {}, None, None,
+                           settings.model_dump(mode="json", exclude={"truth"}))
+    RunDir(run_dir).prepare(identity, False)
     problem = build_problem(project, run_dir, None, {}, None, None)
     return calibrate(problem, settings, run_dir, make_executor(1, None), figures=False,
                      progress=lambda _p: None)

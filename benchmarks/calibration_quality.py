@@ -27,12 +27,12 @@ import numpy as np
 from scipy.optimize import differential_evolution
 
 from smcbayes.config import load_project
+from smcbayes.run.runlog import RunLog
 from smcbayes.simulation.executors.local import LocalExecutor
 from smcbayes.simulation.objective import Task, combine
 from smcbayes.simulation.problem import build_problem
 from smcbayes.surrogate.design import latin_hypercube, round_rng
 from smcbayes.surrogate.loop import BayesOpt, BOSettings
-from smcbayes.surrogate.runlog import RunLog
 
 ROOT = Path(__file__).resolve().parents[1]
 FIVE_TRUTH = {"n": 0.35, "tau_star_Pa": 5.0e3, "B_Pa_s": 2.0e4, "tau_c_MPa": 0.03, "m": 1.4}

@@ -29,11 +29,12 @@ from pathlib import Path
 import numpy as np
 
 from smcbayes.config import load_project
+from smcbayes.run import RunDir, RunIdentity
 from smcbayes.simulation.executors.local import LocalExecutor
 from smcbayes.simulation.objective import SimulatorObjective, Task, combine
 from smcbayes.simulation.problem import build_problem
+from smcbayes.surrogate.calibration import calibrate
 from smcbayes.surrogate.loop import BOSettings
-from smcbayes.surrogate.rundir import calibrate, prepare
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / ".." / "shared" / "data" / "thesis-press"
@@ -59,8 +60,8 @@ def run_variant(name: str, run_dir: Path, budget: int, init: int) -> dict:
     project = project.model_copy(update={"loss": project.loss.model_copy(update={"clip": clip})})
     settings = BOSettings(budget=budget, init=init, batch=1, kernel="matern52", seed=0,
                           local_evaluations=15, local_radius=0.1)
-    prepare(run_dir, {"project": project.model_dump(mode="json"), "effects": effects,
-                      "overrides": fixed, **vars(settings)}, resume=False)
+    RunDir(run_dir).prepare(RunIdentity(project.model_dump(mode="json"), effects, fixed, None, None,
+                                        settings.model_dump(mode="json", exclude={"truth"})), resume=False)
     problem = build_problem(project, run_dir, effects, fixed)
     start = time.perf_counter()
     info = calibrate(problem, settings, run_dir, LocalExecutor(1), progress=None)

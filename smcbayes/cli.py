@@ -7,12 +7,16 @@ Each subcommand lives in :mod:`smcbayes.commands` as a module with ``add_parser`
 from __future__ import annotations
 
 import argparse
+import logging
+import os
 import sys
+import warnings
 from collections.abc import Sequence
+from typing import TextIO
 
-from smcbayes import __version__
+from smcbayes import __version__, progress
 from smcbayes.commands import COMMANDS
-from smcbayes.errors import InputError, SmcBayesError
+from smcbayes.errors import InputError, SmcBayesError, SmcBayesWarning
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,16 +29,44 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Units at the edges: mm, mm/s, kN, MPa, C, g; every key names its unit.",
     )
     parser.add_argument("--version", action="version", version=f"smcbayes {__version__}")
+    parser.add_argument("--verbose", "-v", action="store_true", help="more detail in the log lines")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for module in COMMANDS:
         module.add_parser(sub)
     return parser
 
 
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: TextIO | None = None, line: str | None = None) -> None:
+    """Warnings as one plain line each (smcbayes's own without the source location)."""
+    if issubclass(category, SmcBayesWarning):
+        print(f"warning: {message}", file=sys.stderr)
+    else:
+        print(warnings.formatwarning(message, category, filename, lineno, line).rstrip(), file=sys.stderr)
+
+
+def setup_output(verbose: bool = False) -> None:
+    """What an application does and a library must not: a non-interactive matplotlib
+    backend, log records and warnings on stderr, progress switched on."""
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    root = logging.getLogger("smcbayes")
+    if not root.handlers:
+        root.addHandler(handler)
+    root.setLevel(logging.DEBUG if verbose else logging.INFO)
+    root.propagate = False
+    warnings.showwarning = _show_warning
+    progress.enable(True)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``smcbayes`` console script; returns the exit code."""
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    args.argv = ["smcbayes", *argv]
+    setup_output(getattr(args, "verbose", False))
     try:
         return int(args.run(args) or 0)
     except InputError as err:
@@ -44,7 +76,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"smcbayes {args.command}: failed: {err}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print(f"smcbayes {args.command}: interrupted", file=sys.stderr)
+        hint = " (rerun with --resume to continue)" if args.command == "calibrate" else ""
+        print(f"smcbayes {args.command}: interrupted{hint}", file=sys.stderr)
         return 130
 
 

@@ -3,13 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
-
-import numpy as np
-
-from smcbayes.config import ProjectConfig
-from smcbayes.data.dataset import load_dataset
-from smcbayes.forward.result import PHASE_NAMES, SimulationResult
 
 
 def add_model_options(p: argparse.ArgumentParser) -> None:
@@ -26,26 +19,9 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
                    help="forward solver: fast 1-D (default) or 2-D thin-cavity reference")
 
 
-def measured_force(project: ProjectConfig, ids: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Measured force curves ``(time_s, force_kN)`` of configurations that have them.
-
-    Read through :func:`smcbayes.data.dataset.load_dataset` (formats, units, the project's
-    pre-processing); empty when the project's data folder does not exist.
-    """
-    root = project.data_path()
-    if root is None or not root.is_dir():
-        return {}
-    dataset = load_dataset(project, ids)
-    return {cid: (m.force.time_s, m.force.values) for cid, m in dataset.measurements.items()
-            if m.force is not None}
-
-
-def write_curves(result: SimulationResult, row: int, path: Path) -> None:
-    """One CSV of a simulated configuration: time, gap, displacement, force, fill, phase."""
-    cols = result.row(row)
-    names = ("time_s", "gap_mm", "displacement_mm", "force_kN", "fill_fraction", "solid_fraction")
-    with path.open("w", encoding="utf-8") as fh:
-        fh.write(",".join(names) + ",phase\n")
-        for i in range(cols["time_s"].size):
-            values = ",".join(f"{cols[n][i]:.9g}" for n in names)
-            fh.write(f"{values},{PHASE_NAMES[int(cols['phase'][i])]}\n")
+def add_executor_options(p: argparse.ArgumentParser) -> None:
+    """``--workers`` and ``--scheduler``: where a stage's forward runs execute."""
+    p.add_argument("--workers", type=int, default=1,
+                   help="local worker processes for the forward runs (default 1: in process)")
+    p.add_argument("--scheduler", metavar="ADDR", default=None,
+                   help="Dask scheduler address (tcp://host:8786): run the forward batches on a cluster")

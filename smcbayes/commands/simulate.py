@@ -6,8 +6,10 @@ import argparse
 import time
 from pathlib import Path
 
-from smcbayes.commands.common import add_model_options, measured_force, write_curves
+from smcbayes.commands.common import add_model_options
 from smcbayes.config import load_project, parse_assignments
+from smcbayes.data.dataset import measured_force
+from smcbayes.data.readers.csv import write_curves
 from smcbayes.forward.model import ForwardModel
 from smcbayes.plotting import plot_flow_front, plot_simulation
 

@@ -5,7 +5,6 @@ smcbayes, so every other layer can take its settings from here.
 """
 
 from smcbayes.config.project import (
-    CalibrationSpec,
     ChargeSpec,
     ConfigurationSpec,
     DataSpec,
@@ -16,11 +15,19 @@ from smcbayes.config.project import (
     PressSpec,
     ProjectConfig,
     SolverSpec,
-    Strict,
     build_project,
     format_validation_error,
     load_project,
     parse_assignments,
+)
+from smcbayes.config.settings import (
+    CalibrationSpec,
+    DiagnoseSpec,
+    PosteriorSpec,
+    Strict,
+    default_of,
+    help_of,
+    override,
 )
 from smcbayes.config.specs import ClipMode, LossSpec, PreprocessSpec
 
@@ -28,5 +35,6 @@ __all__ = [
     "CalibrationSpec", "ChargeSpec", "ClipMode", "ConfigurationSpec", "DataSpec", "LossSpec",
     "MaterialSpec", "MouldSpec", "ParameterSpec", "PieceSpec", "PreprocessSpec", "PressSpec",
     "ProjectConfig", "SolverSpec", "Strict", "build_project", "format_validation_error",
-    "load_project", "parse_assignments",
+    "load_project", "parse_assignments", "PosteriorSpec", "DiagnoseSpec", "default_of", "help_of",
+    "override",
 ]

@@ -15,16 +15,11 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, Field, ValidationError, model_validator
 
+from smcbayes.config.settings import CalibrationSpec, DiagnoseSpec, PosteriorSpec, Strict
 from smcbayes.config.specs import LossSpec, PreprocessSpec
 from smcbayes.errors import ConfigError, closest
-
-
-class Strict(BaseModel):
-    """Base model: unknown keys are errors, objects are immutable."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
 
 class MouldSpec(Strict):
@@ -143,33 +138,6 @@ class SolverSpec(Strict):
     hold_steps_2d: int = Field(40, ge=5, le=100000, description="2-D: minimum steps under force control")
 
 
-class CalibrationSpec(Strict):
-    """Settings of ``smcbayes calibrate`` (Bayesian optimisation); CLI options override them."""
-
-    budget: int = Field(60, ge=2, le=100000, description="total evaluations, initial design included")
-    init: int = Field(20, ge=2, le=100000, description="Latin hypercube initial design size")
-    batch: int = Field(1, ge=1, le=256, description="candidates per round (qLogEI when > 1)")
-    kernel: Literal["rbf", "matern52"] = "matern52"
-    tolerance: float = Field(0.0, ge=0.0, lt=1.0,
-                             description="stop when the best loss improves by less than this "
-                                         "fraction over `patience` rounds (0: off)")
-    patience: int = Field(10, ge=1, le=100000)
-    seed: int = Field(0, ge=0)
-    failed: Literal["impute", "exclude"] = Field(
-        "impute", description="failed evaluations: imputed at the worst loss seen, or left out")
-    truth: dict[str, float] | None = Field(
-        None, description="synthetic check: 'measured' curves simulated at these values")
-    restarts: int = Field(8, ge=1, le=1000, description="acquisition optimiser restarts")
-    raw_samples: int = Field(256, ge=8, le=100000, description="acquisition optimiser raw samples")
-    noise: float | Literal["fit"] = Field(
-        1e-6, description="GP noise variance of log(loss): a small fixed value for a "
-                          "deterministic simulator, or 'fit' to fit a noise term (thesis)")
-    local_evaluations: int = Field(
-        0, ge=0, description="final evaluations searched in a box around the best point")
-    local_radius: float = Field(0.1, gt=0, le=0.5,
-                                description="half-width of that box in unit-cube coordinates")
-
-
 class ProjectConfig(Strict):
     """A whole project file."""
 
@@ -180,6 +148,8 @@ class ProjectConfig(Strict):
     effects: list[str] = []
     solver: SolverSpec = SolverSpec()
     calibration: CalibrationSpec = CalibrationSpec()
+    posterior: PosteriorSpec = PosteriorSpec()
+    diagnose: DiagnoseSpec = DiagnoseSpec()
     preprocess: PreprocessSpec = PreprocessSpec()
     loss: LossSpec = LossSpec()
     configuration: list[ConfigurationSpec] = Field(min_length=1)
@@ -214,6 +184,7 @@ _MODELS: dict[str, type[BaseModel]] = {
     "": ProjectConfig, "configuration": ConfigurationSpec, "mould": MouldSpec,
     "charge": ChargeSpec, "pieces": PieceSpec, "press": PressSpec, "data": DataSpec, "material": MaterialSpec,
     "solver": SolverSpec, "parameters": ParameterSpec, "calibration": CalibrationSpec,
+    "posterior": PosteriorSpec, "diagnose": DiagnoseSpec,
     "preprocess": PreprocessSpec, "loss": LossSpec,
 }
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from smcbayes.config import ConfigurationSpec, DataSpec, ProjectConfig
 from smcbayes.config.specs import PreprocessSpec
@@ -25,6 +26,8 @@ from smcbayes.data.readers.press import read_press
 from smcbayes.errors import DataError
 from smcbayes.forward.case import Case
 from smcbayes.units import MM
+
+Array = NDArray[np.float64]
 
 UNIT_FACTOR_LIMIT = 20.0
 """A closing force above this multiple of the force limit is taken as a unit mistake."""
@@ -259,3 +262,17 @@ def load_dataset(project: ProjectConfig, ids: Sequence[str] | None = None,
             continue
         out[cid] = load_measurement(spec, root, pre, Path(project.base_dir))
     return Dataset(project, out, pre)
+
+
+def measured_force(project: ProjectConfig, ids: Sequence[str]) -> dict[str, tuple[Array, Array]]:
+    """Measured force curves ``(time_s, force_kN)`` of those of ``ids`` that have them.
+
+    Read through :func:`load_dataset` (formats, units, the project's pre-processing);
+    empty when the project's data folder does not exist.
+    """
+    root = project.data_path()
+    if root is None or not root.is_dir():
+        return {}
+    dataset = load_dataset(project, ids)
+    return {cid: (m.force.time_s, m.force.values) for cid, m in dataset.measurements.items()
+            if m.force is not None}

@@ -9,7 +9,10 @@ from typing import Any
 
 import numpy as np
 
+from smcbayes.posterior.context import RunContext, true_log_loss
+from smcbayes.posterior.correct import K_HAT_WARN
 from smcbayes.posterior.likelihood import EmulatedPosterior
+from smcbayes.posterior.plots import bands_plot, corner_plot, correlation_plot
 from smcbayes.posterior.predictive import predictive_bands
 from smcbayes.posterior.refine import check_emulator
 from smcbayes.posterior.summary import (
@@ -33,8 +36,6 @@ def write_table(path: Path, rows: list) -> None:
 
 def correction_info(corrected: Any, settings: Any) -> dict[str, Any]:
     """The ``correction`` block of the summary."""
-    from smcbayes.posterior.correct import K_HAT_WARN
-
     if corrected is None:
         return {"enabled": False, "draws": 0, "evaluations": 0}
     return {"enabled": True, "draws": settings.correct_draws, "evaluations": corrected.evaluations,
@@ -44,8 +45,6 @@ def correction_info(corrected: Any, settings: Any) -> dict[str, Any]:
 
 def correction_warnings(corrected: Any) -> list[str]:
     """Plain-language warnings about the importance weights."""
-    from smcbayes.posterior.correct import K_HAT_WARN
-
     if corrected is None:
         return []
     out = []
@@ -60,7 +59,7 @@ def correction_warnings(corrected: Any) -> list[str]:
     return out
 
 
-def _tables(ctx: Any, chains: list, corrected: Any, rng: np.random.Generator) -> dict[str, Any]:
+def _tables(ctx: RunContext, chains: list, corrected: Any, rng: np.random.Generator) -> dict[str, Any]:
     """Raw (emulator) and reported (corrected if available) summaries, correlations, draws."""
     space = ctx.space
     raw = summarise(space, chains)
@@ -84,22 +83,19 @@ def _corr_block(corr: tuple) -> dict[str, Any]:
     return {"labels": labels, "matrix": matrix.tolist(), "strongest": [{"a": a, "b": b, "r": r} for a, b, r in pairs]}
 
 
-def _bands_and_figures(ctx: Any, t: dict[str, Any], budget: dict[str, Any], settings: Any,
+def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any], settings: Any,
                        rng: np.random.Generator, out_dir: Path) -> tuple[dict, int, list[str]]:
     """Predictive bands from the reported draws, corner, correlation and band figures.
 
     Returns the bands, the forward runs they took and the validation ids.
     """
-    from smcbayes.commands.common import measured_force
-    from smcbayes.posterior.plots import bands_plot, corner_plot, correlation_plot
-
     space, p, unit = ctx.space, ctx.problem, t["unit"]
     draw_unit = unit[rng.choice(unit.shape[0], size=min(settings.draws, unit.shape[0]), replace=False)]
     val_ids = p.model.ids("validation")
     band_ids = val_ids or p.train_ids
-    measured = measured_force(p.project, band_ids)
+    measured = p.measured_force(band_ids)
     noise = {cid: float(np.sqrt(v)) for cid, v in budget["mse_kN2"].items()}
-    bands = predictive_bands(p.model, space.from_unit(draw_unit), band_ids, measured, noise, rng)
+    bands = predictive_bands(ctx.runner, space.from_unit(draw_unit), band_ids, measured, noise, rng)
     fig = out_dir / "figures"
     corner_unit = unit[rng.choice(unit.shape[0], min(20000, unit.shape[0]), replace=False)]
     corner_plot(space, space.from_unit(corner_unit), fig / "corner", p.truth)
@@ -110,7 +106,7 @@ def _bands_and_figures(ctx: Any, t: dict[str, Any], budget: dict[str, Any], sett
     return bands, int(draw_unit.shape[0]) * len(band_ids), val_ids
 
 
-def write_outputs(ctx: Any, emul: EmulatedPosterior, chains: list, budget: dict[str, Any],
+def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget: dict[str, Any],
                   settings: Any, rng: np.random.Generator, out_dir: Path,
                   corrected: Any = None) -> dict[str, Any]:
     """Write NetCDF, tables and figures; returns the summary dictionary.
@@ -120,8 +116,6 @@ def write_outputs(ctx: Any, emul: EmulatedPosterior, chains: list, budget: dict[
     corrected one and the emulator's is kept alongside (``emulator_parameters``,
     ``emulator_correlation``, ``summary_emulator.csv``, NetCDF ``emulator_posterior``).
     """
-    from smcbayes.posterior.stage import true_log_loss
-
     space = ctx.space
     t = _tables(ctx, chains, corrected, rng)
     warns = warnings_for(t["raw"], chains)

@@ -15,109 +15,37 @@ checks it against the forward model at posterior draws, and writes ``RUN_DIR/pos
 from __future__ import annotations
 
 import json
-import sys
+import logging
 import time
-from collections.abc import Callable
-from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from smcbayes.config import ProjectConfig
-from smcbayes.errors import ConfigError
-from smcbayes.posterior.correct import CorrectionSettings
+from smcbayes.config import PosteriorSpec
+from smcbayes.data.loss import force_pair
+from smcbayes.forward.nodes import interp_rows
+from smcbayes.posterior.context import RunContext, exact_log_posterior, load_run, true_log_loss
+from smcbayes.posterior.correct import CorrectionSettings, correct
 from smcbayes.posterior.likelihood import EmulatedPosterior, effective_points, sandwich_points
+from smcbayes.posterior.refine import check_values, round_design
+from smcbayes.posterior.report import write_outputs
 from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
+from smcbayes.posterior.summary import stack_components
+from smcbayes.run import RunDir
+from smcbayes.simulation.executors.base import Executor
+from smcbayes.surrogate.gp import fit_surrogate, load_surrogate, save_surrogate
+
+logger = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
 
+PosteriorSettings = PosteriorSpec
+"""The stage's settings are the ``[posterior]`` table (one model, one set of defaults)."""
 
-@dataclass(frozen=True)
-class PosteriorSettings:
-    """Settings of the posterior stage.
-
-    Attributes:
-        walkers, steps: emcee ensemble size and maximum steps per chain.
-        functions: GP sample functions in the mixture (0: GP mean only).
-        refine: forward evaluations added where the posterior is probable and the GP unsure.
-        draws: posterior draws pushed through the forward model (bands and emulator check).
-        seed: random seed.
-        refine_tolerance_nats: refinement stops early once the emulator's out-of-sample
-            error at fresh posterior draws is below this (mean absolute, nats) twice in a row.
-        correct_draws: most proposal draws (each inside the prior box costs a forward
-            evaluation) of the importance-sampling correction of the emulated posterior
-            (:mod:`smcbayes.posterior.correct`); it stops earlier once the weights are good;
-            0 reports the emulated posterior uncorrected.
-    """
-
-    walkers: int = 32
-    steps: int = 4000
-    functions: int = 8
-    refine: int = 0
-    draws: int = 100
-    seed: int = 0
-    refine_tolerance_nats: float = 1.0
-    correct_draws: int = CorrectionSettings.draws
-
-
-@dataclass
-class RunContext:
-    """What the posterior needs from a calibration run."""
-
-    run_dir: Path
-    problem: Any
-    summary: dict[str, Any]
-    best_theta: Array
-
-    @property
-    def space(self):
-        return self.problem.model.space
-
-
-def load_run(run_dir: Path) -> RunContext:
-    """Rebuild the calibration problem of ``run_dir`` from its ``config.json``."""
-    from smcbayes.simulation.problem import ExternalSpec, build_problem
-
-    cfg, summ = run_dir / "config.json", run_dir / "summary.json"
-    if not cfg.is_file() or not summ.is_file():
-        raise ConfigError(f"{run_dir}: not a calibration run directory (config.json and "
-                          "summary.json missing); run `smcbayes calibrate` first")
-    identity = json.loads(cfg.read_text(encoding="utf-8"))
-    summary = json.loads(summ.read_text(encoding="utf-8"))
-    project = ProjectConfig.model_validate(identity["project"])
-    ext = identity.get("external")
-    problem = build_problem(project, run_dir, identity.get("effects"), identity.get("overrides") or {},
-                            identity.get("fidelity"), ExternalSpec(**ext) if ext else None)
-    if not summary.get("best_params"):
-        raise ConfigError(f"{run_dir}: the calibration has no successful evaluation")
-    best = summary["best_params"]
-    theta = np.array([[best[n]["value"] for n in problem.model.space.free_names]])
-    if problem.truth is None:
-        problem.truth = synthetic_truth(problem.project, problem.model.space.defaults())
-    return RunContext(run_dir, problem, summary, theta)
-
-
-def synthetic_truth(project: ProjectConfig, defaults: dict[str, float]) -> dict[str, float] | None:
-    """True parameters of a dataset written by ``smcbayes synth`` (its truth.json), if any."""
-    root = project.data_path()
-    path = None if root is None else root / "truth.json"
-    if path is None or not path.is_file():
-        return None
-    params = json.loads(path.read_text(encoding="utf-8")).get("parameters", {})
-    return {**defaults, **{k: float(v) for k, v in params.items() if k in defaults}}
-
-
-def true_log_loss(ctx: RunContext, theta: Array) -> Array:
-    """log of the global loss from the forward model at ``theta`` ``(P, d)``; NaN if failed."""
-    from smcbayes.data.loss import evaluate_loss
-
-    p = ctx.problem
-    results = p.model.simulate(theta, p.train_ids)
-    loss = evaluate_loss(results, p.objective.dataset, p.project.loss, ids=p.train_ids)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(loss.total > 0, np.log(loss.total), np.nan)
+__all__ = ["PosteriorSettings", "RunContext", "exact_log_posterior", "load_run", "run_posterior",
+           "true_log_loss"]
 
 
 SENSITIVITY_STEP = 0.02
@@ -139,8 +67,6 @@ def residual_budget(ctx: RunContext) -> dict[str, Any]:
     when the residuals are correlated over a whole curve (a systematic model error), as
     its lag sums then span the record and the score sums nearly cancel at the optimum.
     """
-    from smcbayes.data.loss import force_pair
-    from smcbayes.forward.nodes import interp_rows
 
     p, space = ctx.problem, ctx.space
     u0 = space.to_unit(ctx.best_theta)[0]
@@ -149,10 +75,10 @@ def residual_budget(ctx: RunContext) -> dict[str, Any]:
     rows = np.repeat(u0[None, :], 2 * d + 1, axis=0)
     rows[1 + np.arange(d), np.arange(d)] = up
     rows[1 + d + np.arange(d), np.arange(d)] = down
-    results = p.model.simulate(space.from_unit(rows), p.train_ids)
+    results = ctx.runner.simulate(space.from_unit(rows), p.train_ids)
     residuals, sensitivities, mse, usable = [], [], {}, True
     for cid in p.train_ids:
-        pair = force_pair(results[cid], p.objective.dataset.measurements[cid], p.project.loss)
+        pair = force_pair(results[cid], p.dataset.measurements[cid], p.project.loss)
         grid = np.broadcast_to(pair.time_s[:1], pair.time_s.shape)
         sim = interp_rows(grid, pair.time_s, pair.sim_kN)
         r = pair.meas_kN[0] - sim[0]
@@ -194,21 +120,8 @@ def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int) -> Any:
     below e^-30 of its peak whatever the emulator says, so capping loses nothing and lets
     the GP spend its flexibility where the posterior lives instead of on the far landscape.
     """
-    from smcbayes.surrogate.gp import fit_surrogate
-
     cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
     return fit_surrogate(x, np.minimum(y, cap), kernel, seed)
-
-
-def exact_log_posterior(ctx: RunContext, n_eff: float) -> Callable[[Array], Array]:
-    """Exact unnormalised log posterior on the unit cube, ``(P, d) -> (P,)``: one batched
-    forward run of the training configurations, -(N_eff / 2) log L (NaN where it failed)."""
-    a = 0.5 * n_eff
-
-    def log_post(u: Array) -> Array:
-        return -a * true_log_loss(ctx, ctx.space.from_unit(np.atleast_2d(u)))
-
-    return log_post
 
 
 def correct_posterior(ctx: RunContext, chains: list, n_eff: float, settings: PosteriorSettings,
@@ -218,9 +131,6 @@ def correct_posterior(ctx: RunContext, chains: list, n_eff: float, settings: Pos
     ``data`` are the GP's training points ``(x_unit (K, d), log_loss (K,))``: their exact
     log posterior is known and helps shape the first proposal.
     """
-    from smcbayes.posterior.correct import correct
-    from smcbayes.posterior.summary import stack_components
-
     unit, _ = stack_components(chains)
     cs = CorrectionSettings(draws=settings.correct_draws)
     known = (data[0], -0.5 * n_eff * np.asarray(data[1], dtype=float))
@@ -239,8 +149,6 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
 
     Returns the refitted surrogate and the enlarged training data ``(x_unit, log_loss)``.
     """
-    from smcbayes.posterior.refine import check_values, round_design
-
     x, y = data
     remaining, rounds, below = settings.refine, 0, 0
     per_round = max(9, min(30, settings.refine // 4))
@@ -266,50 +174,61 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
         surrogate = fit_local(x, y, n_eff, surrogate.kernel, int(rng.integers(2**31 - 1)))
         rounds += 1
         below = below + 1 if err < settings.refine_tolerance_nats else 0
-        print(f"  refined: {x.shape[0]} training points, best log-loss {np.min(y):.4f}, "
-              f"out-of-sample error {err:.2f} nats", file=sys.stderr)
+        logger.info("refined: %d training points, best log-loss %.4f, out-of-sample error %.2f nats",
+                    x.shape[0], np.min(y), err)
         if rounds >= 2 and below >= 2:
             break
     return surrogate, (x, y)
 
 
-def run_posterior(run_dir: Path, settings: PosteriorSettings) -> dict[str, Any]:
-    """The whole stage; returns the content of ``posterior/summary.json``."""
-    from smcbayes.surrogate.gp import load_surrogate
+def _refine_stage(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
+                  settings: PosteriorSettings, rng: np.random.Generator,
+                  out_dir: Path) -> tuple[Any, tuple[Array, Array], int]:
+    """Refinement with its log and the refined GP saved; returns the forward runs it made."""
+    if settings.refine <= 0:
+        return surrogate, data, 0
+    log = out_dir / "refine.jsonl"
+    log.unlink(missing_ok=True)
+    surrogate, data = refine(ctx, data, surrogate, n_eff, settings, rng, out_dir)
+    save_surrogate(out_dir / "gp_refined.pt", surrogate, {"training_points": int(data[0].shape[0])})
+    with log.open(encoding="utf-8") as fh:
+        return surrogate, data, sum(1 for _ in fh)
 
+
+def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = None,
+                  executor: Executor | None = None) -> dict[str, Any]:
+    """The whole stage; returns the content of ``posterior/summary.json``.
+
+    Args:
+        run_dir: a calibration run directory.
+        settings: the stage's settings (default: the project's ``[posterior]`` table).
+        executor: where the stage's forward batches run (default: in process).
+    """
     start = time.perf_counter()
-    ctx = load_run(run_dir)
-    out_dir = run_dir / "posterior"
-    out_dir.mkdir(exist_ok=True)
+    ctx = load_run(run_dir, executor)
+    settings = settings if settings is not None else ctx.problem.project.posterior
+    out_dir = ctx.run.begin_stage("posterior", settings.model_dump(mode="json"))
     rng = np.random.default_rng(settings.seed)
-    calibration_gp, _ = load_surrogate(run_dir / "gp.pt")
-    budget = residual_budget(ctx)
-    n_eff = budget["n_eff_total"]
-    data = (calibration_gp.x_unit, calibration_gp.log_loss)
-    surrogate = fit_local(*data, n_eff, calibration_gp.kernel, settings.seed)
-    if settings.refine > 0:
-        (out_dir / "refine.jsonl").unlink(missing_ok=True)
-        surrogate, data = refine(ctx, data, surrogate, n_eff, settings, rng, out_dir)
-        from smcbayes.surrogate.gp import save_surrogate
-
-        save_surrogate(out_dir / "gp_refined.pt", surrogate, {"training_points": int(data[0].shape[0])})
-    t_sample = time.perf_counter()
-    emul, chains = sample(ctx, surrogate, n_eff, settings, rng)
-    t_correct = time.perf_counter()
-    corrected = correct_posterior(ctx, chains, n_eff, settings, rng, data) if settings.correct_draws > 0 else None
-    t_outputs = time.perf_counter()
-    from smcbayes.posterior.report import write_outputs
-
-    info = write_outputs(ctx, emul, chains, budget, settings, rng, out_dir, corrected)
+    calibration_gp, _ = load_surrogate(ctx.run.gp_path)
+    with ctx.runner:
+        budget = residual_budget(ctx)
+        n_eff = budget["n_eff_total"]
+        data = (calibration_gp.x_unit, calibration_gp.log_loss)
+        surrogate = fit_local(*data, n_eff, calibration_gp.kernel, settings.seed)
+        surrogate, data, refined = _refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
+        t_sample = time.perf_counter()
+        emul, chains = sample(ctx, surrogate, n_eff, settings, rng)
+        t_correct = time.perf_counter()
+        corrected = correct_posterior(ctx, chains, n_eff, settings, rng, data) if settings.correct_draws > 0 else None
+        t_outputs = time.perf_counter()
+        info = write_outputs(ctx, emul, chains, budget, settings, rng, out_dir, corrected)
     info["stage_seconds"] = {"setup_and_refine": t_sample - start, "emulator_sampling": t_correct - t_sample,
                              "correction": t_outputs - t_correct, "outputs": time.perf_counter() - t_outputs}
-    log = out_dir / "refine.jsonl"
-    refined = sum(1 for _ in log.open(encoding="utf-8")) if settings.refine > 0 and log.is_file() else 0
     info["forward_evaluations"].update(refine=refined, residual_budget=2 * ctx.space.dim + 1)
     info["forward_evaluations"]["total"] = sum(info["forward_evaluations"].values())
+    info["simulator_runs"] = ctx.runner.forward_runs  # parameter sets x configurations
+    info["simulator"] = ctx.summary.get("simulator", "native")
     info["seconds"] = time.perf_counter() - start
-    info["settings"] = asdict(settings)
-    from smcbayes.surrogate.runlog import write_json
-
-    write_json(out_dir / "summary.json", info)
+    info["settings"] = settings.model_dump(mode="json")
+    ctx.run.complete_stage("posterior", info)
     return info

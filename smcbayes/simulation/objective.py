@@ -1,8 +1,10 @@
-"""What the optimiser sees of the physics: evaluate parameter vectors on one configuration.
+"""What every stage sees of the physics: evaluate parameter vectors on one configuration.
 
 A :class:`Task` is a block of parameter vectors (free parameters, user units) and one
 configuration; an :class:`Objective` turns it into a :class:`TaskResult` of per-row errors
-and statuses.  The loss of an evaluation is the mean of its per-configuration errors over
+and statuses, and the simulated curves when the task asks for them (``curves=True``).
+A :class:`Simulator` is anything that turns parameter vectors into curves: the native
+forward model and the external-command adapter are the two implementations.  The loss of an evaluation is the mean of its per-configuration errors over
 the objective's configurations (thesis eq. 3.7, ``1/p * sum_k``).  Objectives must be
 picklable: executors ship them to worker processes or cluster nodes.
 """
@@ -12,12 +14,15 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from smcbayes.errors import InputError, SmcBayesError
+from smcbayes.config import LossSpec
+from smcbayes.data.dataset import Dataset
+from smcbayes.data.loss import evaluate_loss
+from smcbayes.errors import SolverError
 from smcbayes.forward.parameters import ParameterSpace
 from smcbayes.forward.result import STATUS_OK, SimulationResult
 
@@ -32,11 +37,13 @@ class Task:
         indices: evaluation numbers of the rows, length ``P``.
         theta: free-parameter vectors in user units, shape ``(P, d)``.
         config_id: the configuration.
+        curves: return the simulated curves with the errors.
     """
 
     indices: tuple[int, ...]
     theta: Array
     config_id: str
+    curves: bool = False
 
 
 @dataclass(frozen=True)
@@ -52,6 +59,7 @@ class TaskResult:
         displacement_mse_mm2: displacement mean squared error, shape ``(P,)`` (mm^2).
         status: ``"ok"`` or ``"failed: reason"`` per row.
         seconds: wall time of the whole task (s).
+        curves: the simulated curves of the rows (``P`` rows) if the task asked for them.
     """
 
     indices: tuple[int, ...]
@@ -61,6 +69,7 @@ class TaskResult:
     displacement_mse_mm2: Array
     status: list[str]
     seconds: float
+    curves: SimulationResult | None = None
 
     @staticmethod
     def failed(task: Task, reason: str, seconds: float = 0.0) -> TaskResult:
@@ -82,12 +91,19 @@ class Objective(Protocol):
 
 
 class Simulator(Protocol):
-    """Anything that simulates free-parameter vectors on configurations (ForwardModel-like)."""
+    """The one simulator contract of every stage: parameter vectors -> curves.
+
+    Implemented by :class:`~smcbayes.forward.model.ForwardModel` (the native 1-D and 2-D
+    solvers) and :class:`~smcbayes.simulation.executors.external.ExternalSimulator` (the
+    user's own solver).  A row that fails has a ``"failed: reason"`` status and NaN curves;
+    ``simulate`` raises only for bad input (:class:`~smcbayes.errors.InputError`) or a
+    failure of the whole batch (:class:`~smcbayes.errors.SolverError`).
+    """
 
     space: ParameterSpace
 
     def simulate(self, theta: Array, config_ids: Sequence[str]) -> dict[str, SimulationResult]:
-        """Curves for ``theta`` ``(P, d)`` on each configuration."""
+        """Curves for ``theta`` ``(P, d)`` (free parameters, user units) on each configuration."""
         ...
 
 
@@ -108,13 +124,13 @@ class SimulatorObjective:
 
     Args:
         simulator: a :class:`~smcbayes.forward.model.ForwardModel` or an external adapter.
-        dataset: measured curves (``smcbayes.data.dataset.Dataset``).
+        dataset: measured curves; configurations without data give NaN errors.
         config_ids: configurations that enter the loss (e.g. the training set).
-        loss_spec: ``smcbayes.data.loss.LossSpec``; default weights when ``None``.
+        loss_spec: weights, grid and clipping of the loss; default when ``None``.
     """
 
-    def __init__(self, simulator: Simulator, dataset: Any, config_ids: Sequence[str],
-                 loss_spec: Any = None) -> None:
+    def __init__(self, simulator: Simulator, dataset: Dataset, config_ids: Sequence[str],
+                 loss_spec: LossSpec | None = None) -> None:
         self.simulator = simulator
         self.space = simulator.space
         self.dataset = dataset
@@ -122,26 +138,33 @@ class SimulatorObjective:
         self.loss_spec = loss_spec
 
     def evaluate(self, task: Task) -> TaskResult:
-        """Simulate the task's rows on its configuration and score them."""
-        from smcbayes.data.loss import LossSpec, evaluate_loss
+        """Simulate the task's rows on its configuration and score them.
 
+        A configuration without measured data (a validation trial without files) gets NaN
+        errors with an ``ok`` status: its curves can still be asked for.
+        """
         start = time.perf_counter()
         try:
             results = self.simulator.simulate(task.theta, [task.config_id])
-            spec = self.loss_spec if self.loss_spec is not None else LossSpec()
-            loss = evaluate_loss(results, self.dataset, spec, ids=[task.config_id])
-        except InputError:
-            raise  # a bad config or data file is the user's to fix: stop, do not log failures
-        except (SmcBayesError, ArithmeticError, ValueError) as err:
+        except (SolverError, ArithmeticError) as err:
             return TaskResult.failed(task, f"{type(err).__name__}: {err}", time.perf_counter() - start)
+        result = results[task.config_id]
+        curves = result if task.curves else None
+        if task.config_id not in self.dataset.measurements:
+            nan = np.full(result.rows, np.nan)
+            status = [s if s == STATUS_OK or s.startswith("failed") else f"failed: {s}" for s in result.status]
+            return TaskResult(task.indices, task.config_id, nan, nan.copy(), nan.copy(), status,
+                              time.perf_counter() - start, curves)
+        spec = self.loss_spec if self.loss_spec is not None else LossSpec()
+        loss = evaluate_loss(results, self.dataset, spec, ids=[task.config_id])
         error = np.asarray(loss.total, dtype=float).reshape(-1)
-        status = _row_status(results[task.config_id], error)
+        status = _row_status(result, error)
         bad = np.array([s != STATUS_OK for s in status])
         error = np.where(bad, np.nan, error)
         return TaskResult(task.indices, task.config_id, error,
                           np.asarray(loss.force_mse_kN2, dtype=float)[:, 0],
                           np.asarray(loss.displacement_mse_mm2, dtype=float)[:, 0],
-                          status, time.perf_counter() - start)
+                          status, time.perf_counter() - start, curves)
 
 
 class QuadraticObjective:

@@ -16,9 +16,14 @@ from pathlib import Path
 import numpy as np
 
 from smcbayes.config import DataSpec, ProjectConfig
-from smcbayes.errors import ConfigError
+from smcbayes.data.dataset import Dataset, load_dataset
+from smcbayes.data.readers.csv import write_csv
+from smcbayes.errors import ConfigError, SolverError
 from smcbayes.forward.model import ForwardModel
-from smcbayes.simulation.objective import SimulatorObjective
+from smcbayes.simulation.executors.base import Executor
+from smcbayes.simulation.executors.external import ExternalSimulator
+from smcbayes.simulation.objective import Simulator, SimulatorObjective
+from smcbayes.simulation.runner import Runner
 
 
 @dataclass(frozen=True)
@@ -32,12 +37,15 @@ class ExternalSpec:
 
 @dataclass
 class Problem:
-    """Everything a calibration needs besides its settings.
+    """Everything a stage needs besides its settings.
 
     Attributes:
         project: the project (data_dir pointing at synthetic data for a truth check).
-        model: the native forward model (parameter space, best-point curves, figures).
-        objective: what the optimiser evaluates.
+        model: the native forward model: the parameter space, the effects and the
+            configurations' roles (it simulates only when it is also the simulator).
+        objective: the run's simulator (``objective.simulator``: the native model or the
+            external adapter), the measured data and the loss; every forward run of every
+            stage goes through it (:meth:`runner`).
         train_ids: configurations in the loss.
         truth: true parameter values (user units) of a synthetic check, else ``None``.
     """
@@ -48,12 +56,34 @@ class Problem:
     train_ids: list[str]
     truth: dict[str, float] | None
 
+    @property
+    def simulator(self) -> Simulator:
+        """The one simulator of the run (native or external)."""
+        return self.objective.simulator
+
+    @property
+    def dataset(self) -> Dataset:
+        """Measured curves of every configuration that has them (training and validation)."""
+        return self.objective.dataset
+
+    @property
+    def space(self):
+        """The parameter space."""
+        return self.model.space
+
+    def measured_force(self, ids: Sequence[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Measured force curves ``(time_s, force_kN)`` of those of ``ids`` that have them."""
+        return {cid: (m.force.time_s, m.force.values) for cid, m in self.dataset.measurements.items()
+                if cid in ids and m.force is not None}
+
+    def runner(self, executor: Executor | None = None) -> Runner:
+        """The run's objective bound to ``executor`` (in process when ``None``)."""
+        return Runner(self.objective, executor)
+
 
 def write_truth_data(model: ForwardModel, truth: Mapping[str, float], ids: Sequence[str],
                      folder: Path) -> None:
     """Simulate ``truth`` on ``ids`` and write force and hold curves like the press data."""
-    from smcbayes.data.readers.csv import write_csv
-
     unknown = [k for k in truth if k not in model.space.names]
     if unknown:
         raise ConfigError(f"[calibration] truth: unknown parameter '{unknown[0]}'; "
@@ -64,7 +94,7 @@ def write_truth_data(model: ForwardModel, truth: Mapping[str, float], ids: Seque
     (folder / "hold").mkdir(parents=True, exist_ok=True)
     for cid, res in results.items():
         if res.status[0] != "ok":
-            raise ConfigError(f"[calibration] truth: simulation of '{cid}' {res.status[0]}")
+            raise SolverError(f"[calibration] truth: simulation of '{cid}' {res.status[0]}")
         t, f, d = res.time_s[0], res.force_kN[0], res.displacement_mm[0]
         t_switch = res.switch_time_s[0]
         closing = t <= t_switch if np.isfinite(t_switch) else np.ones_like(t, dtype=bool)
@@ -90,10 +120,13 @@ def with_data_dir(project: ProjectConfig, folder: Path, ids: Sequence[str]) -> P
 
 def build_problem(project: ProjectConfig, run_dir: Path, effects: Sequence[str] | None = None,
                   overrides: Mapping[str, float] | None = None, fidelity: str | None = None,
-                  external: ExternalSpec | None = None) -> Problem:
-    """Forward model, data and objective of a calibration of ``project``'s training set."""
-    from smcbayes.data.dataset import load_dataset
+                  external: ExternalSpec | None = None, reuse_truth: bool = False) -> Problem:
+    """Forward model, data and objective of a calibration of ``project``'s training set.
 
+    Args:
+        reuse_truth: read the synthetic curves of a truth check from ``run_dir/truth-data``
+            where the calibration wrote them, instead of simulating them again.
+    """
     model = ForwardModel(project, effects=effects, overrides=overrides, fidelity=fidelity)
     if model.space.dim == 0:
         raise ConfigError("every parameter is fixed: free at least one ([parameters.X] fixed = false)")
@@ -103,20 +136,28 @@ def build_problem(project: ProjectConfig, run_dir: Path, effects: Sequence[str] 
     truth = project.calibration.truth
     if truth is not None:
         folder = run_dir / "truth-data"
-        write_truth_data(model, truth, ids, folder)
+        if not (reuse_truth and (folder / "force").is_dir()):
+            write_truth_data(model, truth, ids, folder)
         project = with_data_dir(project, folder, ids)
         model = ForwardModel(project, effects=effects, overrides=overrides, fidelity=fidelity)
-    dataset = load_dataset(project, ids=ids, preprocess=project.preprocess)
+    dataset = _load_data(project, ids)
     bare = [cid for cid in ids if cid not in dataset.measurements or dataset.measurements[cid].force is None]
     if bare and external is None:
         raise ConfigError(f"training configuration(s) {', '.join(bare)} have no measured force "
                           "curve: add data.force or set role = \"validation\"")
-    simulator = model
+    simulator: Simulator = model
     if external is not None:
-        from smcbayes.simulation.executors.external import ExternalSimulator
-
         simulator = ExternalSimulator(project, model.space, external.command, run_dir / "work",
                                       external.timeout_s, external.output_format)
     objective = SimulatorObjective(simulator, dataset, ids, project.loss)
     full_truth = None if truth is None else {**model.space.defaults(), **truth}
     return Problem(project, model, objective, ids, full_truth)
+
+
+def _load_data(project: ProjectConfig, train_ids: Sequence[str]) -> Dataset:
+    """Training curves (required) and the validation curves that exist (for bands and
+    held-out errors); a project without a data folder has none of the latter."""
+    root = project.data_path()
+    if root is None or not root.is_dir():
+        return load_dataset(project, ids=train_ids, preprocess=project.preprocess)
+    return load_dataset(project, preprocess=project.preprocess)

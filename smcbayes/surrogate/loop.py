@@ -13,49 +13,23 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from smcbayes.errors import ConfigError
+from smcbayes.config import CalibrationSpec
+from smcbayes.run.runlog import LogState, RunLog
 from smcbayes.simulation.executors.base import Executor
 from smcbayes.simulation.objective import Objective, Task, TaskResult, combine
 from smcbayes.surrogate.design import latin_hypercube, round_rng, round_seed
-from smcbayes.surrogate.runlog import LogState, RunLog
 
 Array = NDArray[np.float64]
 
 
-@dataclass(frozen=True)
-class BOSettings:
-    """Settings of the loop (see :class:`smcbayes.config.CalibrationSpec`)."""
-
-    budget: int = 60
-    init: int = 20
-    batch: int = 1
-    kernel: str = "matern52"
-    tolerance: float = 0.0
-    patience: int = 10
-    seed: int = 0
-    failed: str = "impute"
-    restarts: int = 8
-    raw_samples: int = 256
-    noise: float | None = 1e-6
-    local_evaluations: int = 0
-    local_radius: float = 0.05
-
-    def check(self) -> None:
-        """Raise :class:`ConfigError` for inconsistent settings."""
-        if self.init < 2 or self.budget < self.init:
-            raise ConfigError(f"calibration: need 2 <= init ({self.init}) <= budget ({self.budget})")
-        if self.batch < 1:
-            raise ConfigError(f"calibration: batch = {self.batch} must be at least 1")
-        if not 0 < self.local_radius <= 0.5 or self.local_evaluations < 0:
-            raise ConfigError("calibration: need local_evaluations >= 0 and 0 < local_radius <= 0.5")
-        if self.failed not in ("impute", "exclude"):
-            raise ConfigError(f"calibration: failed = {self.failed!r}; accepted: impute, exclude")
+BOSettings = CalibrationSpec
+"""The loop's settings are the ``[calibration]`` table (one model, one set of defaults)."""
 
 
 @dataclass(frozen=True)
@@ -172,7 +146,7 @@ class BayesOpt:
 
         seed = round_seed(s.seed, rnd)
         with gp_session():
-            self.last_surrogate = fit_surrogate(x, y, s.kernel, seed, s.noise)
+            self.last_surrogate = fit_surrogate(x, y, s.kernel, seed, s.noise_variance)
             cand, _ = propose(self.last_surrogate, q, seed, s.restarts, s.raw_samples,
                               self._local_box(proposed))
         return cand
@@ -284,4 +258,4 @@ class BayesOpt:
 
     def settings_dict(self) -> dict[str, Any]:
         """The settings as a plain dict (for the summary)."""
-        return asdict(self.settings)
+        return self.settings.model_dump(mode="json")

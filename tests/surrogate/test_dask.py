@@ -11,11 +11,11 @@ from pathlib import Path
 import pytest
 
 from smcbayes.forward.parameters import BASE_PARAMETERS, ParameterSpace
+from smcbayes.run.runlog import RunLog
 from smcbayes.simulation.executors.dask import DaskExecutor
 from smcbayes.simulation.executors.local import LocalExecutor
 from smcbayes.simulation.objective import QuadraticObjective
 from smcbayes.surrogate.loop import BayesOpt, BOSettings
-from smcbayes.surrogate.runlog import RunLog
 
 distributed = pytest.importorskip("distributed")
 

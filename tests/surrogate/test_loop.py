@@ -10,10 +10,10 @@ import pytest
 
 from smcbayes.errors import ConfigError
 from smcbayes.forward.parameters import BASE_PARAMETERS, ParameterSpace
+from smcbayes.run.runlog import RunLog
 from smcbayes.simulation.executors.local import LocalExecutor
 from smcbayes.simulation.objective import QuadraticObjective, Task, TaskResult
 from smcbayes.surrogate.loop import BayesOpt, BOSettings, training_data
-from smcbayes.surrogate.runlog import RunLog
 
 
 def slip_space() -> ParameterSpace:

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from smcbayes.errors import SurrogateError
-from smcbayes.surrogate.runlog import RunLog
+from smcbayes.run.runlog import RunLog
 
 
 def test_partial_last_line_dropped_and_repaired(tmp_path: Path) -> None:

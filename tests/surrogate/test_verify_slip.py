@@ -6,23 +6,21 @@ from pathlib import Path
 
 import numpy as np
 
-from smcbayes.config import load_project
+from smcbayes.config import CalibrationSpec, load_project, override
+from smcbayes.run.runlog import RunLog
 from smcbayes.simulation.executors.local import LocalExecutor
 from smcbayes.simulation.objective import Task, TaskResult
 from smcbayes.simulation.problem import build_problem
-from smcbayes.surrogate.loop import BayesOpt, BOSettings
-from smcbayes.surrogate.rundir import calibrate
-from smcbayes.surrogate.runlog import RunLog
+from smcbayes.surrogate.calibration import calibrate
+from smcbayes.surrogate.loop import BayesOpt
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "configs" / "verify-slip-2d.toml"
 
 
-def settings(project, **kw) -> BOSettings:
-    c = project.calibration
-    base = dict(budget=c.budget, init=c.init, batch=c.batch, kernel=c.kernel, seed=c.seed,
-                local_evaluations=c.local_evaluations, local_radius=c.local_radius)
-    return BOSettings(**{**base, **kw})
+def settings(project, **kw) -> CalibrationSpec:
+    """The project's own [calibration] table (every setting) with the test's overrides."""
+    return override(project.calibration, kw)
 
 
 def test_slip_2d_recovers_truth(tmp_path: Path) -> None:
@@ -59,12 +57,15 @@ class FailSome:
     def __init__(self, inner) -> None:
         self.inner, self.space, self.config_ids = inner, inner.space, inner.config_ids
 
+    def __getattr__(self, name: str):
+        return getattr(self.inner, name)  # simulator, dataset, loss_spec of the real objective
+
     def evaluate(self, task: Task) -> TaskResult:
         res = self.inner.evaluate(task)
         bad = np.array([i % 5 == 0 for i in task.indices])
         status = ["failed: injected" if b else s for b, s in zip(bad, res.status, strict=True)]
         return TaskResult(res.indices, res.config_id, np.where(bad, np.nan, res.error),
-                          res.force_mse_kN2, res.displacement_mse_mm2, status, res.seconds)
+                          res.force_mse_kN2, res.displacement_mse_mm2, status, res.seconds, res.curves)
 
 
 def test_failures_are_reported_in_summary(tmp_path: Path) -> None:

@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from smcbayes.data.curve import Curve, check_samples, unit_factor, unit_from_column
 from smcbayes.errors import DataError
+from smcbayes.forward.result import PHASE_NAMES, SimulationResult
 
 Array = NDArray[np.float64]
 
@@ -106,3 +107,14 @@ def write_csv(path: str | Path, time_s: Array, values: Array, value_column: str,
         fh.write(f"time_s,{value_column}\n")
         for t, v in zip(time_s, values, strict=False):
             fh.write(f"{t:.{digits}g},{v:.{digits}g}\n")
+
+
+def write_curves(result: SimulationResult, row: int, path: Path) -> None:
+    """One CSV of a simulated configuration: time, gap, displacement, force, fill, phase."""
+    cols = result.row(row)
+    names = ("time_s", "gap_mm", "displacement_mm", "force_kN", "fill_fraction", "solid_fraction")
+    with path.open("w", encoding="utf-8") as fh:
+        fh.write(",".join(names) + ",phase\n")
+        for i in range(cols["time_s"].size):
+            values = ",".join(f"{cols[n][i]:.9g}" for n in names)
+            fh.write(f"{values},{PHASE_NAMES[int(cols['phase'][i])]}\n")

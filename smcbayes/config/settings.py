@@ -1,0 +1,127 @@
+"""Settings of the stages, each a validated table of the project file with its defaults.
+
+``[calibration]``, ``[posterior]`` and ``[diagnose]`` in the project TOML fill these
+models; command-line options override single fields (:func:`override`).  The defaults
+written here are the only ones: the command line shows them in ``--help`` and the library
+functions take these objects.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from smcbayes.errors import ConfigError
+
+
+class Strict(BaseModel):
+    """Base model: unknown keys are errors, objects are immutable."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class CalibrationSpec(Strict):
+    """Settings of ``smcbayes calibrate`` (Bayesian optimisation); CLI options override them."""
+
+    budget: int = Field(60, ge=2, le=100000, description="total evaluations, initial design included")
+    init: int = Field(20, ge=2, le=100000, description="Latin hypercube initial design size")
+    batch: int = Field(1, ge=1, le=256, description="candidates per round (qLogEI when > 1)")
+    kernel: Literal["rbf", "matern52"] = "matern52"
+    tolerance: float = Field(0.0, ge=0.0, lt=1.0,
+                             description="stop when the best loss improves by less than this "
+                                         "fraction over `patience` rounds (0: off)")
+    patience: int = Field(10, ge=1, le=100000)
+    seed: int = Field(0, ge=0)
+    failed: Literal["impute", "exclude"] = Field(
+        "impute", description="failed evaluations: imputed at the worst loss seen, or left out")
+    truth: dict[str, float] | None = Field(
+        None, description="synthetic check: 'measured' curves simulated at these values")
+    restarts: int = Field(8, ge=1, le=1000, description="acquisition optimiser restarts")
+    raw_samples: int = Field(256, ge=8, le=100000, description="acquisition optimiser raw samples")
+    noise: float | Literal["fit"] = Field(
+        1e-6, description="GP noise variance of log(loss): a small fixed value for a "
+                          "deterministic simulator, or 'fit' to fit a noise term (thesis)")
+    local_evaluations: int = Field(
+        0, ge=0, description="final evaluations searched in a box around the best point")
+    local_radius: float = Field(0.1, gt=0, le=0.5,
+                                description="half-width of that box in unit-cube coordinates")
+
+    @property
+    def noise_variance(self) -> float | None:
+        """The GP's fixed noise variance, or ``None`` when the noise is fitted."""
+        return None if self.noise == "fit" else float(self.noise)
+
+    def check(self) -> None:
+        """Raise :class:`ConfigError` for settings that contradict each other."""
+        if self.budget < self.init:
+            raise ConfigError(f"calibration: need init ({self.init}) <= budget ({self.budget})")
+
+
+class PosteriorSpec(Strict):
+    """Settings of ``smcbayes posterior``; CLI options override them."""
+
+    walkers: int = Field(32, ge=4, le=10000, description="emcee walkers")
+    steps: int = Field(4000, ge=1, le=10_000_000, description="maximum steps per chain")
+    functions: int = Field(8, ge=0, le=1000,
+                           description="GP sample functions in the mixture (0: GP mean only)")
+    refine: int = Field(0, ge=0, le=1_000_000,
+                        description="forward evaluations added where the posterior is probable and the "
+                                    "GP unsure")
+    draws: int = Field(100, ge=1, le=1_000_000,
+                       description="posterior draws through the forward model for bands and checks")
+    seed: int = Field(0, ge=0, description="random seed (same seed, same posterior)")
+    refine_tolerance_nats: float = Field(
+        1.0, gt=0, description="refinement stops once the emulator's out-of-sample error at fresh "
+                               "posterior draws is below this (nats) twice in a row")
+    correct_draws: int = Field(
+        14000, ge=0, le=10_000_000,
+        description="most proposal draws of the importance correction (each inside the prior box "
+                    "costs a forward run); 0 reports the emulated posterior uncorrected")
+
+
+class DiagnoseSpec(Strict):
+    """Settings of ``smcbayes diagnose``; CLI options override them."""
+
+    effects: list[str] | None = Field(None, description="candidate effects (default: all not already on)")
+    holdout: list[str] | None = Field(
+        None, description="held-out configurations (default: the middle speed of each charge group)")
+    pair: bool = Field(False, description="also re-calibrate the best two effects together")
+    seed: int = Field(0, ge=0, description="random seed (same seed, same ranking)")
+    population: int = Field(64, ge=4, le=100000, description="parameter sets per generation")
+    generations: int = Field(50, ge=1, le=100000,
+                             description="optimiser generations per re-calibration")
+    restarts: int = Field(2, ge=1, le=1000,
+                          description="independent evolutions per re-calibration, the best kept")
+    min_score: float = Field(3.0, description="penalised held-out score (log Bayes factor) needed to "
+                                              "name an effect")
+
+
+def override(spec: BaseModel, values: Mapping[str, Any], source: str = "command line") -> Any:
+    """Copy of ``spec`` with the non-``None`` ``values`` set, validated again.
+
+    Raises:
+        ConfigError: one line naming the option and what is accepted.
+    """
+    given = {k: v for k, v in values.items() if v is not None}
+    if not given:
+        return spec
+    try:
+        return type(spec).model_validate({**spec.model_dump(), **given})
+    except ValidationError as err:
+        e = err.errors()[0]
+        name = str(e["loc"][0]) if e["loc"] else "?"
+        flag = "--" + name.replace("_", "-")
+        raise ConfigError(f"{source}: {flag} {e.get('input')!r}: {e['msg'].removeprefix('Value error, ')}") from None
+
+
+def default_of(spec: type[BaseModel], name: str) -> Any:
+    """The default of one field (for ``--help`` texts)."""
+    return spec.model_fields[name].default
+
+
+def help_of(spec: type[BaseModel], name: str) -> str:
+    """``description (default X)`` of one field, for ``--help``."""
+    field = spec.model_fields[name]
+    return f"{field.description or name} (default {field.default})"

@@ -1,0 +1,99 @@
+"""What the posterior stage takes from a calibration run, and its forward runs.
+
+:func:`load_run` reads the run directory (identity, calibration summary, the problem with
+its simulator and data) without simulating anything; every forward run the stage makes
+afterwards (likelihood, sensitivities, correction, emulator check, bands) goes through
+the run's :class:`~smcbayes.simulation.runner.Runner`, so an external simulator serves the
+posterior exactly as it served the calibration, on the same executor, and the runs are
+counted.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from smcbayes.config import ProjectConfig
+from smcbayes.forward.parameters import ParameterSpace
+from smcbayes.run import RunDir
+from smcbayes.simulation.executors.base import Executor
+from smcbayes.simulation.problem import Problem
+from smcbayes.simulation.runner import Runner
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class RunContext:
+    """What the posterior needs from a calibration run.
+
+    Attributes:
+        run: the run directory.
+        problem: the calibration problem (simulator, data, loss, parameter space).
+        summary: the calibration summary.
+        best_theta: best calibrated free parameters ``(1, d)`` (user units).
+        runner: the run's simulator on the stage's executor; counts the forward runs.
+    """
+
+    run: RunDir
+    problem: Problem
+    summary: dict[str, Any]
+    best_theta: Array
+    runner: Runner
+
+    @property
+    def run_dir(self) -> Path:
+        """The run directory's path."""
+        return self.run.root
+
+    @property
+    def space(self) -> ParameterSpace:
+        """The parameter space."""
+        return self.problem.space
+
+
+def load_run(run_dir: Path | RunDir, executor: Executor | None = None) -> RunContext:
+    """Read a calibration run (nothing is simulated); ``executor`` runs the stage's forward
+    batches (in process when ``None``)."""
+    run = run_dir if isinstance(run_dir, RunDir) else RunDir(run_dir)
+    run.require()
+    problem = run.load_problem()
+    summary = run.calibration_summary() or {}
+    theta = run.best_theta(problem.space.free_names)
+    if problem.truth is None:
+        problem.truth = synthetic_truth(problem.project, problem.space.defaults())
+    return RunContext(run, problem, summary, theta, problem.runner(executor))
+
+
+def synthetic_truth(project: ProjectConfig, defaults: dict[str, float]) -> dict[str, float] | None:
+    """True parameters of a dataset written by ``smcbayes synth`` (its truth.json), if any."""
+    root = project.data_path()
+    path = None if root is None else root / "truth.json"
+    if path is None or not path.is_file():
+        return None
+    params = json.loads(path.read_text(encoding="utf-8")).get("parameters", {})
+    return {**defaults, **{k: float(v) for k, v in params.items() if k in defaults}}
+
+
+def true_log_loss(ctx: RunContext, theta: Array) -> Array:
+    """log of the global loss from the run's simulator at ``theta`` ``(P, d)``; NaN if failed."""
+    loss = ctx.runner.loss(theta)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(loss > 0, np.log(loss), np.nan)
+
+
+def exact_log_posterior(ctx: RunContext, n_eff: float) -> Callable[[Array], Array]:
+    """Exact unnormalised log posterior on the unit cube, ``(P, d) -> (P,)``: one batched
+    forward run of the training configurations, -(N_eff / 2) log L (NaN where it failed)."""
+    a = 0.5 * n_eff
+
+    def log_post(u: Array) -> Array:
+        return -a * true_log_loss(ctx, ctx.space.from_unit(np.atleast_2d(u)))
+
+    return log_post
