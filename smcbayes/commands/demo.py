@@ -14,17 +14,24 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import logging
 import shlex
 import time
 import tomllib
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from smcbayes.config import build_project
-from smcbayes.errors import ConfigError, SmcBayesError
+from smcbayes import api, progress
+from smcbayes.config import build_project, load_project
+from smcbayes.data.synth import NoiseSpec, to_toml, write_synthetic
+from smcbayes.errors import ConfigError, SmcBayesError, SmcBayesWarning
+from smcbayes.forward.model import ForwardModel
+from smcbayes.report.document import fmt, pct
+from smcbayes.run import read_json
 
 DEMO_FILE = "demo.toml"
 STAGES = ("synth", "calibrate", "posterior", "diagnose", "report")
@@ -98,28 +105,67 @@ def command_lines(plan: DemoPlan, out: Path) -> dict[str, list[str]]:
     return {stage: shlex.split(line) for stage, line in lines.items()}
 
 
-def run_stage(argv: list[str], log: Path) -> None:
-    """Run one subcommand in this process, its output captured in ``log``."""
-    from smcbayes.cli import build_parser
-
-    args = build_parser().parse_args(argv)
+@contextlib.contextmanager
+def stage_log(path: Path) -> Iterator[None]:
+    """Log records of a stage to its file, the terminal keeping one line per stage."""
+    handler = logging.FileHandler(path, encoding="utf-8")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(name)s: %(message)s"))
+    root = logging.getLogger("smcbayes")
+    quiet = [(h, h.level) for h in root.handlers]
+    for h, _ in quiet:
+        h.setLevel(logging.WARNING)
+    root.addHandler(handler)
+    was_on = progress.enabled()
+    progress.enable(True, interval_s=5.0)
     try:
-        with (
-            log.open("w", encoding="utf-8") as fh,
-            contextlib.redirect_stdout(fh),
-            contextlib.redirect_stderr(fh),
-        ):
-            code = int(args.run(args) or 0)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", SmcBayesWarning)
+            yield
+        for w in caught:
+            root.warning("warning: %s", w.message)
+    finally:
+        progress.enable(was_on)
+        root.removeHandler(handler)
+        handler.close()
+        for h, level in quiet:
+            h.setLevel(level)
+
+
+def run_stage(plan: DemoPlan, stage: str, out: Path) -> None:
+    """Run one stage through the library, its log in ``out/logs/<stage>.log``."""
+    s, run = plan.stage, out / "run"
+    log = out / "logs" / f"{stage}.log"
+    try:
+        with stage_log(log):
+            if stage == "synth":
+                synthesise(plan, out)
+            elif stage == "calibrate":
+                api.calibrate(out / "data" / "project.toml", run, budget=s["budget"], init=s["init"], seed=0)
+            elif stage == "posterior":
+                api.posterior(run, walkers=s["walkers"], steps=s["steps"], functions=s["functions"],
+                              draws=s["draws"], seed=0)
+            elif stage == "diagnose":
+                api.diagnose(run, run / "diagnose", seed=0, population=s["population"],
+                             generations=s["generations"], effects=s.get("candidates") or None)
+            else:
+                api.report(run)
     except SmcBayesError as err:  # same class (exit code), with the stage and its log named
-        raise type(err)(f"demo stage '{argv[0]}': {err} (log: {log})") from err
-    if code != 0:
-        raise ConfigError(f"demo stage '{argv[0]}' exited with code {code}; see {log}")
+        raise type(err)(f"demo stage '{stage}': {err} (log: {log})") from err
+
+
+def synthesise(plan: DemoPlan, out: Path) -> None:
+    """The synthetic measured data (as ``smcbayes synth`` with the demo's truth and noise)."""
+    project = load_project(out / "demo-project.toml")
+    model = ForwardModel(project, effects=[plan.effect], overrides=plan.truth)
+    n = plan.noise
+    noise = NoiseSpec(white_kN=n.get("white_kN", 0.0), correlated_kN=n.get("correlated_kN", 0.0),
+                      correlation_s=n.get("correlation_s", 1.0))
+    write_synthetic(model, model.config_ids, noise, plan.seed, out / "data", plan.truth,
+                    source=str(out / "demo-project.toml"))
 
 
 def write_source(plan: DemoPlan, out: Path) -> None:
     """The demo's project file, so that ``synth`` can be re-run from the command line."""
-    from smcbayes.data.synth import to_toml
-
     header = (
         "# Project of `smcbayes demo` (from the embedded demo.toml); the synthetic truth is\n"
         "# given on the synth command line recorded in run/demo.json.\n"
@@ -159,7 +205,7 @@ def run_demo(out: Path, quick: bool, echo: Callable[[str], None] = print) -> Pat
             )
         t0 = time.perf_counter()
         echo(f"[{k}/{len(STAGES)}] {stage:<9} ...")
-        run_stage(commands[stage], out / "logs" / f"{stage}.log")
+        run_stage(plan, stage, out)
         timings[stage] = time.perf_counter() - t0
         note = _stage_note(stage, out)
         echo(f"[{k}/{len(STAGES)}] {stage:<9} done in {timings[stage]:.1f} s{note}")
@@ -170,9 +216,6 @@ def run_demo(out: Path, quick: bool, echo: Callable[[str], None] = print) -> Pat
 
 def _stage_note(stage: str, out: Path) -> str:
     """A short result of the stage for the progress line."""
-    from smcbayes.report.collect import read_json
-    from smcbayes.report.document import fmt, pct
-
     run = out / "run"
     if stage == "calibrate" and (s := read_json(run / "summary.json")):
         return f": best loss {fmt(s.get('best_loss_kN2'))} kN^2"

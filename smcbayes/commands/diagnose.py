@@ -6,7 +6,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from smcbayes.errors import ConfigError
+from smcbayes.config import DiagnoseSpec, help_of, override
+from smcbayes.errors import ConfigError, closest
+from smcbayes.forward.effects import available
+from smcbayes.run import RunDir
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -27,18 +30,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--holdout", metavar="ID,...", default=None,
                    help="held-out configurations, comma-separated (default: the middle speed of "
                         "each charge group)")
-    p.add_argument("--pair", action="store_true",
-                   help="also re-calibrate the best two effects together")
-    p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same ranking)")
-    p.add_argument("--population", type=int, default=64,
-                   help="parameter sets per generation (default 64)")
-    p.add_argument("--generations", type=int, default=50,
-                   help="optimiser generations per re-calibration (default 50)")
-    p.add_argument("--restarts", type=int, default=2,
-                   help="independent evolutions per re-calibration, the best kept (default 2)")
-    p.add_argument("--min-score", type=float, default=3.0,
-                   help="penalised held-out score (log Bayes factor) needed to name an effect "
-                        "(default 3)")
+    p.add_argument("--pair", action="store_true", default=None,
+                   help="also re-calibrate the best two effects together (default: the [diagnose] table's pair)")
+    for name, kind in (("seed", int), ("population", int), ("generations", int), ("restarts", int),
+                       ("min_score", float)):
+        p.add_argument("--" + name.replace("_", "-"), type=kind, default=None, help=help_of(DiagnoseSpec, name))
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.set_defaults(run=run)
@@ -46,9 +42,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def candidates(spec: str | None) -> tuple[str, ...] | None:
     """Validated candidate names (None: all); unknown names raise with the closest match."""
-    from smcbayes.errors import closest
-    from smcbayes.forward.effects import available
-
     if spec is None:
         return None
     names = sorted(available())
@@ -66,8 +59,6 @@ def candidates(spec: str | None) -> tuple[str, ...] | None:
 
 def not_on(chosen: tuple[str, ...] | None, already_on: tuple[str, ...]) -> tuple[str, ...]:
     """Candidates that the calibration did not already have on."""
-    from smcbayes.forward.effects import available
-
     if chosen is None:
         chosen = tuple(n for n in sorted(available()) if n not in already_on)
     on = [n for n in chosen if n in already_on]
@@ -78,28 +69,39 @@ def not_on(chosen: tuple[str, ...] | None, already_on: tuple[str, ...]) -> tuple
     return chosen
 
 
+def settings_from(spec: DiagnoseSpec, args: argparse.Namespace) -> DiagnoseSpec:
+    """The project's ``[diagnose]`` table with the command line's overrides."""
+    values = {k: getattr(args, k) for k in ("seed", "population", "generations", "restarts", "min_score", "pair")}
+    if args.effects is not None:
+        values["effects"] = list(candidates(args.effects) or ())
+    if args.holdout is not None:
+        values["holdout"] = [s.strip() for s in args.holdout.split(",") if s.strip()]
+    return override(spec, values)
+
+
 def run(args: argparse.Namespace) -> int:
     """Execute ``diagnose``."""
+    # the stage loads torch and scipy.optimize: only when it runs, not at start-up
     from smcbayes.diagnose.fit import FitSettings
     from smcbayes.diagnose.load import context_from_run
     from smcbayes.diagnose.run import DiagnoseSettings, diagnose
 
-    run_dir = Path(args.run_dir)
-    if not run_dir.is_dir():
-        raise ConfigError(f"{run_dir}: run directory not found; pass the --out folder of "
-                          "`smcbayes calibrate`")
-    chosen = candidates(args.effects)
-    fit = FitSettings(population=args.population, generations=args.generations,
-                      restarts=args.restarts)
+    candidates(args.effects)  # a misspelt effect is reported before the run is read
+    run_dir = RunDir(args.run_dir)
+    run_dir.require()
+    spec = settings_from(run_dir.identity().project_config().diagnose, args)
+    fit = FitSettings(population=spec.population, generations=spec.generations, restarts=spec.restarts)
     fit.check()
-    holdout = None
-    if args.holdout is not None:
-        holdout = tuple(s.strip() for s in args.holdout.split(",") if s.strip())
     ctx = context_from_run(run_dir)
-    settings = DiagnoseSettings(candidates=not_on(chosen, ctx.base_effects), holdout=holdout,
-                                pair=args.pair, seed=args.seed, fit=fit, min_score=args.min_score,
+    chosen = None if spec.effects is None else tuple(spec.effects)
+    settings = DiagnoseSettings(candidates=not_on(chosen, ctx.base_effects),
+                                holdout=None if spec.holdout is None else tuple(spec.holdout),
+                                pair=spec.pair, seed=spec.seed, fit=fit, min_score=spec.min_score,
                                 figures=not args.no_figures)
-    summary = diagnose(ctx, settings, Path(args.out))
+    out = run_dir.begin_stage("diagnose", spec.model_dump(mode="json"), folder=Path(args.out))
+    run_dir.record_command("diagnose", args.argv)
+    summary = diagnose(ctx, settings, out)
+    run_dir.complete_stage("diagnose", summary, folder=out)
     print(f"where: {summary['where']['verdict']}")
     print(f"{'rank':>4}  {'effect':<34} {'held-out loss kN2':>18} {'shrink %':>9} {'z':>7} "
           f"{'score':>9}")

@@ -1,31 +1,28 @@
-"""The diagnosis context of a calibration run directory."""
+"""The diagnosis context of a calibration run directory (read, nothing simulated)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from smcbayes.diagnose.fit import DiagnosisContext
 from smcbayes.errors import ConfigError
+from smcbayes.posterior.context import synthetic_truth
+from smcbayes.run import RunDir
 
 
-def context_from_run(run_dir: Path) -> DiagnosisContext:
-    """Rebuild project, data, effects and the calibrated optimum of ``run_dir``."""
-    from smcbayes.posterior.stage import load_run
-
-    if not run_dir.is_dir():
-        raise ConfigError(f"{run_dir}: run directory not found; pass the --out folder of "
-                          "`smcbayes calibrate`")
-    run = load_run(run_dir)
-    identity = json.loads((run_dir / "config.json").read_text(encoding="utf-8"))
-    problem = run.problem
-    if identity.get("external"):
-        raise ConfigError(f"{run_dir}: the run used an external simulator; the diagnosis needs "
-                          "the native forward model with its effects")
-    batch = problem.model.space.batch(run.best_theta)
-    params = {k: float(v[0]) for k, v in batch.items()}
+def context_from_run(run_dir: Path | RunDir) -> DiagnosisContext:
+    """Project, data, effects and the calibrated optimum of ``run_dir``."""
+    run = run_dir if isinstance(run_dir, RunDir) else RunDir(run_dir)
+    run.require()
+    identity = run.identity()
+    if identity.external:
+        raise ConfigError(f"{run.root}: the run used an external simulator; the diagnosis switches "
+                          "effects of the native forward model and cannot use it")
+    problem = run.load_problem()
+    theta = run.best_theta(problem.space.free_names)
+    batch = problem.space.batch(theta)
+    truth = problem.truth or synthetic_truth(problem.project, problem.space.defaults())
     return DiagnosisContext(
-        project=problem.project, dataset=problem.objective.dataset, ids=list(problem.train_ids),
-        base_effects=tuple(problem.model.effects.names),
-        overrides=dict(identity.get("overrides") or {}), fidelity=identity.get("fidelity"),
-        base_params=params, truth=problem.truth)
+        project=problem.project, dataset=problem.dataset, ids=list(problem.train_ids),
+        base_effects=tuple(problem.model.effects.names), overrides=dict(identity.overrides),
+        fidelity=identity.fidelity, base_params={k: float(v[0]) for k, v in batch.items()}, truth=truth)

@@ -9,13 +9,12 @@ from pathlib import Path
 from smcbayes import __version__
 from smcbayes.errors import ConfigError
 from smcbayes.report.collect import RunFiles, load_run_files
-from smcbayes.report.document import Section
+from smcbayes.report.document import Paragraph, Section
 from smcbayes.report.measured import (
     load_measured,
     plot_measured,
     project_of,
     search_ranges,
-    validation_errors,
 )
 from smcbayes.report.render import to_html, to_markdown
 from smcbayes.report.sections_diagnosis import diagnosis_section
@@ -27,17 +26,30 @@ FIGURE_DIR = "report_figures"
 """Folder (inside the run directory) of the figures the report draws itself."""
 
 
+def incomplete_section(run: RunFiles) -> Section | None:
+    """Stages that started and never finished (a killed or failed process): said, not dropped."""
+    broken = [k for k, v in run.states.items() if v == "interrupted"]
+    if not broken:
+        return None
+    rerun = {"posterior": f"smcbayes posterior {run.run_dir}",
+             "diagnosis": f"smcbayes diagnose {run.run_dir} --out {run.diagnosis_dir}"}
+    sec = Section("incomplete", "Incomplete stages")
+    sec.add(Paragraph("These stages started but did not finish (the process was stopped or "
+                      "failed), so the report has no section for them; rerun them to complete "
+                      "the report: " + "; ".join(f"{k}: `{rerun[k]}`" for k in broken) + "."))
+    return sec
+
+
 def build_sections(run: RunFiles) -> list[Section]:
     """Every section whose stage was run, in reading order."""
     project = project_of(run.config)
     dataset = load_measured(project) if project is not None else None
     measured_png = None
-    validation: dict[str, dict[str, float]] = {}
     if dataset is not None:
         paths = plot_measured(dataset, run.run_dir / FIGURE_DIR / "measured")
         measured_png = paths[0] if paths else None
-        validation = validation_errors(run.config, run.calibration, project, dataset)
-    ranges = search_ranges(run.config, project) if project is not None else {}
+    validation: dict[str, dict[str, float]] = run.calibration.get("validation_errors") or {}
+    ranges = search_ranges(run.calibration)
     sections = [
         data_section(run, dataset, measured_png),
         calibration_section(run, validation),
@@ -46,6 +58,9 @@ def build_sections(run: RunFiles) -> list[Section]:
         diagnosis_section(run),
     ]
     sections = [s for s in sections if s is not None]
+    incomplete = incomplete_section(run)
+    if incomplete is not None:
+        sections.append(incomplete)
     sections.append(reproducibility_section(run))
     return sections
 

@@ -8,20 +8,12 @@ a calibration run at all.
 from __future__ import annotations
 
 import hashlib
-import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from smcbayes.errors import ConfigError
-
-
-def read_json(path: Path) -> Any:
-    """Parsed JSON of ``path``, or ``None`` when missing or unreadable."""
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
+from smcbayes.run import RunDir, read_json
 
 
 def sha256(path: Path) -> str:
@@ -42,6 +34,8 @@ class RunFiles:
         diagnosis_dir: the folder of the diagnosis outputs.
         truth: ``truth.json`` of synthetic data (next to the project's data) or ``None``.
         demo: ``demo.json`` of the demo that made the run, or ``None``.
+        states: state of each later stage (``absent``, ``interrupted``, ``complete``).
+        commands: the recorded command lines of the run's stages.
     """
 
     run_dir: Path
@@ -52,6 +46,8 @@ class RunFiles:
     diagnosis_dir: Path
     truth: dict[str, Any] | None
     demo: dict[str, Any] | None
+    states: dict[str, str] = field(default_factory=dict)
+    commands: list[dict[str, Any]] = field(default_factory=list)
 
     def figure(self, *parts: str) -> Path | None:
         """``run_dir/parts...`` with a ``.png`` suffix if that file exists."""
@@ -88,17 +84,21 @@ def load_run_files(run_dir: Path, diagnosis_dir: Path | None = None) -> RunFiles
     Raises:
         ConfigError: ``run_dir`` has no readable ``config.json`` and ``summary.json``.
     """
+    run = RunDir(run_dir)
     config = _dict_or_none(read_json(run_dir / "config.json"))
-    calibration = _dict_or_none(read_json(run_dir / "summary.json"))
+    calibration = run.calibration_summary()
     if config is None or calibration is None:
         raise ConfigError(
             f"{run_dir}: not a calibration run directory (config.json and "
             "summary.json missing or unreadable); run `smcbayes calibrate` first"
         )
-    diag_dir = diagnosis_dir if diagnosis_dir is not None else run_dir / "diagnose"
-    posterior = _dict_or_none(read_json(run_dir / "posterior" / "summary.json"))
-    diagnosis = _dict_or_none(read_json(diag_dir / "summary.json"))
+    diag_dir = diagnosis_dir if diagnosis_dir is not None else run.stage_dir("diagnose")
+    states = {"posterior": run.stage_state("posterior"),
+              "diagnosis": run.stage_state("diagnose", diag_dir)}
+    posterior = run.stage_summary("posterior")
+    diagnosis = run.stage_summary("diagnose", diag_dir)
     data_dir = data_dir_of(config)
     truth = _dict_or_none(read_json(data_dir / "truth.json")) if data_dir is not None else None
     demo = _dict_or_none(read_json(run_dir / "demo.json"))
-    return RunFiles(run_dir, config, calibration, posterior, diagnosis, diag_dir, truth, demo)
+    return RunFiles(run_dir, config, calibration, posterior, diagnosis, diag_dir, truth, demo,
+                    states, run.commands())

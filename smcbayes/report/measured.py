@@ -1,9 +1,7 @@
-"""Measured data and best-point errors of a run, recomputed from its project.
+"""Measured data of a run and the search box of its calibration, read, never simulated.
 
-The run directory stores the training errors of the best point; the report adds the
-validation configurations (held out of the calibration) by simulating the best point on
-them, and draws the measured curves.  Both need the project's data folder; without it
-they are skipped (``None``), never fatal.
+The measured curves need the project's data folder; without it they are skipped
+(``None``), never fatal.
 """
 
 from __future__ import annotations
@@ -11,8 +9,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from smcbayes.config import ProjectConfig
 from smcbayes.errors import SmcBayesError
@@ -27,22 +23,11 @@ def project_of(config: Mapping[str, Any]) -> ProjectConfig | None:
         return None
 
 
-def search_ranges(
-    config: Mapping[str, Any], project: ProjectConfig
-) -> dict[str, tuple[float, float, bool]]:
-    """Search bounds ``(lower, upper, log)`` of the run's free parameters (user units)."""
-    from smcbayes.forward.model import ForwardModel
-
-    try:
-        space = ForwardModel(
-            project,
-            effects=config.get("effects"),
-            overrides=config.get("overrides") or {},
-            fidelity=config.get("fidelity"),
-        ).space
-    except (SmcBayesError, TypeError, ValueError):
-        return {}
-    return {p.name: (p.lower, p.upper, p.log) for p in space.free}
+def search_ranges(calibration: Mapping[str, Any]) -> dict[str, tuple[float, float, bool]]:
+    """Search bounds ``(lower, upper, log)`` of the run's free parameters (user units), as
+    recorded by the calibration."""
+    box = calibration.get("search_box") or {}
+    return {k: (float(v["lower"]), float(v["upper"]), bool(v["log"])) for k, v in box.items()}
 
 
 def load_measured(project: ProjectConfig) -> Any:
@@ -86,40 +71,3 @@ def plot_measured(dataset: Any, path: Path) -> list[Path] | None:
     fig.suptitle("measured closing force per configuration", fontsize=10)
     fig.tight_layout()
     return save(fig, path)
-
-
-def validation_errors(
-    config: Mapping[str, Any], calibration: Mapping[str, Any], project: ProjectConfig, dataset: Any
-) -> dict[str, dict[str, float]]:
-    """Force MSE (kN^2) and RMSE (kN) of the best point on validation configurations with data.
-
-    Uses the run's effects and fixed values; empty when there is nothing to compare or the
-    simulation fails.
-    """
-    from smcbayes.data.loss import evaluate_loss
-    from smcbayes.forward.model import ForwardModel
-
-    ids = [cid for cid in dataset.ids("validation")]
-    best = calibration.get("best_params") or {}
-    if not ids or not best:
-        return {}
-    try:
-        model = ForwardModel(
-            project,
-            effects=config.get("effects"),
-            overrides=config.get("overrides") or {},
-            fidelity=config.get("fidelity"),
-        )
-        params = {k: np.array([float(v["value"])]) for k, v in best.items()}
-        results = model.simulate_params(params, ids)
-        loss = evaluate_loss(results, dataset, project.loss, ids=ids)
-    except (SmcBayesError, KeyError, TypeError, ValueError):
-        return {}
-    out = {}
-    for k, cid in enumerate(ids):
-        mse = float(loss.force_mse_kN2[0, k])
-        out[cid] = {
-            "mse_kN2": mse,
-            "rmse_kN": float(np.sqrt(mse)) if np.isfinite(mse) else float("nan"),
-        }
-    return out

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import datetime as dt
 import shlex
 from pathlib import Path
@@ -212,61 +211,25 @@ def calibration_section(run: RunFiles, validation: dict[str, dict[str, float]]) 
     return sec
 
 
-def _option_map(command: str) -> dict[str, argparse.Action]:
-    """Destination -> option of a subcommand, from the command-line parser itself."""
-    from smcbayes.cli import build_parser
-
-    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    return {
-        a.dest: a for a in sub.choices[command]._actions if a.option_strings and a.dest != "help"
-    }
-
-
-def _rebuilt(command: str, head: str, values: dict[str, Any]) -> str:
-    """``smcbayes COMMAND HEAD --option value ...`` for the values the command accepts."""
-    options, parts = _option_map(command), [f"smcbayes {command} {head}"]
-    for key, value in values.items():
-        action = options.get(key)
-        if action is None or value is None or value is False:
-            continue
-        flag = action.option_strings[0]
-        if value is True:
-            parts.append(flag)
-        elif isinstance(value, dict):
-            if key == "set":  # --set NAME=VALUE, repeated
-                parts += [f"{flag} {shlex.quote(f'{k}={v}')}" for k, v in value.items()]
-        elif isinstance(value, list) and isinstance(action, argparse._AppendAction):
-            parts += [f"{flag} {shlex.quote(str(v))}" for v in value]
-        elif isinstance(value, list):
-            parts.append(f"{flag} {shlex.quote(','.join(map(str, value)))}")
-        else:
-            parts.append(f"{flag} {shlex.quote(str(value))}")
-    return " ".join(parts)
+def _quoted(argv: list[str]) -> str:
+    return " ".join(shlex.quote(str(a)) for a in argv)
 
 
 def _commands(run: RunFiles) -> tuple[str, str]:
-    """Command lines: recorded by the demo, else rebuilt from the recorded settings."""
+    """The command lines that made the run, as recorded by each stage (with the folder they
+    ran in, since their paths are relative to it), else those recorded by the demo."""
+    recorded = run.commands
+    if recorded:
+        lines, cwd = [], None
+        for rec in recorded:
+            if rec.get("cwd") and rec["cwd"] != cwd:
+                cwd = rec["cwd"]
+                lines.append(f"cd {shlex.quote(cwd)}")
+            lines.append(_quoted(rec["argv"]))
+        return "\n".join(lines), "as recorded by each stage"
     if run.demo and run.demo.get("commands"):
         return "\n".join(run.demo["commands"]), "as recorded by `smcbayes demo`"
-    out = shlex.quote(str(run.run_dir))
-    cal = {**run.config, "set": run.config.get("overrides"), "effect": run.config.get("effects")}
-    lines = [_rebuilt("calibrate", f"CONFIG --out {out}", cal)]
-    if run.posterior and run.posterior.get("settings"):
-        lines.append(_rebuilt("posterior", out, run.posterior["settings"]))
-    if run.diagnosis is not None:
-        d = run.diagnosis
-        values = {
-            **(d.get("fit_settings") or {}),
-            "effects": d.get("candidates"),
-            "holdout": d.get("holdout"),
-            "seed": d.get("seed"),
-            "min_score": d.get("min_score"),
-            "out": str(run.diagnosis_dir),
-        }
-        lines.append(_rebuilt("diagnose", out, values))
-    lines.append(f"smcbayes report {out}")
-    origin = "rebuilt from the settings recorded in the run (CONFIG: the project file)"
-    return "\n".join(lines), origin
+    return "(no command line recorded: the run was made from the Python API)", "none recorded"
 
 
 def reproducibility_section(run: RunFiles) -> Section:

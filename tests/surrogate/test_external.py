@@ -28,6 +28,8 @@ SCRIPT = textwrap.dedent('''
 
     params_file, output, config = sys.argv[1:4]
     job = json.load(open(params_file))
+    with open(config + ".calls", "a") as fh:  # one line per run: proves who simulated
+        fh.write(job["config_id"] + "\\n")
     model = ForwardModel(load_project(config))
     cid = job["config_id"]
     res = model.simulate_params({k: np.array([v]) for k, v in job["parameters"].items()}, [cid])[cid]
@@ -117,3 +119,23 @@ def test_calibrate_with_external_command(tmp_path: Path, script: Path) -> None:
     summary = json.loads((out / "summary.json").read_text())
     assert summary["evaluations"] == 3 and summary["failures"] == 0
     assert len(list((out / "work").glob("*/curves.csv"))) == 3
+
+
+def test_posterior_of_an_external_run_uses_the_external_command(tmp_path: Path, script: Path) -> None:
+    """Every forward run of the posterior stage is a call of the run's external command."""
+    config = one_config(tmp_path)
+    out = tmp_path / "run"
+    cmd = f"{sys.executable} {script} {{params}} {{output}} {config}"
+    assert main(["calibrate", str(config), "--out", str(out), "--budget", "4", "--init", "3",
+                 "--external", cmd, "--no-figures"]) == 0
+    calls = Path(str(config) + ".calls")
+    before = len(calls.read_text().splitlines())
+    assert main(["posterior", str(out), "--walkers", "8", "--steps", "60", "--functions", "0",
+                 "--draws", "2", "--correct-draws", "0"]) == 0
+    info = json.loads((out / "posterior" / "summary.json").read_text())
+    made = len(calls.read_text().splitlines()) - before
+    assert info["simulator"] == "external"
+    assert made == info["simulator_runs"] > 0
+    # sensitivities (2 d + 1 = 5), emulator check and bands (2 draws each) on the one configuration
+    assert made == 5 + 2 + 2
+    assert json.loads((out / "posterior" / "status.json").read_text())["state"] == "complete"
