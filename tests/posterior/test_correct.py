@@ -95,10 +95,17 @@ def test_proposal_density_is_the_defensive_t_mixture() -> None:
     u = rng.random((50, 2))
     expected = np.log(0.8 * multivariate_t(centre[0], chol @ chol.T, df=5.0).pdf(u) + 0.2)
     np.testing.assert_allclose(q.log_pdf(u), expected, rtol=1e-10)
-    x = q.sample(20000, rng)
+    x, kernel = q.sample_indexed(20000, rng)
     inside = np.all((x >= 0) & (x <= 1), axis=1)
-    # the uniform share plus the t mass inside the cube
-    assert 0.2 < inside.mean() <= 1.0
+    # a fifth of the draws from the uniform density, all of them in the cube ...
+    uniform = kernel == -1
+    assert abs(uniform.mean() - 0.2) < 4 * np.sqrt(0.2 * 0.8 / x.shape[0])
+    assert inside[uniform].all() and (kernel[~uniform] == 0).all()
+    # ... so the share inside is the uniform share plus the t kernel's mass inside the cube
+    t = multivariate_t(centre[0], chol @ chol.T, df=5.0)
+    cdf = [t.cdf([a, b], maxpts=200_000, random_state=1) for a, b in ((1, 1), (0, 1), (1, 0), (0, 0))]
+    expected = 0.2 + 0.8 * (cdf[0] - cdf[1] - cdf[2] + cdf[3])
+    assert abs(inside.mean() - expected) < 4 * np.sqrt(expected * (1 - expected) / x.shape[0]) + 1e-3
     assert abs(np.median(x[:, 0]) - 0.5) < 0.02
 
 
