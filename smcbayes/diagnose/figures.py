@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +29,7 @@ def heat_map(rep: WhereReport, path: Path) -> list[Path]:
     return save(fig, path)
 
 
-def phase_bars(shrink: dict, path: Path) -> list[Path]:
+def phase_bars(shrink: dict[str, Any], path: Path) -> list[Path]:
     """RMSE per phase and configuration (kN), one bar group per model."""
     models = shrink["models"]
     ids = shrink["sets"]["fit"] + shrink["sets"]["holdout"]

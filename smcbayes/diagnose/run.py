@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -21,7 +22,7 @@ from smcbayes.diagnose.figures import before_after, heat_map, phase_bars
 from smcbayes.diagnose.fit import DiagnosisContext, Fit, FitSettings, refit
 from smcbayes.diagnose.shrink import shrink_summary
 from smcbayes.diagnose.where import WhereReport, analyse
-from smcbayes.diagnose.which import held_out_test, n_eff_of, score_row, signature
+from smcbayes.diagnose.which import HeldOutTest, Signature, held_out_test, n_eff_of, score_row, signature
 from smcbayes.errors import ConfigError, closest
 
 logger = logging.getLogger(__name__)
@@ -61,7 +62,7 @@ def default_holdout(ctx: DiagnosisContext) -> list[str]:
     Holding out an interior speed tests whether an effect fitted on the other speeds
     predicts a new one, without extrapolating beyond the fitted speed range.
     """
-    groups: dict[tuple, list[tuple[float, str]]] = {}
+    groups: dict[tuple[str, float], list[tuple[float, str]]] = {}
     for cid in ctx.ids:
         spec = ctx.project.get(cid)
         groups.setdefault((spec.charge.shape, spec.charge.coverage_pct), []).append(
@@ -89,7 +90,8 @@ def check_holdout(ctx: DiagnosisContext, holdout: Sequence[str]) -> list[str]:
     return [c for c in ctx.ids if c in holdout]
 
 
-def _rank(rows: list[dict], sigs: dict) -> list[dict]:
+def _rank(rows: list[dict[str, Any]], sigs: dict[str, Signature]) -> list[dict[str, Any]]:
+    """``rows`` best score first, numbered, with each effect's signature numbers."""
     rows = sorted(rows, key=lambda r: -r["score"] if np.isfinite(r["score"]) else np.inf)
     for i, r in enumerate(rows, 1):
         r["rank"] = i
@@ -102,7 +104,8 @@ def _rank(rows: list[dict], sigs: dict) -> list[dict]:
 
 def which_effect(ctx: DiagnosisContext, settings: DiagnoseSettings, fit_ids: list[str],
                  holdout: list[str], rng: np.random.Generator,
-                 log: Callable[[str], None]) -> tuple[Fit, dict[str, Fit], list[dict], dict]:
+                 log: Callable[[str], None]
+                 ) -> tuple[Fit, dict[str, Fit], list[dict[str, Any]], dict[str, Any]]:
     """Re-fit the base and every candidate; rank them; returns base, fits, rows, evidence.
 
     ``log`` receives one line per finished re-calibration; the progress of each (batched
@@ -142,7 +145,7 @@ def which_effect(ctx: DiagnosisContext, settings: DiagnoseSettings, fit_ids: lis
     return base, fits, rows, evidence
 
 
-def common_n_eff(ctx: DiagnosisContext, base: Fit, fits: dict[str, Fit], tests: dict,
+def common_n_eff(ctx: DiagnosisContext, base: Fit, fits: dict[str, Fit], tests: dict[str, HeldOutTest],
                  fit_ids: list[str], holdout: list[str]) -> tuple[float, float]:
     """N_eff on the fitting and held-out sets, each from the best model there (see which)."""
     def finite(x: float) -> float:
@@ -155,7 +158,7 @@ def common_n_eff(ctx: DiagnosisContext, base: Fit, fits: dict[str, Fit], tests: 
     return n_eff_of(ctx, best_fit, fit_ids), n_eff_of(ctx, best_ho, holdout)
 
 
-def decide(rows: list[dict], min_score: float) -> dict:
+def decide(rows: list[dict[str, Any]], min_score: float) -> dict[str, Any]:
     """The decision: the top-ranked single effect if significant, else none."""
     singles = [r for r in rows if "+" not in r["effect"]]
     top = singles[0] if singles else None
@@ -174,7 +177,7 @@ def decide(rows: list[dict], min_score: float) -> dict:
 
 
 def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None,
-             log: Callable[[str], None] | None = None) -> dict:
+             log: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Run the diagnosis; write ``out`` (if given) and return the summary dictionary.
 
     ``log`` receives a line per step (where, each re-calibration, the decision); by default
@@ -210,7 +213,7 @@ def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None
     return summary
 
 
-def write_outputs(ctx: DiagnosisContext, summary: dict, where: WhereReport, shown: dict[str, Fit],
+def write_outputs(ctx: DiagnosisContext, summary: dict[str, Any], where: WhereReport, shown: dict[str, Fit],
                   out: Path, with_figures: bool = True) -> None:
     """summary.json, ranking.csv and (unless ``with_figures`` is off) the figures."""
     out.mkdir(parents=True, exist_ok=True)

@@ -2,15 +2,22 @@
 
 from __future__ import annotations
 
+import logging
+import warnings
+
 import numpy as np
 import pytest
 from scipy.stats import multivariate_t
 
+from smcbayes import progress
+from smcbayes.errors import ConvergenceWarning, SmcBayesWarning, UnreliablePosteriorWarning
 from smcbayes.posterior.correct import (
+    K_HAT_WARN,
     CorrectionSettings,
     Proposal,
     _Chains,
     correct,
+    correction_warnings,
     ess_of,
     fit_proposal,
     seed_weights,
@@ -254,3 +261,26 @@ def test_fit_temperature_outside_unit_interval_is_refused() -> None:
     for bad in (0.0, -0.5, 1.5):
         with pytest.raises(ConfigError, match="fit_temperature"):
             CorrectionSettings(fit_temperature=bad)
+
+
+def test_unsettled_correction_warns_once_by_class_and_prints_nothing(capsys, caplog) -> None:
+    """The weights' warning is recorded on the sample and emitted once, with its class;
+    progress goes to the progress logger, nothing to stderr."""
+    rng = np.random.default_rng(3)
+    progress.enable(True, interval_s=0.0)
+    try:
+        with warnings.catch_warnings(record=True) as seen, caplog.at_level(logging.INFO):
+            warnings.simplefilter("always")
+            res = correct(log_target, biased_start(rng),
+                          CorrectionSettings(draws=400, per_iteration=200, ess_target=np.inf), rng)
+    finally:
+        progress.enable(False)
+    ours = [w for w in seen if issubclass(w.category, SmcBayesWarning)]
+    assert not res.settled and len(ours) == 1 and [str(w.message) for w in ours] == res.warnings
+    expected = UnreliablePosteriorWarning if res.k_hat > K_HAT_WARN else ConvergenceWarning
+    assert ours[0].category is expected and ours[0].filename == __file__
+    assert correction_warnings(res, warn=False) == res.warnings
+    assert capsys.readouterr().err == ""
+    lines = [r.getMessage() for r in caplog.records if r.name == "smcbayes.progress"]
+    assert lines and lines[-1].startswith("importance correction: 400/400 draw")
+    assert "forward runs" in lines[-1] and "k-hat" in lines[-1]
