@@ -1,17 +1,23 @@
 """Figures shared across the package: measured in black, simulated in colour.
 
-Matplotlib is used with the non-interactive Agg backend; every figure is written as PNG
+Figures are :class:`matplotlib.figure.Figure` objects built with the object-oriented API
+and written with ``fig.savefig``: they never touch pyplot's global state or the user's
+backend (a notebook keeps its own), and need no display.  Every figure is written as PNG
 and SVG, with units on every axis and configuration names in titles or legends.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib import colormaps
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 from numpy.typing import NDArray
 
 from smcbayes.forward.result import SimulationResult
@@ -20,24 +26,39 @@ Array = NDArray[np.float64]
 MEASURED = "black"
 
 
-def pyplot():
-    """matplotlib.pyplot on the Agg backend (no display needed)."""
-    import matplotlib
+def subplots(nrows: int = 1, ncols: int = 1, figsize: tuple[float, float] | None = None,
+             **kwargs: Any) -> tuple[Figure, Any]:
+    """A new figure (size in inches) and its axes, like ``pyplot.subplots`` but outside
+    pyplot: the figure is not registered with any backend; ``kwargs`` go to
+    :meth:`matplotlib.figure.Figure.subplots` (``squeeze``, ``sharey``, ``gridspec_kw``)."""
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols, **kwargs)
 
-    matplotlib.use("Agg")
+
+def pyplot() -> Any:
+    """matplotlib.pyplot, for scripts that want pyplot's figures; the backend is left as the
+    user or matplotlib chose it (matplotlib falls back to Agg without a display).  The
+    package's own figures use :func:`subplots` instead."""
+    # imported on demand: pyplot resolves a backend on first use, which plain figures avoid
     import matplotlib.pyplot as plt
 
     return plt
 
 
-def save(fig, path: str | Path) -> list[Path]:
-    """Write ``fig`` as ``path`` with .png and .svg suffixes; returns both paths."""
+def save(fig: Figure, path: str | Path) -> list[Path]:
+    """Write ``fig`` as ``path`` with .png and .svg suffixes; returns both paths.
+
+    A figure made through pyplot is closed afterwards (pyplot would keep it alive); a plain
+    :class:`~matplotlib.figure.Figure` is left to the caller, who may still display it.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     out = [path.with_suffix(".png"), path.with_suffix(".svg")]
     fig.savefig(out[0], dpi=130, bbox_inches="tight")
     fig.savefig(out[1], bbox_inches="tight")
-    pyplot().close(fig)
+    plt = sys.modules.get("matplotlib.pyplot")
+    if plt is not None and getattr(fig.canvas, "manager", None) is not None:
+        plt.close(fig)
     return out
 
 
@@ -58,11 +79,10 @@ def plot_simulation(results: Mapping[str, SimulationResult],
         path: output path without suffix.
         title: figure title (e.g. parameters and effects that were on).
     """
-    plt = pyplot()
     ids = list(results)
     nrows, ncols = grid_shape(len(ids))
-    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.0 * nrows), squeeze=False)
-    colours = plt.get_cmap("tab10")
+    fig, axes = subplots(nrows, ncols, figsize=(4.2 * ncols, 3.0 * nrows), squeeze=False)
+    colours = colormaps["tab10"]
     for k, cid in enumerate(ids):
         ax = axes[k // ncols][k % ncols]
         res = results[cid]
@@ -106,23 +126,22 @@ def plot_flow_front(result: SimulationResult, time_s: Array, fill: Array, x_face
         solid: solid fraction per cell at those times, ``(K, NX, NY)`` (NaN where empty), for
             a porous charge; its last snapshot is drawn in a third panel.
     """
-    plt = pyplot()
     if solid is None:
-        fig, (ax, axf) = plt.subplots(1, 2, figsize=(10.0, 4.2), gridspec_kw={"width_ratios": [1, 1.3]})
+        fig, (ax, axf) = subplots(1, 2, figsize=(10.0, 4.2), gridspec_kw={"width_ratios": [1, 1.3]})
     else:
-        fig, (ax, axs, axf) = plt.subplots(1, 3, figsize=(14.5, 4.2),
-                                           gridspec_kw={"width_ratios": [1, 1, 1.3]})
+        fig, (ax, axs, axf) = subplots(1, 3, figsize=(14.5, 4.2),
+                                       gridspec_kw={"width_ratios": [1, 1, 1.3]})
         _solid_panel(fig, axs, solid[-1], float(time_s[-1]), x_faces_mm, y_faces_mm)
     # cell centres plus the walls (edge values), so that a filled wall cell reaches the wall
     xc = np.concatenate([x_faces_mm[:1], 0.5 * (x_faces_mm[1:] + x_faces_mm[:-1]), x_faces_mm[-1:]])
     yc = np.concatenate([y_faces_mm[:1], 0.5 * (y_faces_mm[1:] + y_faces_mm[:-1]), y_faces_mm[-1:]])
-    colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.9, max(len(time_s), 2)))
+    colours = colormaps["viridis"](np.linspace(0.0, 0.9, max(len(time_s), 2)))
     for k in range(len(time_s) - 1, -1, -1):  # latest first, so earlier areas are drawn on top
         ax.contourf(xc, yc, np.pad(fill[k], 1, mode="edge").T, levels=[0.5, 2.0], colors=[colours[k]],
                     alpha=0.85)
         ax.plot([], [], color=colours[k], lw=6, label=f"t = {time_s[k]:.2f} s")
-    ax.add_patch(plt.Rectangle((x_faces_mm[0], y_faces_mm[0]), x_faces_mm[-1] - x_faces_mm[0],
-                               y_faces_mm[-1] - y_faces_mm[0], fill=False, color="black", lw=1.5))
+    ax.add_patch(Rectangle((x_faces_mm[0], y_faces_mm[0]), x_faces_mm[-1] - x_faces_mm[0],
+                           y_faces_mm[-1] - y_faces_mm[0], fill=False, color="black", lw=1.5))
     ax.set_xlim(x_faces_mm[0] * 1.04, x_faces_mm[-1] * 1.04)
     ax.set_ylim(y_faces_mm[0] * 1.04, y_faces_mm[-1] * 1.04)
     ax.set_aspect("equal")
@@ -133,7 +152,7 @@ def plot_flow_front(result: SimulationResult, time_s: Array, fill: Array, x_face
     t, f = result.time_s[row], result.force_kN[row]
     t_end = result.switch_time_s[row] * 1.1 if np.isfinite(result.switch_time_s[row]) else t[-1]
     mask = t <= t_end
-    axf.plot(t[mask], f[mask], color=plt.get_cmap("tab10")(0), lw=1.5, label="simulated force")
+    axf.plot(t[mask], f[mask], color=colormaps["tab10"](0), lw=1.5, label="simulated force")
     for k, tk in enumerate(time_s):
         axf.axvline(tk, color=colours[k], lw=1.0, ls=":")
     axf.set_xlim(0, t_end)
@@ -151,7 +170,7 @@ def plot_flow_front(result: SimulationResult, time_s: Array, fill: Array, x_face
     return save(fig, path)
 
 
-def _solid_panel(fig: Any, ax: Any, solid: Array, time_s: float, x_faces_mm: Array,
+def _solid_panel(fig: Figure, ax: Any, solid: Array, time_s: float, x_faces_mm: Array,
                  y_faces_mm: Array) -> None:
     """Solid fraction per cell ``(NX, NY)`` (NaN where empty) over the mould outline."""
     mesh = ax.pcolormesh(x_faces_mm, y_faces_mm, np.ma.masked_invalid(solid).T, cmap="magma",

@@ -4,21 +4,21 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from smcbayes.diagnose.fit import DiagnosisContext, Fit
 from smcbayes.diagnose.where import WhereReport
 from smcbayes.forward.result import PHASE_NAMES
-from smcbayes.plotting import MEASURED, grid_shape, pyplot, save
+from smcbayes.plotting import MEASURED, grid_shape, save, subplots
 
 COLOURS = ("tab:blue", "tab:red", "tab:green")
 
 
 def heat_map(rep: WhereReport, path: Path) -> list[Path]:
     """Residual (measured - simulated, kN) per configuration x normalised closing time."""
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8.0, 0.45 * len(rep.ids) + 1.8))
+    fig, ax = subplots(figsize=(8.0, 0.45 * len(rep.ids) + 1.8))
     lim = float(np.nanmax(np.abs(rep.heat_kN))) or 1.0
     im = ax.imshow(rep.heat_kN, aspect="auto", cmap="RdBu_r", vmin=-lim, vmax=lim,
                    extent=(0.0, 1.0, len(rep.ids) - 0.5, -0.5), interpolation="nearest")
@@ -29,13 +29,12 @@ def heat_map(rep: WhereReport, path: Path) -> list[Path]:
     return save(fig, path)
 
 
-def phase_bars(shrink: dict, path: Path) -> list[Path]:
+def phase_bars(shrink: dict[str, Any], path: Path) -> list[Path]:
     """RMSE per phase and configuration (kN), one bar group per model."""
-    plt = pyplot()
     models = shrink["models"]
     ids = shrink["sets"]["fit"] + shrink["sets"]["holdout"]
     size = (4.0 * len(PHASE_NAMES), 0.35 * len(ids) + 2.0)
-    fig, axes = plt.subplots(1, len(PHASE_NAMES), figsize=size, sharey=True)
+    fig, axes = subplots(1, len(PHASE_NAMES), figsize=size, sharey=True)
     y = np.arange(len(ids))
     h = 0.8 / max(len(models), 1)
     for a, (ax, phase) in enumerate(zip(axes, PHASE_NAMES, strict=True)):
@@ -57,9 +56,8 @@ def phase_bars(shrink: dict, path: Path) -> list[Path]:
 def before_after(ctx: DiagnosisContext, fits: dict[str, Fit], ids: Sequence[str],
                  holdout: Sequence[str], path: Path) -> list[Path]:
     """Measured force (black) and each model's simulated force vs time per configuration."""
-    plt = pyplot()
     rows, cols = grid_shape(len(ids))
-    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
+    fig, axes = subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
     sims = {label: ctx.simulate(fit.effects, fit.theta, ids) for label, fit in fits.items()}
     for k, cid in enumerate(ids):
         ax = axes[k // cols][k % cols]

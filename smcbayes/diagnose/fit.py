@@ -53,6 +53,7 @@ from smcbayes.data.preprocess import crossing_time
 from smcbayes.errors import ConfigError
 from smcbayes.forward.model import ForwardModel
 from smcbayes.forward.result import SimulationResult
+from smcbayes.progress import Progress
 
 Array = NDArray[np.float64]
 
@@ -237,8 +238,12 @@ def initial_population(start_unit: Array, effect_cols: Sequence[int], settings: 
 
 
 def refit(ctx: DiagnosisContext, extra: Sequence[str], ids: Sequence[str], start: Array,
-          settings: FitSettings, rng: np.random.Generator) -> Fit:
+          settings: FitSettings, rng: np.random.Generator, desc: str | None = None) -> Fit:
     """Re-calibrate base + ``extra`` on ``ids`` from the warm start ``start`` ``(1, d)``.
+
+    Progress is reported per batched forward call (one generation of an evolution, or one
+    of the two calls of a polish step) through :class:`smcbayes.progress.Progress`, with
+    the restart, generation and best loss so far (kN^2) as its note.
 
     Args:
         ctx: the diagnosis context.
@@ -247,6 +252,8 @@ def refit(ctx: DiagnosisContext, extra: Sequence[str], ids: Sequence[str], start
         start: warm start in user units.
         settings: the optimiser's budget.
         rng: random generator (seeds the population and the optimiser).
+        desc: what the progress names, e.g. ``"diagnosis: heating (2/5)"`` (default: the
+            effects re-fitted).
     """
     settings.check()
     model = ctx.model(extra)
@@ -255,17 +262,47 @@ def refit(ctx: DiagnosisContext, extra: Sequence[str], ids: Sequence[str], start
         p.name for p in ctx.model(()).effects.parameters}
     cols = [i for i, n in enumerate(space.free_names) if n in effect_names]
     u0 = np.clip(space.to_unit(start)[0], 0.0, 1.0)
-    count = [0]
+    total = settings.restarts * (settings.generations + 1) + 2 * settings.polish
+    if desc is None:
+        desc = "re-calibration of base" + (f" + {'+'.join(extra)}" if extra else "")
+    with Progress(total, desc, "batch") as bar:
+        u, loss, count = _evolve(ctx, extra, ids, u0, cols, settings, rng, bar)
+        for step in range(settings.polish):
+            u_new, loss_new, used = lm_step(ctx, extra, ids, u)
+            count += used
+            bar.update(2, note=f"polish step {step + 1}/{settings.polish}, loss {min(loss, loss_new):.4g} kN^2")
+            if not loss_new < loss * (1.0 - 1e-6):
+                break
+            u, loss = u_new, loss_new
+    theta = space.from_unit(u[None, :])
+    params = {k: float(v[0]) for k, v in space.batch(theta).items()}
+    return Fit(tuple(extra), params, theta, loss, count)
+
+
+def _evolve(ctx: DiagnosisContext, extra: Sequence[str], ids: Sequence[str], u0: Array,
+            cols: Sequence[int], settings: FitSettings, rng: np.random.Generator,
+            bar: Progress) -> tuple[Array, float, int]:
+    """``settings.restarts`` differential evolutions from ``u0`` ``(d,)`` (effect columns
+    ``cols``); returns the best point ``(d,)`` in the unit cube, its training loss (kN^2)
+    and the parameter sets evaluated."""
+    space = ctx.model(extra).space
+    tally = _Tally()
 
     def objective(u: Array) -> Array:  # u: (d, S), the vectorised convention of scipy
         theta = space.from_unit(np.clip(u.T, 0.0, 1.0))
         per = ctx.losses(extra, theta, ids)
-        count[0] += theta.shape[0]
+        tally.count += theta.shape[0]
         total = np.mean(per, axis=1)
-        return np.where(np.isfinite(total), total, FAILED_LOSS)
+        out = np.where(np.isfinite(total), total, FAILED_LOSS)
+        tally.best = min(tally.best, float(np.min(out)))
+        bar.update(1, note=(f"restart {tally.restart + 1}/{settings.restarts}, generation "
+                            f"{tally.calls}/{settings.generations}, best {tally.best:.4g} kN^2"))
+        tally.calls += 1
+        return out
 
     u, loss = u0, np.inf
-    for _ in range(settings.restarts):
+    for restart in range(settings.restarts):
+        tally.restart, tally.calls = restart, 0
         init = initial_population(u0, cols, settings, rng)
         out = differential_evolution(objective, [(0.0, 1.0)] * space.dim, init=init,
                                      maxiter=settings.generations, tol=0.0, atol=0.0,
@@ -274,15 +311,19 @@ def refit(ctx: DiagnosisContext, extra: Sequence[str], ids: Sequence[str], start
                                      rng=int(rng.integers(2**31 - 1)))
         if float(out.fun) < loss:
             u, loss = np.clip(out.x, 0.0, 1.0), float(out.fun)
-    for _ in range(settings.polish):
-        u_new, loss_new, used = lm_step(ctx, extra, ids, u)
-        count[0] += used
-        if not loss_new < loss * (1.0 - 1e-6):
-            break
-        u, loss = u_new, loss_new
-    theta = space.from_unit(u[None, :])
-    params = {k: float(v[0]) for k, v in space.batch(theta).items()}
-    return Fit(tuple(extra), params, theta, loss, count[0])
+    return u, loss, tally.count
+
+
+@dataclass
+class _Tally:
+    """What the objective of :func:`_evolve` has seen: parameter sets evaluated, batched
+    calls in the current restart (0: its initial population), the restart, the best loss
+    (kN^2)."""
+
+    count: int = 0
+    calls: int = 0
+    restart: int = 0
+    best: float = float("inf")
 
 
 def residual_stack(ctx: DiagnosisContext, extra: Sequence[str], theta: Array, ids: Sequence[str],

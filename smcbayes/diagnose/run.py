@@ -9,19 +9,23 @@ from __future__ import annotations
 
 import csv
 import json
-import sys
+import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from smcbayes.diagnose.figures import before_after, heat_map, phase_bars
 from smcbayes.diagnose.fit import DiagnosisContext, Fit, FitSettings, refit
 from smcbayes.diagnose.shrink import shrink_summary
 from smcbayes.diagnose.where import WhereReport, analyse
-from smcbayes.diagnose.which import held_out_test, n_eff_of, score_row, signature
-from smcbayes.errors import ConfigError
+from smcbayes.diagnose.which import HeldOutTest, Signature, held_out_test, n_eff_of, score_row, signature
+from smcbayes.errors import ConfigError, closest
+
+logger = logging.getLogger(__name__)
 
 RANKING_COLUMNS = ("rank", "effect", "extra_parameters", "sensitivity_kN", "most_sensitive",
                    "absorbable_share", "fit_loss_kN2", "holdout_loss_kN2", "holdout_loss_base_kN2",
@@ -58,7 +62,7 @@ def default_holdout(ctx: DiagnosisContext) -> list[str]:
     Holding out an interior speed tests whether an effect fitted on the other speeds
     predicts a new one, without extrapolating beyond the fitted speed range.
     """
-    groups: dict[tuple, list[tuple[float, str]]] = {}
+    groups: dict[tuple[str, float], list[tuple[float, str]]] = {}
     for cid in ctx.ids:
         spec = ctx.project.get(cid)
         groups.setdefault((spec.charge.shape, spec.charge.coverage_pct), []).append(
@@ -75,8 +79,6 @@ def default_holdout(ctx: DiagnosisContext) -> list[str]:
 
 def check_holdout(ctx: DiagnosisContext, holdout: Sequence[str]) -> list[str]:
     """Validated held-out ids; at least one held out and one left to fit."""
-    from smcbayes.errors import closest
-
     for cid in holdout:
         if cid not in ctx.ids:
             raise ConfigError(f"--holdout: '{cid}' is not a configuration with measurements"
@@ -88,7 +90,8 @@ def check_holdout(ctx: DiagnosisContext, holdout: Sequence[str]) -> list[str]:
     return [c for c in ctx.ids if c in holdout]
 
 
-def _rank(rows: list[dict], sigs: dict) -> list[dict]:
+def _rank(rows: list[dict[str, Any]], sigs: dict[str, Signature]) -> list[dict[str, Any]]:
+    """``rows`` best score first, numbered, with each effect's signature numbers."""
     rows = sorted(rows, key=lambda r: -r["score"] if np.isfinite(r["score"]) else np.inf)
     for i, r in enumerate(rows, 1):
         r["rank"] = i
@@ -101,18 +104,25 @@ def _rank(rows: list[dict], sigs: dict) -> list[dict]:
 
 def which_effect(ctx: DiagnosisContext, settings: DiagnoseSettings, fit_ids: list[str],
                  holdout: list[str], rng: np.random.Generator,
-                 log: Callable[[str], None]) -> tuple[Fit, dict[str, Fit], list[dict], dict]:
-    """Re-fit the base and every candidate; rank them; returns base, fits, rows, evidence."""
+                 log: Callable[[str], None]
+                 ) -> tuple[Fit, dict[str, Fit], list[dict[str, Any]], dict[str, Any]]:
+    """Re-fit the base and every candidate; rank them; returns base, fits, rows, evidence.
+
+    ``log`` receives one line per finished re-calibration; the progress of each (batched
+    forward calls done / total) goes through :class:`smcbayes.progress.Progress`, named
+    after the effect and its place among the re-calibrations.
+    """
+    steps = 1 + len(settings.candidates) + int(settings.pair and len(settings.candidates) >= 2)
     # twice the generations: an effect must not win because the base search stopped early
     base_fit = replace(settings.fit, generations=2 * settings.fit.generations)
-    base = refit(ctx, (), fit_ids, ctx.start(()), base_fit, rng)
+    base = refit(ctx, (), fit_ids, ctx.start(()), base_fit, rng, desc=f"diagnosis: base model (1/{steps})")
     log(f"base model re-fitted on {len(fit_ids)} configuration(s): loss {base.loss:.4g} kN^2")
     sigs, fits, tests = {}, {}, {}
-    for name in settings.candidates:
+    for k, name in enumerate(settings.candidates, 2):
         t0 = time.perf_counter()
         sigs[name] = signature(ctx, name, base, fit_ids, rng)
         start = ctx.start((name,), base.params)
-        fits[name] = refit(ctx, (name,), fit_ids, start, settings.fit, rng)
+        fits[name] = refit(ctx, (name,), fit_ids, start, settings.fit, rng, desc=f"diagnosis: {name} ({k}/{steps})")
         tests[name] = held_out_test(ctx, base, fits[name], holdout)
         log(f"{name}: absorbable {100 * sigs[name].absorbable_share:.0f} %, held-out loss "
             f"{tests[name].loss_kN2:.4g} vs {tests[name].loss_base_kN2:.4g} kN^2, "
@@ -123,7 +133,8 @@ def which_effect(ctx: DiagnosisContext, settings: DiagnoseSettings, fit_ids: lis
     if settings.pair and len(rows) >= 2:
         a, b = rows[0]["effect"], rows[1]["effect"]
         start = ctx.start((a, b), {**fits[a].params, **fits[b].params})
-        fits[f"{a}+{b}"] = refit(ctx, (a, b), fit_ids, start, settings.fit, rng)
+        fits[f"{a}+{b}"] = refit(ctx, (a, b), fit_ids, start, settings.fit, rng,
+                                 desc=f"diagnosis: {a}+{b} ({steps}/{steps})")
         test = held_out_test(ctx, base, fits[f"{a}+{b}"], holdout)
         pair_row = score_row(ctx, base, fits[f"{a}+{b}"], test, n_eff_fit, n_eff_ho,
                              settings.min_score)
@@ -134,7 +145,7 @@ def which_effect(ctx: DiagnosisContext, settings: DiagnoseSettings, fit_ids: lis
     return base, fits, rows, evidence
 
 
-def common_n_eff(ctx: DiagnosisContext, base: Fit, fits: dict[str, Fit], tests: dict,
+def common_n_eff(ctx: DiagnosisContext, base: Fit, fits: dict[str, Fit], tests: dict[str, HeldOutTest],
                  fit_ids: list[str], holdout: list[str]) -> tuple[float, float]:
     """N_eff on the fitting and held-out sets, each from the best model there (see which)."""
     def finite(x: float) -> float:
@@ -147,7 +158,7 @@ def common_n_eff(ctx: DiagnosisContext, base: Fit, fits: dict[str, Fit], tests: 
     return n_eff_of(ctx, best_fit, fit_ids), n_eff_of(ctx, best_ho, holdout)
 
 
-def decide(rows: list[dict], min_score: float) -> dict:
+def decide(rows: list[dict[str, Any]], min_score: float) -> dict[str, Any]:
     """The decision: the top-ranked single effect if significant, else none."""
     singles = [r for r in rows if "+" not in r["effect"]]
     top = singles[0] if singles else None
@@ -166,9 +177,13 @@ def decide(rows: list[dict], min_score: float) -> dict:
 
 
 def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None,
-             log: Callable[[str], None] | None = None) -> dict:
-    """Run the diagnosis; write ``out`` (if given) and return the summary dictionary."""
-    log = log or (lambda msg: print(msg, file=sys.stderr))
+             log: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Run the diagnosis; write ``out`` (if given) and return the summary dictionary.
+
+    ``log`` receives a line per step (where, each re-calibration, the decision); by default
+    they go to this module's logger at INFO level.
+    """
+    log = log or logger.info
     rng = np.random.default_rng(settings.seed)
     holdout = check_holdout(ctx, settings.holdout or default_holdout(ctx))
     fit_ids = [c for c in ctx.ids if c not in holdout]
@@ -198,11 +213,9 @@ def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None
     return summary
 
 
-def write_outputs(ctx: DiagnosisContext, summary: dict, where: WhereReport, shown: dict[str, Fit],
+def write_outputs(ctx: DiagnosisContext, summary: dict[str, Any], where: WhereReport, shown: dict[str, Fit],
                   out: Path, with_figures: bool = True) -> None:
     """summary.json, ranking.csv and (unless ``with_figures`` is off) the figures."""
-    from smcbayes.diagnose import figures
-
     out.mkdir(parents=True, exist_ok=True)
     text = json.dumps(summary, indent=2, default=float) + "\n"
     (out / "summary.json").write_text(text, encoding="utf-8")
@@ -213,6 +226,6 @@ def write_outputs(ctx: DiagnosisContext, summary: dict, where: WhereReport, show
     if not with_figures:
         return
     fig_dir = out / "figures"
-    figures.heat_map(where, fig_dir / "heatmap")
-    figures.phase_bars(summary["shrink"], fig_dir / "phase_rmse")
-    figures.before_after(ctx, shown, ctx.ids, summary["holdout"], fig_dir / "before_after")
+    heat_map(where, fig_dir / "heatmap")
+    phase_bars(summary["shrink"], fig_dir / "phase_rmse")
+    before_after(ctx, shown, ctx.ids, summary["holdout"], fig_dir / "before_after")

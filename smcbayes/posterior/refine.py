@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import qmc
 
 from smcbayes.surrogate.gp import Surrogate
 
@@ -71,8 +72,6 @@ def round_design(draws_unit: Array, surrogate: Surrogate, count: int,
     Returns:
         ``(points (<= count, d), number of leading random draws)``.
     """
-    from scipy.stats import qmc
-
     n_rand = count // 3
     n_lhs = count // 3
     rand = draws_unit[rng.choice(draws_unit.shape[0], size=min(n_rand, draws_unit.shape[0]), replace=False)]

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
-import sys
+import logging
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import emcee
 import numpy as np
 from numpy.typing import NDArray
+
+from smcbayes.progress import Progress
+
+logger = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
 
@@ -77,10 +82,20 @@ def run_ensemble(log_prob: Callable[[Array], Array], d: int, settings: SamplerSe
 
     Stops when the chain is longer than ``tau_factor`` autocorrelation times and the
     estimate has settled, or at ``max_steps``; discards ``2 tau_max`` as burn-in and thins
-    by ``max(1, tau_min / 2)``.
-    """
-    import emcee
+    by ``max(1, tau_min / 2)``.  Progress is reported in steps through
+    :class:`smcbayes.progress.Progress` (the remaining time assumes ``max_steps``, an upper
+    bound when the stopping rule is met earlier).  Convergence problems are not warned about
+    here but by :func:`smcbayes.posterior.summary.warnings_for`, once for all components.
 
+    Args:
+        log_prob: log density, ``(walkers, d) -> (walkers,)``; -inf outside the support.
+        d: dimension of the unit cube.
+        settings: ensemble size, step budget and stopping rule.
+        rng: seeds the start and emcee's own generator (same seed, same chains).
+        centre: start of the walkers ``(d,)`` (a small ball around it), or None: the
+            cube's centre.
+        label: appended to the progress description, e.g. ``" (component 2/4)"``.
+    """
     walkers = max(settings.walkers, 2 * d + 2)
     moves = None
     if settings.moves == "de":
@@ -90,19 +105,21 @@ def run_ensemble(log_prob: Callable[[Array], Array], d: int, settings: SamplerSe
     sampler.random_state = np.random.RandomState(int(rng.integers(2**31 - 1))).get_state()
     state = _start(log_prob, d, walkers, rng, centre)
     old_tau, converged = np.inf, False
-    while sampler.iteration < settings.max_steps:
-        state = sampler.run_mcmc(state, settings.check_every, progress=False)
-        if sampler.iteration < settings.min_steps:
-            continue
-        tau = sampler.get_autocorr_time(tol=0)
-        ok = np.all(np.isfinite(tau)) and np.all(sampler.iteration > settings.tau_factor * tau)
-        if ok and np.all(np.abs(old_tau - tau) / tau < settings.tau_rtol):
-            converged = True
-            break
-        old_tau = tau
-        print(f"\r  sampling{label}: {sampler.iteration} steps, tau ~ {np.nanmax(tau):.0f}",
-              end="", file=sys.stderr, flush=True)
-    print("", file=sys.stderr)
+    with Progress(settings.max_steps, f"sampling{label}", "step") as bar:
+        while sampler.iteration < settings.max_steps:
+            state = sampler.run_mcmc(state, settings.check_every, progress=False)
+            if sampler.iteration < settings.min_steps:
+                bar.update(settings.check_every)
+                continue
+            tau = sampler.get_autocorr_time(tol=0)
+            bar.update(settings.check_every, note=f"tau ~ {np.nanmax(tau):.0f} steps")
+            ok = np.all(np.isfinite(tau)) and np.all(sampler.iteration > settings.tau_factor * tau)
+            if ok and np.all(np.abs(old_tau - tau) / tau < settings.tau_rtol):
+                converged = True
+                break
+            old_tau = tau
+    logger.info("sampling%s: %d steps, %s", label, sampler.iteration,
+                "converged" if converged else "stopping rule not met")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         tau = sampler.get_autocorr_time(tol=0)

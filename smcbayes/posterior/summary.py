@@ -12,13 +12,18 @@ from __future__ import annotations
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from smcbayes.errors import ConvergenceWarning, UnreliablePosteriorWarning
 from smcbayes.forward.parameters import ParameterSpace
 from smcbayes.posterior.sampler import Chains
+from smcbayes.posterior.weights import weighted_moments, weighted_quantile
+
+if TYPE_CHECKING:
+    from smcbayes.posterior.correct import ImportanceSample
 
 Array = NDArray[np.float64]
 RHAT_WARN = 1.05
@@ -57,8 +62,10 @@ def stack_components(chains: Sequence[Chains]) -> tuple[Array, Array]:
     return samples, logp
 
 
-def _chain_groups(space: ParameterSpace, chains: Sequence[Chains]) -> tuple[dict, dict, Array]:
-    """Posterior and sample-stats dictionaries of the emcee chains (user units)."""
+def _chain_groups(space: ParameterSpace, chains: Sequence[Chains]
+                  ) -> tuple[dict[str, Array], dict[str, Array], Array]:
+    """Posterior and sample-stats dictionaries of the emcee chains (user units), arrays
+    ``(chains, draws)``, and the component of each arviz chain ``(chains,)``."""
     unit, logp = stack_components(chains)
     n_chain, n_draw, d = unit.shape
     theta = space.from_unit(unit.reshape(-1, d)).reshape(n_chain, n_draw, d)
@@ -69,8 +76,8 @@ def _chain_groups(space: ParameterSpace, chains: Sequence[Chains]) -> tuple[dict
     return posterior, stats, component
 
 
-def to_inference_data(space: ParameterSpace, chains: Sequence[Chains], attrs: dict, corrected=None,
-                      resampled: Array | None = None):
+def to_inference_data(space: ParameterSpace, chains: Sequence[Chains], attrs: dict[str, Any],
+                      corrected: ImportanceSample | None = None, resampled: Array | None = None) -> Any:
     """arviz InferenceData with the posterior in user units and sampler statistics.
 
     Without a correction the ``posterior`` group holds the emcee chains of the emulated
@@ -82,6 +89,7 @@ def to_inference_data(space: ParameterSpace, chains: Sequence[Chains], attrs: di
     itself is in ``importance`` (parameters, ``log_weight`` Pareto-smoothed and normalised,
     ``log_target``, ``iteration``).
     """
+    # arviz takes seconds to import; only the posterior stage needs it
     import arviz as az
 
     with warnings.catch_warnings():
@@ -91,8 +99,8 @@ def to_inference_data(space: ParameterSpace, chains: Sequence[Chains], attrs: di
         return _inference_data(az, space, chains, attrs, corrected, resampled)
 
 
-def _inference_data(az: Any, space: ParameterSpace, chains: Sequence[Chains], attrs: dict, corrected: Any,
-                    resampled: Array | None) -> Any:
+def _inference_data(az: Any, space: ParameterSpace, chains: Sequence[Chains], attrs: dict[str, Any],
+                    corrected: ImportanceSample | None, resampled: Array | None) -> Any:
     posterior, stats, component = _chain_groups(space, chains)
     clean = {k: (float(v) if isinstance(v, np.floating) else v) for k, v in attrs.items()}
     if corrected is None:
@@ -118,6 +126,7 @@ def _rows_of(unit: Array, picked: Array) -> Array:
 
 def summarise(space: ParameterSpace, chains: Sequence[Chains]) -> list[ParameterSummary]:
     """Mean, sd, 5/50/95 % quantiles (pooled) and the worst per-component R-hat and ESS."""
+    # arviz takes seconds to import; only the posterior stage needs it
     import arviz as az
 
     unit, _ = stack_components(chains)
@@ -149,8 +158,6 @@ def summarise_weighted(space: ParameterSpace, unit: Array, weights: Array, r_hat
         r_hat: R-hat of the emulator chains that seeded the proposal, ``(d,)``.
         ess: importance effective sample size (the same for every parameter).
     """
-    from smcbayes.posterior.correct import weighted_moments, weighted_quantile
-
     theta = space.from_unit(unit)
     mean, sd, _ = weighted_moments(theta, weights)
     out = []
@@ -178,8 +185,6 @@ def correlations(space: ParameterSpace, theta: Array, top: int = 3, threshold: f
     if weights is None:
         r = np.corrcoef(x, rowvar=False)
     else:
-        from smcbayes.posterior.correct import weighted_moments
-
         r = weighted_moments(x, weights)[2]
     pairs = [(space.free_names[i], space.free_names[j], float(r[i, j]))
              for i in range(r.shape[0]) for j in range(i + 1, r.shape[0])]
@@ -187,20 +192,39 @@ def correlations(space: ParameterSpace, theta: Array, top: int = 3, threshold: f
     return r, labels, pairs[:top]
 
 
-def warnings_for(summary: Sequence[ParameterSummary], chains: Sequence[Chains]) -> list[str]:
-    """Plain-language warnings about convergence and sampling quality."""
-    out = []
+def warnings_for(summary: Sequence[ParameterSummary], chains: Sequence[Chains], warn: bool = True,
+                 prefix: str = "", stacklevel: int = 2) -> list[str]:
+    """Plain-language warnings about the convergence and sampling quality of the emcee chains.
+
+    The one place these conditions are turned into words and into warnings: an R-hat above
+    :data:`RHAT_WARN`, the autocorrelation stopping rule not met and a median acceptance
+    fraction outside 0.1-0.8 give a :class:`~smcbayes.errors.ConvergenceWarning`, fewer than
+    :data:`ESS_WARN` effective samples an :class:`~smcbayes.errors.UnreliablePosteriorWarning`.
+
+    Args:
+        summary: the emulator's parameter summaries (R-hat, ESS).
+        chains: the ensembles they come from (stopping rule, acceptance).
+        warn: also emit each message with :func:`warnings.warn` (``False``: only return them).
+        prefix: put before every message, e.g. ``"emulator chains (proposal of the
+            correction): "`` when the chains are not the reported posterior.
+        stacklevel: passed to :func:`warnings.warn` (2: the caller of this function).
+    """
+    out: list[tuple[str, type[Warning]]] = []
     for s in summary:
         if not np.isfinite(s.r_hat) or s.r_hat > RHAT_WARN:
-            out.append(f"{s.name}: R-hat {s.r_hat:.3f} > {RHAT_WARN}: the walkers disagree; "
-                       "run longer (--steps) or refine the emulator (--refine)")
+            out.append((f"{s.name}: R-hat {s.r_hat:.3f} > {RHAT_WARN}: the walkers disagree; "
+                        "run longer (--steps) or refine the emulator (--refine)", ConvergenceWarning))
         if s.ess < ESS_WARN:
-            out.append(f"{s.name}: only {s.ess:.0f} effective samples (< {ESS_WARN:.0f}); "
-                       "quantiles are rough, run longer (--steps)")
+            out.append((f"{s.name}: only {s.ess:.0f} effective samples (< {ESS_WARN:.0f}); "
+                        "quantiles are rough, run longer (--steps)", UnreliablePosteriorWarning))
     if not all(c.converged for c in chains):
-        out.append("the autocorrelation-time stopping rule was not met within --steps "
-                   "(chains shorter than 50 autocorrelation times)")
+        out.append(("the autocorrelation-time stopping rule was not met within --steps "
+                    "(chains shorter than 50 autocorrelation times)", ConvergenceWarning))
     acc = np.concatenate([c.acceptance for c in chains])
     if np.median(acc) < 0.1 or np.median(acc) > 0.8:
-        out.append(f"median acceptance fraction {np.median(acc):.2f} is outside 0.1-0.8")
-    return out
+        out.append((f"median acceptance fraction {np.median(acc):.2f} is outside 0.1-0.8",
+                    ConvergenceWarning))
+    if warn:
+        for msg, kind in out:
+            warnings.warn(prefix + msg, kind, stacklevel=stacklevel)
+    return [prefix + msg for msg, _ in out]

@@ -12,7 +12,7 @@ from typing import Any
 
 from smcbayes.config import ProjectConfig
 from smcbayes.errors import SmcBayesError
-from smcbayes.plotting import MEASURED, grid_shape, pyplot, save
+from smcbayes.plotting import MEASURED, grid_shape, save, subplots
 
 
 def project_of(config: Mapping[str, Any]) -> ProjectConfig | None:
@@ -53,9 +53,8 @@ def plot_measured(dataset: Any, path: Path) -> list[Path] | None:
     ids = [cid for cid, m in dataset.measurements.items() if m.force is not None]
     if not ids:
         return None
-    plt = pyplot()
     nrows, ncols = grid_shape(len(ids), cols=4)
-    fig, axes = plt.subplots(
+    fig, axes = subplots(
         nrows, ncols, figsize=(3.4 * ncols, 2.6 * nrows), squeeze=False, sharey=True
     )
     for k, cid in enumerate(ids):

@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.forward.parameters import ParameterSpace
-from smcbayes.plotting import pyplot, save
+from smcbayes.plotting import save, subplots
 
 Array = NDArray[np.float64]
 
@@ -23,8 +23,7 @@ def plot_convergence(losses: Array, init: int, path: Path) -> list[Path]:
         init: size of the initial design (shaded).
         path: output path without suffix.
     """
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = subplots(figsize=(7, 4))
     idx = np.arange(1, losses.size + 1)
     ok = np.isfinite(losses)
     best = np.fmin.accumulate(np.where(ok, losses, np.inf))
@@ -64,7 +63,6 @@ def plot_landscape(surrogate: Any, space: ParameterSpace, records: list[dict[str
         truth: true values (synthetic checks), or ``None``.
         path: output path without suffix.
     """
-    plt = pyplot()
     g = np.linspace(0.0, 1.0, points)
     uu, vv = np.meshgrid(g, g)
     mean, std = surrogate.predict(np.column_stack([uu.ravel(), vv.ravel()]))
@@ -75,7 +73,7 @@ def plot_landscape(surrogate: Any, space: ParameterSpace, records: list[dict[str
     u = space.to_unit(theta)
     sx = np.interp(u[:, 0], g, ax_x)
     sy = np.interp(u[:, 1], g, ax_y)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
+    fig, axes = subplots(1, 2, figsize=(11, 4.4))
     panels = ((mean.reshape(uu.shape) / np.log(10), "GP mean of log10 loss (kN$^2$)", "viridis"),
               (std.reshape(uu.shape) / np.log(10), "GP std of log10 loss", "magma"))
     for ax, (z, title, cmap) in zip(axes, panels, strict=True):

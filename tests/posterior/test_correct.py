@@ -2,15 +2,22 @@
 
 from __future__ import annotations
 
+import logging
+import warnings
+
 import numpy as np
 import pytest
 from scipy.stats import multivariate_t
 
+from smcbayes import progress
+from smcbayes.errors import ConvergenceWarning, SmcBayesWarning, UnreliablePosteriorWarning
 from smcbayes.posterior.correct import (
+    K_HAT_WARN,
     CorrectionSettings,
     Proposal,
     _Chains,
     correct,
+    correction_warnings,
     ess_of,
     fit_proposal,
     seed_weights,
@@ -95,10 +102,17 @@ def test_proposal_density_is_the_defensive_t_mixture() -> None:
     u = rng.random((50, 2))
     expected = np.log(0.8 * multivariate_t(centre[0], chol @ chol.T, df=5.0).pdf(u) + 0.2)
     np.testing.assert_allclose(q.log_pdf(u), expected, rtol=1e-10)
-    x = q.sample(20000, rng)
+    x, kernel = q.sample_indexed(20000, rng)
     inside = np.all((x >= 0) & (x <= 1), axis=1)
-    # the uniform share plus the t mass inside the cube
-    assert 0.2 < inside.mean() <= 1.0
+    # a fifth of the draws from the uniform density, all of them in the cube ...
+    uniform = kernel == -1
+    assert abs(uniform.mean() - 0.2) < 4 * np.sqrt(0.2 * 0.8 / x.shape[0])
+    assert inside[uniform].all() and (kernel[~uniform] == 0).all()
+    # ... so the share inside is the uniform share plus the t kernel's mass inside the cube
+    t = multivariate_t(centre[0], chol @ chol.T, df=5.0)
+    cdf = [t.cdf([a, b], maxpts=200_000, random_state=1) for a, b in ((1, 1), (0, 1), (1, 0), (0, 0))]
+    expected = 0.2 + 0.8 * (cdf[0] - cdf[1] - cdf[2] + cdf[3])
+    assert abs(inside.mean() - expected) < 4 * np.sqrt(expected * (1 - expected) / x.shape[0]) + 1e-3
     assert abs(np.median(x[:, 0]) - 0.5) < 0.02
 
 
@@ -247,3 +261,26 @@ def test_fit_temperature_outside_unit_interval_is_refused() -> None:
     for bad in (0.0, -0.5, 1.5):
         with pytest.raises(ConfigError, match="fit_temperature"):
             CorrectionSettings(fit_temperature=bad)
+
+
+def test_unsettled_correction_warns_once_by_class_and_prints_nothing(capsys, caplog) -> None:
+    """The weights' warning is recorded on the sample and emitted once, with its class;
+    progress goes to the progress logger, nothing to stderr."""
+    rng = np.random.default_rng(3)
+    progress.enable(True, interval_s=0.0)
+    try:
+        with warnings.catch_warnings(record=True) as seen, caplog.at_level(logging.INFO):
+            warnings.simplefilter("always")
+            res = correct(log_target, biased_start(rng),
+                          CorrectionSettings(draws=400, per_iteration=200, ess_target=np.inf), rng)
+    finally:
+        progress.enable(False)
+    ours = [w for w in seen if issubclass(w.category, SmcBayesWarning)]
+    assert not res.settled and len(ours) == 1 and [str(w.message) for w in ours] == res.warnings
+    expected = UnreliablePosteriorWarning if res.k_hat > K_HAT_WARN else ConvergenceWarning
+    assert ours[0].category is expected and ours[0].filename == __file__
+    assert correction_warnings(res, warn=False) == res.warnings
+    assert capsys.readouterr().err == ""
+    lines = [r.getMessage() for r in caplog.records if r.name == "smcbayes.progress"]
+    assert lines and lines[-1].startswith("importance correction: 400/400 draw")
+    assert "forward runs" in lines[-1] and "k-hat" in lines[-1]

@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import logging
+import warnings
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+from smcbayes import progress
+from smcbayes.errors import ConvergenceWarning, UnreliablePosteriorWarning
 from smcbayes.posterior.emulator import NumpyGP
 from smcbayes.posterior.likelihood import (
     EmulatedPosterior,
@@ -12,7 +18,8 @@ from smcbayes.posterior.likelihood import (
     integrated_autocorr_time,
     sandwich_points,
 )
-from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
+from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
+from smcbayes.posterior.summary import ParameterSummary, warnings_for
 from smcbayes.surrogate.gp import fit_surrogate
 
 
@@ -165,3 +172,42 @@ def test_likelihood_is_minus_half_n_eff_log_loss(surrogates: dict) -> None:
     lp = post.log_prob_fn(None)(u)
     np.testing.assert_allclose(lp[:2], -20.0 * surrogates["rbf"].predict(u[:2])[0], atol=1e-5)
     assert lp[2] == -np.inf  # outside the prior box
+
+
+def test_sampler_reports_progress_through_the_logger_not_stderr(capsys, caplog) -> None:
+    def log_prob(u: np.ndarray) -> np.ndarray:
+        return -0.5 * np.sum(((u - 0.5) / 0.1) ** 2, axis=1)
+
+    progress.enable(True, interval_s=0.0)
+    try:
+        with caplog.at_level(logging.INFO):
+            run_ensemble(log_prob, 2, SamplerSettings(walkers=8, max_steps=500, min_steps=250,
+                                                      check_every=250), np.random.default_rng(2),
+                         label=" (component 1/1)")
+    finally:
+        progress.enable(False)
+    assert capsys.readouterr().err == ""
+    lines = [r.getMessage() for r in caplog.records if r.name == "smcbayes.progress"]
+    assert [ln.split("  ")[0] for ln in lines] == ["sampling (component 1/1): 250/500 step",
+                                                   "sampling (component 1/1): 500/500 step"]
+    assert "tau ~" in lines[-1]
+
+
+def test_sampler_warnings_are_recorded_and_emitted_once_by_class() -> None:
+    bad = ParameterSummary("eta0", "Pa s", 1.0, 0.1, 0.9, 1.0, 1.1, r_hat=1.3, ess=50.0)
+    good = ParameterSummary("n", "-", 0.5, 0.1, 0.4, 0.5, 0.6, r_hat=1.0, ess=1000.0)
+    chains = [Chains(np.zeros((10, 4, 2)), np.zeros((10, 4)), np.full(4, 0.95), np.ones(2), 100, 10, 1,
+                     converged=False)]
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        text = warnings_for([bad, good], chains, prefix="emulator chains: ")
+    assert [str(w.message) for w in seen] == text and len(text) == 4
+    assert all(t.startswith("emulator chains: ") for t in text)
+    assert [w.category for w in seen] == [ConvergenceWarning, UnreliablePosteriorWarning,
+                                          ConvergenceWarning, ConvergenceWarning]
+    assert seen[0].filename == __file__
+    assert warnings_for([good], [replace(chains[0], acceptance=np.full(4, 0.3), converged=True)]) == []
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        assert warnings_for([bad], chains, warn=False)
+    assert not seen
