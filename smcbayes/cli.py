@@ -45,14 +45,22 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
         print(warnings.formatwarning(message, category, filename, lineno, line).rstrip(), file=sys.stderr)
 
 
+class _Stderr(logging.Handler):
+    """Log records as plain lines on the current ``sys.stderr`` (looked up at each record,
+    so a redirected or captured stderr is honoured)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        print(self.format(record), file=sys.stderr)
+
+
 def setup_output(verbose: bool = False) -> None:
     """What an application does and a library must not: a non-interactive matplotlib
     backend, log records and warnings on stderr, progress switched on."""
     os.environ.setdefault("MPLBACKEND", "Agg")
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter("%(message)s"))
     root = logging.getLogger("smcbayes")
-    if not root.handlers:
+    if not any(isinstance(h, _Stderr) for h in root.handlers):
+        handler = _Stderr()
+        handler.setFormatter(logging.Formatter("%(message)s"))
         root.addHandler(handler)
     root.setLevel(logging.DEBUG if verbose else logging.INFO)
     root.propagate = False

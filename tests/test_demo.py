@@ -179,15 +179,15 @@ def test_embedded_plans_hold_out_validation_trials() -> None:
 
 
 def test_failing_stage_names_itself_and_its_log(tmp_path: Path) -> None:
-    from smcbayes.commands.demo import run_stage
+    from smcbayes.commands.demo import load_plan, run_stage
     from smcbayes.errors import ConfigError
 
-    log = tmp_path / "report.log"
+    (tmp_path / "logs").mkdir()
     with pytest.raises(
         ConfigError, match=r"demo stage 'report': .*not a calibration run.*report\.log"
     ):
-        run_stage(["report", str(tmp_path)], log)
-    assert log.is_file()
+        run_stage(load_plan(True), "report", tmp_path)
+    assert (tmp_path / "logs" / "report.log").is_file()
 
 
 def test_figures_follow_the_package_conventions(demo_out: Path) -> None:

@@ -1,15 +1,19 @@
-"""Measured-data figure and validation errors of the best point, on synthetic data."""
+"""Measured-data figure, and the validation errors of the best point that the calibration
+records for the report, on synthetic data."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from smcbayes.config import build_project, load_project
 from smcbayes.data.synth import NoiseSpec, write_synthetic
 from smcbayes.forward.model import ForwardModel
-from smcbayes.report.measured import load_measured, plot_measured, project_of, validation_errors
+from smcbayes.report.measured import load_measured, plot_measured, project_of
+from smcbayes.simulation.problem import build_problem
+from smcbayes.surrogate.calibration import validation_errors
 
 TRUTH = {"n": 0.35, "tau_star_Pa": 2.0e4, "B_Pa_s": 2.0e4, "tau_c_MPa": 0.05, "m": 1.4}
 RAW = {
@@ -40,23 +44,24 @@ def synthetic(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
 
 
-def summary_at(values: dict[str, float]) -> dict:
-    return {
-        "best_params": {k: {"value": v, "unit": "-", "fixed": False} for k, v in values.items()}
-    }
-
-
-def test_validation_errors_are_small_at_the_truth_and_large_elsewhere(synthetic: Path) -> None:
+def errors_at(synthetic: Path, tmp: Path, values: dict[str, float]) -> dict[str, dict[str, float]]:
     project = load_project(synthetic)
-    config = {"project": project.model_dump(mode="json"), "effects": None, "overrides": {}}
-    assert project_of(config) is not None
-    dataset = load_measured(project)
-    at_truth = validation_errors(config, summary_at(TRUTH), project, dataset)
+    problem = build_problem(project, tmp)
+    theta = np.array([[values[n] for n in problem.space.free_names]])
+    with problem.runner() as runner:
+        results = runner.simulate(theta, problem.model.config_ids)
+    return validation_errors(problem, results)
+
+
+def test_validation_errors_are_small_at_the_truth_and_large_elsewhere(synthetic: Path, tmp_path: Path) -> None:
+    project = load_project(synthetic)
+    assert project_of({"project": project.model_dump(mode="json")}) is not None
+    at_truth = errors_at(synthetic, tmp_path, TRUTH)
     assert list(at_truth) == ["centre-07"]  # only the validation configuration
     # 2 kN of white noise plus a floor of about 5 kN: the loss resamples the steep rise to
     # the force limit, where a few samples of misplaced time weigh hundreds of kN
     assert 1.0 < at_truth["centre-07"]["rmse_kN"] < 7.0
-    wrong = validation_errors(config, summary_at({**TRUTH, "B_Pa_s": 8.0e4}), project, dataset)
+    wrong = errors_at(synthetic, tmp_path, {**TRUTH, "B_Pa_s": 8.0e4})
     assert wrong["centre-07"]["rmse_kN"] > 3 * at_truth["centre-07"]["rmse_kN"]
 
 

@@ -78,7 +78,8 @@ def test_damaged_stage_summaries_are_skipped_or_tolerated(tmp_path: Path) -> Non
     (run / "diagnose").mkdir()
     (run / "diagnose" / "summary.json").write_text("{ not json", encoding="utf-8")
     write_report(run)
-    assert sections_of(run) == ["data", "calibration", "posterior", "reproducibility"]
+    # the unreadable diagnosis is named as incomplete, not silently dropped
+    assert sections_of(run) == ["data", "calibration", "posterior", "incomplete", "reproducibility"]
     facts = parse_page((run / "report.html").read_text(encoding="utf-8"))
     assert external_references(facts) == [] and facts.img_src == []
 
@@ -130,29 +131,39 @@ def test_interval_share_of_the_search_range() -> None:
     )  # unknown range: NaN
 
 
-def test_rebuilt_command_lines_parse(tmp_path: Path) -> None:
+def test_recorded_command_lines_are_shown_with_their_folder(tmp_path: Path) -> None:
+    """The report shows the command lines each stage recorded, after a `cd` to the folder
+    they ran in (their paths are relative to it), and they parse as smcbayes commands."""
     import shlex
 
     from smcbayes.cli import build_parser
+    from smcbayes.run import RunDir
 
     run = fake_run(tmp_path)
-    config = json.loads((run / "config.json").read_text(encoding="utf-8"))
-    config.update(effects=["press_compliance"], overrides={"n": 0.3}, external={"command": "x"})
-    (run / "config.json").write_text(json.dumps(config), encoding="utf-8")
-    (run / "posterior").mkdir()
-    settings = {"walkers": 8, "steps": 100, "refine_tolerance_nats": 1.0, "seed": 2}
-    (run / "posterior" / "summary.json").write_text(json.dumps({"settings": settings}), "utf-8")
+    argv = ["smcbayes", "calibrate", "p.toml", "--out", "run", "--data-dir", "data", "--set", "n=0.3"]
+    RunDir(run).record_command("calibrate", argv)
+    RunDir(run).record_command("posterior", ["smcbayes", "posterior", "run", "--walkers", "8"])
     write_report(run, ("md",))
     md = (run / "report.md").read_text(encoding="utf-8")
     block = md.split("```\n")[-2].strip().splitlines()
-    parser = build_parser()
-    parsed = [
-        parser.parse_args(shlex.split(line.replace("CONFIG", "p.toml"))[1:]) for line in block
-    ]
-    assert [a.command for a in parsed] == ["calibrate", "posterior", "report"]
-    assert parsed[0].effect == ["press_compliance"] and parsed[0].set == ["n=0.3"]
-    assert parsed[0].seed == 3 and parsed[0].budget == 5 and parsed[0].external is None
-    assert parsed[1].walkers == 8 and parsed[1].seed == 2
+    assert block[0] == f"cd {shlex.quote(str(Path.cwd()))}"
+    parsed = [build_parser().parse_args(shlex.split(line)[1:]) for line in block[1:]]
+    assert [a.command for a in parsed] == ["calibrate", "posterior"]
+    assert parsed[0].data_dir == "data" and parsed[0].set == ["n=0.3"] and parsed[1].walkers == 8
+
+
+def test_an_interrupted_stage_is_named_not_dropped(tmp_path: Path) -> None:
+    """A posterior stage that started and never finished gets its own section with the
+    command that completes it."""
+    from smcbayes.run import RunDir
+
+    run = fake_run(tmp_path)
+    RunDir(run).begin_stage("posterior", {"seed": 0})
+    assert RunDir(run).stage_state("posterior") == "interrupted"
+    write_report(run, ("md",))
+    md = (run / "report.md").read_text(encoding="utf-8")
+    assert "## Incomplete stages" in md and f"smcbayes posterior {run}" in md
+    assert "## Posterior" not in md
 
 
 @pytest.mark.parametrize(("correction", "expected"), [
