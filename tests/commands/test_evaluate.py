@@ -5,9 +5,14 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from smcbayes.cli import main
+from smcbayes.config import load_project
+from smcbayes.data.dataset import load_dataset
+from smcbayes.data.loss import evaluate_loss
+from smcbayes.forward.model import ForwardModel
 
 REPO = Path(__file__).resolve().parents[2]
 REAL_DATA = REPO / ".." / "shared" / "data" / "thesis-press"
@@ -19,16 +24,95 @@ def _rows(out: str) -> dict[str, list[str]]:
             if re.match(r"^\d\d-(bar|center)-\d\d ", line)}
 
 
+def _global(out: str) -> tuple[float, float]:
+    """Full and clipped global loss (kN^2) of the last line."""
+    m = re.search(r"full (\S+) kN\^2 .*clipped at flow stop \(thesis\) (\S+) kN\^2", out)
+    assert m is not None, out
+    return float(m.group(1)), float(m.group(2))
+
+
+def _force_mse(t: np.ndarray, f: np.ndarray, t_switch: float, tm: np.ndarray, fm: np.ndarray,
+               end: float, points: int) -> float:
+    """e^F written out from its definition: both curves on a uniform grid of [0, end], the
+    simulation held at its value at the switch, the measurement at its last sample."""
+    grid = np.linspace(0.0, end, points)
+    sim = np.interp(np.minimum(grid, t_switch), t, f)
+    return float(np.mean((sim - np.interp(grid, tm, fm)) ** 2))
+
+
 def test_evaluate_real_data_at_the_default_point(capsys: pytest.CaptureFixture[str]) -> None:
+    """Every printed RMSE (full and clipped at flow stop) and both global losses are those of
+    the loss module on the same simulations."""
     if not REAL_DATA.is_dir():
         pytest.skip("thesis-press data folder not present")
     assert main(["evaluate", str(THESIS_TOML)]) == 0
     out = capsys.readouterr().out
     rows = _rows(out)
     assert len(rows) == 9 and "80-center-03" not in rows
-    for cells in rows.values():
-        assert float(cells[0]) > 0 and float(cells[1]) > 0  # full and clipped force RMSE (kN)
     assert "global loss L" in out and "clipped at flow stop" in out
+
+    project = load_project(THESIS_TOML)
+    dataset = load_dataset(project)
+    ids = dataset.ids("train")
+    results = ForwardModel(project).simulate(None, ids)
+    full = evaluate_loss(results, dataset, project.loss, ids)
+    clipped = evaluate_loss(results, dataset, project.loss.model_copy(update={"clip": "flow_stop"}), ids)
+    assert sorted(rows) == sorted(ids)
+    for k, cid in enumerate(full.ids):
+        assert float(rows[cid][0]) == pytest.approx(np.sqrt(full.force_mse_kN2[0, k]), abs=0.006)
+        assert float(rows[cid][1]) == pytest.approx(np.sqrt(clipped.force_mse_kN2[0, k]), abs=0.006)
+        assert float(rows[cid][2]) == pytest.approx(np.sqrt(full.displacement_mse_mm2[0, k]), abs=0.006)
+    # the flow-stop window is shorter and leaves out the force-limit jump, so it differs
+    assert np.all(clipped.force_mse_kN2 < full.force_mse_kN2)
+    total, total_clipped = _global(out)
+    assert total == pytest.approx(full.total[0], rel=1e-5)
+    assert total_clipped == pytest.approx(clipped.total[0], rel=1e-5)
+
+
+def test_evaluate_is_zero_on_the_model_own_curves_and_matches_the_definition(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Measured curves that are the simulation itself (up to its switch to force control)
+    give a zero loss at that point; at another point the printed RMSE and losses are those
+    of the loss definition written out here."""
+    ids = ["60-bar-03", "80-center-07"]
+    assert main(["synth", str(THESIS_TOML), "--truth", "n=0.3", "--noise-kN", "0", "--seed", "2",
+                 "--only", *ids, "--out", str(tmp_path)]) == 0
+    toml = tmp_path / "project.toml"
+    project = load_project(toml)
+    truth = ForwardModel(project, overrides={"n": 0.3}).simulate(None, ids)
+    for cid, res in truth.items():
+        keep = res.time_s[0] <= res.switch_time_s[0]
+        np.savetxt(tmp_path / "force" / f"{cid}.csv",
+                   np.column_stack([res.time_s[0, keep], res.force_kN[0, keep]]),
+                   delimiter=",", header="time_s,force_kN", comments="")
+    capsys.readouterr()
+    assert main(["evaluate", str(toml), "--set", "n=0.3", "--role", "all"]) == 0
+    out = capsys.readouterr().out
+    rows = _rows(out)
+    assert sorted(rows) == sorted(ids)
+    for cells in rows.values():
+        assert float(cells[0]) == 0.0 and float(cells[1]) == 0.0 and float(cells[2]) == 0.0
+    assert max(_global(out)) < 1e-20
+
+    assert main(["evaluate", str(toml), "--set", "n=0.35", "--role", "all"]) == 0
+    out = capsys.readouterr().out
+    rows = _rows(out)
+    dataset = load_dataset(project)
+    other = ForwardModel(project, overrides={"n": 0.35}).simulate(None, ids)
+    points = project.loss.grid_points
+    full, clipped = [], []
+    for cid in ids:
+        r, m = other[cid], dataset[cid]
+        t, f, ts = r.time_s[0], r.force_kN[0], float(r.switch_time_s[0])
+        tm, fm = m.force.time_s, m.force.values
+        full.append(_force_mse(t, f, ts, tm, fm, max(ts, tm[-1]), points))
+        clipped.append(_force_mse(t, f, ts, tm, fm, m.flow_stop_s, points))
+        assert float(rows[cid][0]) == pytest.approx(np.sqrt(full[-1]), abs=0.006)
+        assert float(rows[cid][1]) == pytest.approx(np.sqrt(clipped[-1]), abs=0.006)
+        assert float(rows[cid][0]) > 1.0  # a real difference, not the zero of the first call
+    total, total_clipped = _global(out)
+    assert total == pytest.approx(np.mean(full), rel=1e-5)
+    assert total_clipped == pytest.approx(np.mean(clipped), rel=1e-5)
 
 
 def test_evaluate_synthetic_data_at_the_truth(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

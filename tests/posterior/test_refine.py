@@ -1,0 +1,119 @@
+"""Refinement design and emulator check: point kinds, boxes, spacing, offset-free errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from smcbayes.posterior.refine import check_emulator, check_values, local_box, refine_points, round_design
+
+
+class DistanceStd:
+    """Stand-in surrogate: mean 0, standard deviation = distance from a point."""
+
+    def __init__(self, centre: tuple[float, ...] = (0.5, 0.5)) -> None:
+        self.centre = np.asarray(centre)
+
+    def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x = np.atleast_2d(x)
+        return np.zeros(len(x)), np.linalg.norm(x - self.centre, axis=1)
+
+
+def draws(seed: int = 0, n: int = 600) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.clip(rng.normal([0.4, 0.6], [0.05, 0.02], size=(n, 2)), 0.0, 1.0)
+
+
+def test_local_box_is_the_widened_1_99_percent_range_clipped_to_the_cube() -> None:
+    x = np.column_stack([np.linspace(0.2, 0.4, 1001), np.linspace(0.0, 1.0, 1001)])
+    lo, hi = local_box(x, widen=0.5)
+    # 1-99 % of a uniform grid: 0.202-0.398, widened by half that range on both sides
+    np.testing.assert_allclose(lo[0], 0.202 - 0.5 * 0.196)
+    np.testing.assert_allclose(hi[0], 0.398 + 0.5 * 0.196)
+    assert lo[1] == 0.0 and hi[1] == 1.0
+    lo, hi = local_box(np.full((10, 2), 0.3), min_width=0.02)  # degenerate: at least min_width
+    np.testing.assert_allclose(hi - lo, 0.02)
+
+
+def test_refine_points_picks_the_most_uncertain_draws_at_least_min_distance_apart() -> None:
+    rng = np.random.default_rng(1)
+    x = rng.random((400, 2))
+    pts = refine_points(x, DistanceStd(), 5, rng, min_distance=0.2)
+    assert pts.shape == (5, 2)
+    assert all(any(np.array_equal(p, r) for r in x) for p in pts)  # draws, not new points
+    d = np.linalg.norm(pts[:, None] - pts[None, :], axis=2)
+    assert np.min(d[np.triu_indices(5, 1)]) >= 0.2
+    # the first is the draw farthest from the centre
+    far = np.max(np.linalg.norm(x - 0.5, axis=1))
+    assert np.linalg.norm(pts[0] - 0.5) == pytest.approx(far)
+    assert refine_points(x, DistanceStd(), 0, rng).shape == (0, 2)
+
+
+def test_round_design_orders_random_draws_lhs_then_uncertain_points() -> None:
+    x = draws()
+    pts, n_rand = round_design(x, DistanceStd(), 9, np.random.default_rng(2))
+    assert n_rand == 3 and pts.shape == (9, 2)
+    # the leading random draws are posterior draws themselves
+    for p in pts[:3]:
+        assert np.any(np.all(x == p, axis=1))
+    # the Latin hypercube fills the local box, one point per third of each side
+    lo, hi = local_box(x)
+    lhs = (pts[3:6] - lo) / (hi - lo)
+    assert np.all((lhs >= 0) & (lhs <= 1))
+    for j in range(2):
+        assert sorted(np.floor(3 * lhs[:, j]).astype(int)) == [0, 1, 2]
+    # the rest: draws, the most uncertain ones (farthest from the stand-in's centre)
+    dist = np.linalg.norm(x - 0.5, axis=1)
+    for p in pts[6:]:
+        assert np.any(np.all(x == p, axis=1))
+        assert np.linalg.norm(p - 0.5) >= np.quantile(dist, 0.95)
+
+
+def test_round_design_is_reproducible_and_caps_random_draws() -> None:
+    x = draws()
+    a, _ = round_design(x, DistanceStd(), 7, np.random.default_rng(3))
+    b, _ = round_design(x, DistanceStd(), 7, np.random.default_rng(3))
+    np.testing.assert_array_equal(a, b)
+    c, _ = round_design(x, DistanceStd(), 7, np.random.default_rng(4))
+    assert not np.array_equal(a, c)
+    pts, n_rand = round_design(x[:1], DistanceStd(), 9, np.random.default_rng(5))
+    assert n_rand == 1 and pts.shape[0] == 1 + 3 + 1  # one draw only, picked once per kind
+
+
+def test_check_values_removes_the_common_offset_and_scales_by_n_eff() -> None:
+    true = np.array([1.0, 2.0, 3.0, 4.0])
+    assert check_values(true + 7.3, true, 50.0) == pytest.approx(0.0, abs=1e-12)
+    # em - true = [0, 1, 0, 1] -> err = -(n_eff/2) [0, 1, 0, 1] -> |err - mean| = n_eff/4
+    em = true + np.array([0.0, 1.0, 0.0, 1.0])
+    assert check_values(em, true, 2.0) == pytest.approx(0.5)
+    assert check_values(em, true, 10.0) == pytest.approx(2.5)
+    # non-finite pairs are left out; fewer than two finite gives NaN
+    assert check_values(np.append(em, 99.0), np.append(true, np.nan), 2.0) == pytest.approx(0.5)
+    assert np.isnan(check_values(np.array([1.0, np.inf]), np.array([1.0, 2.0]), 2.0))
+
+
+def test_check_emulator_of_a_shifted_exact_emulator_and_of_a_wrong_one() -> None:
+    rng = np.random.default_rng(6)
+    x = rng.random((50, 2))
+
+    def true(u: np.ndarray) -> np.ndarray:
+        out = np.sum((u - 0.3) ** 2, axis=1)
+        out[:5] = np.nan  # failed simulations
+        return out
+
+    exact = check_emulator(x, lambda u: np.sum((u - 0.3) ** 2, axis=1) + 2.0, true, 40.0)
+    assert exact.points == 45
+    assert exact.mean_abs_error == pytest.approx(0.0, abs=1e-9)
+    assert exact.max_abs_error == pytest.approx(0.0, abs=1e-9)
+    assert exact.correlation == pytest.approx(1.0)
+
+    def wrong(u: np.ndarray) -> np.ndarray:
+        return np.sum((u - 0.3) ** 2, axis=1) + 0.1 * u[:, 0]
+
+    chk = check_emulator(x, wrong, true, 40.0)
+    err = -20.0 * 0.1 * x[5:, 0]
+    err -= err.mean()
+    assert chk.mean_abs_error == pytest.approx(np.mean(np.abs(err)))
+    assert chk.rmse == pytest.approx(np.sqrt(np.mean(err**2)))
+    assert chk.max_abs_error == pytest.approx(np.max(np.abs(err)))
+    assert set(chk.as_dict()) == {"points", "mean_abs_error", "rmse", "max_abs_error", "correlation"}
