@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from smcbayes.config import MaterialSpec, load_project
 from smcbayes.forward.case import Case
-from smcbayes.forward.effects.base import EffectStack, get_effect
+from smcbayes.forward.effects import EffectStack, get_effect
 from smcbayes.forward.flux import FlowTable, MaterialTable, log_grid
 from smcbayes.forward.march import march
 from smcbayes.forward.model import ForwardModel

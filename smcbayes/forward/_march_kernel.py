@@ -1,12 +1,16 @@
 """numba kernel of :mod:`smcbayes.forward.march_compiled` (imported on first use).
 
-Scalar transcription, row by row, of :mod:`smcbayes.forward.march` with the hooks of the
-five built-in effects inlined; names follow that module.  Per-row parameters ``rp``
-``(P, 17)``: solid0, k_c (Pa), b, zeta (Pa s), 1/k (m/N), t_ramp (s, 0 = none), beta,
-heating flag, T_start (K), kappa (m^2/s), T_b (K), curing flag, k1, k2 (1/s), c1, c2,
-alpha_g.  ``geo`` ``(13,)``: planar, width, area0, area_mould, gap0, gap_full, force_limit,
-hold, speed, jump_time, shape weight, fill0, T_mould (SI).  Row state ``st`` ``(8,)``:
-t, gap, area, deflection, phase, switch time, temperature (K), degree of cure.
+Scalar transcription, row by row, of :mod:`smcbayes.forward.march`; names follow that
+module.  The laws of the effects (:mod:`smcbayes.forward.laws`) and the decisions of the
+press programme and the step control (:mod:`smcbayes.forward.programme`) are not written
+here: the same functions are compiled and called on one row's floats.  The flat arrays
+follow the named layouts of :mod:`smcbayes.forward.kernel_layout`: per-row parameters
+``rp`` ``(P, len(ROW))``, configuration ``geo`` ``(len(GEO),)`` and row state ``st``
+``(len(STATE),)``; the slot indices below are compile-time constants.
+
+numba's disk cache is keyed on this file only: after changing ``laws``, ``programme`` or
+``kernel_layout``, :func:`smcbayes.forward.march_compiled` notices the change and
+recompiles (see ``march_compiled._kernel``).
 """
 
 from __future__ import annotations
@@ -15,10 +19,13 @@ import math
 
 import numpy as np
 from numba import njit
+from numba.extending import overload
 from numpy.typing import NDArray
 
-from smcbayes.forward.effects.thermal import CURE_E, GAS_CONSTANT, MAX_CURE_FACTOR, RK4_STEP
-from smcbayes.forward.march import HOLD_NODE_TOL, MAX_STRETCH, STEP_GROWTH
+from smcbayes.forward import laws, programme
+from smcbayes.forward.kernel_layout import GEO, INTERPOLATED, ROW, STATE
+from smcbayes.forward.laws import MAX_CURE_FACTOR
+from smcbayes.forward.programme import STEP_GROWTH
 from smcbayes.forward.result import PHASE_FLOW, PHASE_FORCE, PHASE_FULL
 
 Array = NDArray[np.float64]
@@ -26,6 +33,57 @@ _NAN = math.nan
 _INF = math.inf
 # IEEE division (x / 0 -> inf or nan) as in NumPy, on which the algorithm relies
 _jit = njit(cache=True, error_model="numpy")
+
+
+
+@overload(laws.select, jit_options={"cache": True})
+def _select_scalar(condition, a, b):  # type: ignore[no-untyped-def]  # numba matches the signatures
+    """:func:`laws.select` on floats: a branch (numba's ``np.where`` gives 0-d arrays)."""
+
+    def impl(condition, a, b):  # type: ignore[no-untyped-def]
+        return a if condition else b
+
+    return impl
+
+
+_compaction_pressure = _jit(laws.compaction_pressure)
+_relax_temperature = _jit(laws.mould_temperature_relaxation)
+_arrhenius = _jit(laws.arrhenius_factor)
+_cure_shift = _jit(laws.cure_rate_shift)
+_cure_substeps = _jit(laws.cure_substeps)
+_cure_rk4_step = _jit(laws.cure_rk4_step)
+_cure_factor = _jit(laws.cure_factor)
+_ramp_speed = _jit(laws.ramp_speed)
+_reaches_limit = _jit(programme.reaches_limit)
+_crossing = _jit(programme.crossing_fraction)
+_hold_over = _jit(programme.hold_over)
+_fills_and_stops = _jit(programme.fills_and_stops)
+_hold_step = _jit(programme.hold_step)
+_stretch = _jit(programme.closing_stretch)
+
+DISPATCHERS = (_compaction_pressure, _relax_temperature, _arrhenius, _cure_shift, _cure_substeps,
+               _cure_rk4_step, _cure_factor, _ramp_speed, _reaches_limit, _crossing, _hold_over,
+               _fills_and_stops, _hold_step, _stretch)
+"""Compiled shared functions (their caches go with the kernel's, see the module docstring)."""
+
+# row parameters
+R_SOLID0, R_INV_K = ROW["solid0"], ROW["inv_k"]
+R_K_C, R_B, R_ZETA = ROW["compaction_modulus"], ROW["compaction_exponent"], ROW["bulk_viscosity"]
+R_RAMP_ON, R_T_RAMP, R_BETA = ROW["on:speed_ramp"], ROW["ramp_time"], ROW["load_slowdown"]
+R_HEAT_ON, R_KAPPA, R_T_B, R_T0 = ROW["on:heating"], ROW["diffusivity"], ROW["T_b"], ROW["temperature0"]
+R_CURE_ON, R_K1, R_K2 = ROW["on:curing"], ROW["k1"], ROW["k2"]
+R_C1, R_C2, R_ALPHA_G, R_ALPHA0 = ROW["c1"], ROW["c2"], ROW["alpha_g"], ROW["cure0"]
+# configuration and press programme
+G_PLANAR, G_WIDTH, G_AREA0, G_AREA_M = GEO["planar"], GEO["width"], GEO["area0"], GEO["area_mould"]
+G_GAP0, G_GAP_FULL, G_F_LIM, G_HOLD = GEO["gap0"], GEO["gap_full"], GEO["force_limit"], GEO["hold"]
+G_SPEED, G_JUMP, G_SHAPE_W, G_FILL0 = GEO["speed"], GEO["jump_time"], GEO["shape_weight"], GEO["fill0"]
+G_T_MOULD = GEO["T_mould"]
+# row state
+S_T, S_GAP, S_AREA, S_DELTA = STATE["t"], STATE["gap"], STATE["area"], STATE["delta"]
+S_PHASE, S_SWITCH, S_TEMP, S_CURE = STATE["phase"], STATE["switch"], STATE["temperature"], STATE["cure"]
+N_STATE = len(STATE)
+N_REC = 6
+"""node records: time, gap, area, force, deflection, solid"""
 
 
 @_jit
@@ -66,7 +124,7 @@ def _shape(area: float, geo: Array, sx: Array, low: Array, high: Array) -> float
     """layout.square_charge_factor at the fill area / area_mould; 1 when no table."""
     if sx.size == 0:
         return 1.0
-    fill, fill0, w = area / geo[3], geo[11], geo[10]
+    fill, fill0, w = area / geo[G_AREA_M], geo[G_FILL0], geo[G_SHAPE_W]
     u = min(max((fill - fill0) / max(1.0 - fill0, 1e-12), 0.0), 1.0)
     x = -math.log10(max(1.0 - u, 1e-12))
     return math.exp((1.0 - w) * math.log(_interp(x, sx, low)) + w * math.log(_interp(x, sx, high)))
@@ -89,43 +147,28 @@ def _shear_at(shear: Array, j: int, cure: float, ln_r: float) -> float:
 def _viscosity(st: Array, rp: Array, geo: Array) -> tuple[float, float]:
     """(viscosity factor, cure factor) of the heating and curing effects."""
     eta_f, cure = 1.0, 1.0
-    if rp[7] > 0:
-        eta_f = math.exp(rp[10] * (1.0 / st[6] - 1.0 / geo[12]))
-    if rp[11] > 0:
-        alpha, alpha_g = st[7], rp[16]
-        g = alpha_g - alpha
-        factor = (alpha_g / g) ** (rp[14] + rp[15] * alpha) if g > 0 else _INF
-        cure = min(factor, MAX_CURE_FACTOR)
+    if rp[R_HEAT_ON] > 0:
+        eta_f = _arrhenius(st[S_TEMP], geo[G_T_MOULD], rp[R_T_B])
+    if rp[R_CURE_ON] > 0:
+        cure = _cure_factor(st[S_CURE], rp[R_ALPHA_G], rp[R_C1], rp[R_C2], MAX_CURE_FACTOR)
     return eta_f, cure
-
-
-@_jit
-def _cure_rate(alpha: float, k1: float, k2: float) -> float:
-    a = min(max(alpha, 0.0), 1.0)
-    u = 1.0 - a
-    return (k1 + k2 * a) * (u * u)
 
 
 @_jit
 def _advance_state(st: Array, gap: float, dt: float, rp: Array, geo: Array) -> None:
     """EffectStack.advance of heating and curing over ``dt`` at the step's start gap."""
-    T = st[6]
-    if rp[11] > 0:
-        shift = math.exp(-CURE_E / GAS_CONSTANT * (1.0 / T - 1.0 / geo[12])) if rp[7] > 0 else 1.0
-        k1, k2 = rp[12] * shift, rp[13] * shift
-        n_sub = max(min(math.ceil(dt * (k1 + k2) / RK4_STEP), 50.0), 1.0)
+    T = st[S_TEMP]
+    if rp[R_CURE_ON] > 0:
+        shift = _cure_shift(T, geo[G_T_MOULD]) if rp[R_HEAT_ON] > 0 else 1.0
+        k1, k2 = rp[R_K1] * shift, rp[R_K2] * shift
+        n_sub = _cure_substeps(dt, k1, k2)
         h = dt / n_sub
-        alpha = st[7]
+        alpha = st[S_CURE]
         for _ in range(int(n_sub)):
-            r1 = _cure_rate(alpha, k1, k2)
-            r2 = _cure_rate(alpha + 0.5 * h * r1, k1, k2)
-            r3 = _cure_rate(alpha + 0.5 * h * r2, k1, k2)
-            r4 = _cure_rate(alpha + h * r3, k1, k2)
-            alpha = min(alpha + (h / 6.0) * (r1 + 2.0 * (r2 + r3) + r4), 1.0)
-        st[7] = alpha
-    if rp[7] > 0:
-        tau_h = gap**2 / (math.pi**2 * rp[9])
-        st[6] = geo[12] + (T - geo[12]) * math.exp(-dt / tau_h)
+            alpha = _cure_rk4_step(alpha, k1, k2, h)
+        st[S_CURE] = alpha
+    if rp[R_HEAT_ON] > 0:
+        st[S_TEMP] = _relax_temperature(T, geo[G_T_MOULD], gap, rp[R_KAPPA], dt)
 
 
 @_jit
@@ -134,7 +177,7 @@ def _build(tau: Array, slip: Array, shear: Array, eta0: float, cure: float, gap:
            force: Array) -> tuple[float, float, float]:
     """FlowTable.build (+ scaled) into ``q, cum, force`` ``(M,)``; returns (scale, kin, p)."""
     M = tau.size
-    planar = geo[0] > 0.5
+    planar = geo[G_PLANAR] > 0.5
     p = 2.0 if planar else 3.0
     ln_r = math.log(tau[1] / tau[0])
     for j in range(M):
@@ -156,8 +199,8 @@ def _build(tau: Array, slip: Array, shear: Array, eta0: float, cure: float, gap:
     for j in range(1, M):
         cum[j] += tail
     if planar:
-        length = area / (2.0 * geo[1])
-        scale, kin = 2.0 * geo[1] * length**2 / gap, length
+        length = area / (2.0 * geo[G_WIDTH])
+        scale, kin = 2.0 * geo[G_WIDTH] * length**2 / gap, length
     else:
         length = math.sqrt(area / math.pi)
         scale, kin = (2.0 * math.pi / 3.0) * length**3 / gap, 0.5 * length
@@ -206,29 +249,20 @@ def _solve(tau: Array, q: Array, cum: Array, force: Array, scale: float, kin: fl
 
 
 @_jit
-def _compaction_at(solid: float, rp: Array) -> float:
-    """compaction_pressure P_c(s) (Pa) of the compressibility effect (no end-of-range cut)."""
-    s0 = rp[0]
-    if s0 >= 1.0 or solid >= 1.0:
-        return _INF
-    grow = max(solid / s0, 1.0) ** rp[2] - 1.0
-    return max(rp[1] * grow * (1.0 - s0) / (1.0 - solid), 0.0)
-
-
-@_jit
 def _compaction(gap: float, area: float, dt: float, rp: Array, geo: Array) -> tuple[float, float, float]:
     """march._compaction for one row: (P_c, zeta, zeta_eff); (inf, 0, 0) if incompressible."""
-    s0 = rp[0]
+    s0 = rp[R_SOLID0]
     if s0 >= 1.0:
         return _INF, 0.0, 0.0
-    solid = min(s0 * geo[4] * geo[2] / (gap * area), 1.0)
-    pc = _compaction_at(solid, rp)
+    k_c, b = rp[R_K_C], rp[R_B]
+    solid = min(s0 * geo[G_GAP0] * geo[G_AREA0] / (gap * area), 1.0)
+    pc = _compaction_pressure(solid, s0, k_c, b)
     if solid >= 1.0 - 1e-9:
         pc = _INF
     ds = 1e-6 * (1.0 - solid)
-    pc_up = _compaction_at(solid + ds, rp)
+    pc_up = _compaction_pressure(solid + ds, s0, k_c, b)
     stiff = solid * (pc_up - pc) / ds if math.isfinite(pc) and math.isfinite(pc_up) else _INF
-    return pc, rp[3], rp[3] + dt * stiff
+    return pc, rp[R_ZETA], rp[R_ZETA] + dt * stiff
 
 
 @_jit
@@ -238,14 +272,14 @@ def _evaluate(st: Array, dt: float, tau: Array, slip: Array, shear: Array, eta0:
     """march._evaluate for one row.
 
     Returns (force N, gap speed V, spreading speed V_s, ram speed (m/s), balance force N)."""
-    t, gap, area, delta = st[0], st[1], st[2], st[3]
-    a_m, f_lim = geo[3], geo[6]
+    t, gap, area, delta = st[S_T], st[S_GAP], st[S_AREA], st[S_DELTA]
+    a_m, f_lim = geo[G_AREA_M], geo[G_F_LIM]
     full = area >= a_m * (1.0 - 1e-12)
-    fc = st[4] == PHASE_FORCE
-    compressible = rp[0] < 1.0
+    fc = st[S_PHASE] == PHASE_FORCE
+    compressible = rp[R_SOLID0] < 1.0
     pc, zeta, zeta_eff = _compaction(gap, area, dt, rp, geo)
-    free = geo[8] * -math.expm1(-t / rp[5]) if rp[5] > 0.0 else geo[8]
-    a0 = rp[4] / dt + free * rp[6] / f_lim
+    free = _ramp_speed(geo[G_SPEED], t, rp[R_T_RAMP]) if rp[R_RAMP_ON] > 0 else geo[G_SPEED]
+    a0 = rp[R_INV_K] / dt + free * rp[R_BETA] / f_lim
     t0 = free + delta / dt
     force, speed, spread = f_lim, 0.0, 0.0
     balance = force
@@ -268,14 +302,14 @@ def _evaluate(st: Array, dt: float, tau: Array, slip: Array, shear: Array, eta0:
         spread = 0.0
     if fc:
         balance = force
-    return force, speed, spread, free * (1.0 - rp[6] * balance / f_lim), balance
+    return force, speed, spread, free * (1.0 - rp[R_BETA] * balance / f_lim), balance
 
 
 @_jit
 def _packing(gap: float, pc: float, zeta: float, zeta_eff: float, a0: float, t0: float,
              geo: Array) -> tuple[float, float, float]:
     """march._packing for one row: (force, balance force, closing speed)."""
-    a_m = geo[3]
+    a_m = geo[G_AREA_M]
     v = _nmax((t0 - a0 * a_m * pc) / (1.0 + a0 * a_m * zeta_eff / gap), 0.0)
     if not math.isfinite(v):
         v = 0.0
@@ -309,8 +343,8 @@ def _speed_control(tau: Array, q: Array, cum: Array, force_t: Array, scale: floa
 def _advance(st: Array, balance: float, speed: float, spread: float, dt: float, rp: Array,
              geo: Array) -> None:
     """march._advance for one active row, in place."""
-    a_m = geo[3]
-    gap0, area0 = st[1], st[2]
+    a_m = geo[G_AREA_M]
+    gap0, area0 = st[S_GAP], st[S_AREA]
     gap = gap0 - speed * dt
     ratio = spread / speed if speed > 0 else 0.0
     area = area0 * (gap0 / gap) ** ratio
@@ -320,70 +354,110 @@ def _advance(st: Array, balance: float, speed: float, spread: float, dt: float, 
         dt = (gap0 - gap) / speed
         area = a_m
     area = min(area, a_m)
-    s0 = rp[0]
-    mass = s0 * geo[4] * geo[2]
+    s0 = rp[R_SOLID0]
+    mass = s0 * geo[G_GAP0] * geo[G_AREA0]
     if s0 < 1.0 and gap * area < mass and ratio < 1.0:
         gap_s1 = (mass / (area0 * gap0**ratio)) ** (1.0 / (1.0 - ratio))
         area = min(area0 * (gap0 / gap_s1) ** ratio, a_m)
         dt = min(max((gap0 - gap_s1) / speed, 0.0), dt)
         gap = gap_s1
-    st[0] += dt
-    st[1], st[2] = gap, area
+    st[S_T] += dt
+    st[S_GAP], st[S_AREA] = gap, area
     _advance_state(st, gap0, dt, rp, geo)
-    if st[4] != PHASE_FORCE:
-        st[3] = balance * rp[4]
+    if st[S_PHASE] != PHASE_FORCE:
+        st[S_DELTA] = balance * rp[R_INV_K]
         if fills and s0 < 1.0:
-            st[4] = PHASE_FULL
+            st[S_PHASE] = PHASE_FULL
 
 
 @_jit
 def _switch(st: Array, prev: Array, prev_force: float, force: float, first: bool, rp: Array,
             geo: Array) -> bool:
     """march._switch for one row, in place; True if the row switched."""
-    f_lim = geo[6]
-    if st[4] == PHASE_FORCE or not force >= f_lim:
+    f_lim = geo[G_F_LIM]
+    if st[S_PHASE] == PHASE_FORCE or not _reaches_limit(force, f_lim):
         return False
     if not first:
-        theta = (f_lim - prev_force) / (force - prev_force)
-        if math.isinf(force) or theta != theta:
-            theta = 1.0
-        theta = min(max(theta, 0.0), 1.0)
-        for i in (0, 1, 3, 6, 7):
+        theta = _crossing(prev_force, force, f_lim)
+        for i in INTERPOLATED:
             st[i] = prev[i] + theta * (st[i] - prev[i])
-        st[2] = prev[2] * (st[2] / prev[2]) ** theta
-    st[4] = PHASE_FORCE
-    st[5] = st[0]
-    st[3] = f_lim * rp[4]
+        st[S_AREA] = prev[S_AREA] * (st[S_AREA] / prev[S_AREA]) ** theta
+    st[S_PHASE] = PHASE_FORCE
+    st[S_SWITCH] = st[S_T]
+    st[S_DELTA] = f_lim * rp[R_INV_K]
     return True
 
 
 @_jit
-def _hold_step(st: Array, speed: float, dt0: float, travel: float, hold_steps: int, steps: int,
-               hold: float) -> float:
-    """Force-controlled step of march._step_size: geometric schedule capped in gap change."""
-    ratio = max(hold / dt0, 1.0 + 1e-9)
-    elapsed = max(st[0] - st[5], 0.0)
-    node = hold_steps * math.log(max(elapsed, dt0 * 1e-3) / dt0) / math.log(ratio)
-    if node != node:
-        node = -1.0
-    k = min(max(math.floor(node + HOLD_NODE_TOL) + 1.0, 0.0), float(hold_steps))
-    target = st[5] + dt0 * ratio ** (k / hold_steps)
-    dt = min(target, st[5] + hold) - st[0]
-    cap = travel / steps / speed if speed > 0 else _INF
-    return max(min(dt, cap), 1e-12)
+def _start(st: Array, rp: Array, geo: Array) -> None:
+    """State of a row at first contact."""
+    st[:] = 0.0
+    st[S_GAP], st[S_AREA], st[S_PHASE], st[S_SWITCH] = geo[G_GAP0], geo[G_AREA0], PHASE_FLOW, _NAN
+    st[S_TEMP], st[S_CURE] = rp[R_T0], rp[R_ALPHA0]
 
 
 @_jit
-def _stretch(ram: float, force_rate: float, ram_rate: float, v_ref: float, t_close: float,
-             f_lim: float, travel: float) -> float:
-    """march._closing_step's stretch factor."""
-    rate = _nmax(_nmax(ram / travel, ram_rate * t_close) / v_ref, force_rate * t_close / f_lim)
-    inv = 1.0 / rate
-    if inv != inv:
-        inv = 1.0
-    elif math.isinf(inv):
-        inv = MAX_STRETCH
-    return min(max(inv, 1.0), MAX_STRETCH)
+def _record(rec: Array, r: int, it: int, st: Array, force: float, rp: Array, geo: Array) -> None:
+    """Node ``it`` of row ``r``: time, gap, area, force, deflection, solid fraction."""
+    rec[0, r, it], rec[1, r, it], rec[2, r, it] = st[S_T], st[S_GAP], st[S_AREA]
+    rec[3, r, it], rec[4, r, it] = force, force * rp[R_INV_K]
+    s0 = min(rp[R_SOLID0], 1.0)
+    rec[5, r, it] = s0 * geo[G_GAP0] * geo[G_AREA0] / (st[S_GAP] * st[S_AREA])
+
+
+@_jit
+def _rate(value: float, prev: float, elapsed: float) -> float:
+    """|value - prev| / elapsed; NaN (no change) or inf when no time elapsed."""
+    if elapsed > 0:
+        return abs(value - prev) / elapsed
+    return _NAN if value == prev else _INF
+
+
+@_jit
+def _march_row(r: int, tau: Array, slip: Array, shear: Array, eta0: float, rp: Array, geo: Array,
+               sx: Array, low: Array, high: Array, steps: int, hold_steps: int, rec: Array,
+               work: Array) -> tuple[int, bool, float]:
+    """march.march for row ``r``: fills ``rec[:, r]``; returns (valid nodes, finished,
+    switch time (s))."""
+    q, cum, force_t = work[0], work[1], work[2]
+    st, prev = np.empty(N_STATE), np.empty(N_STATE)
+    s0 = min(rp[R_SOLID0], 1.0)
+    gap_end = s0 * geo[G_GAP_FULL]
+    travel = geo[G_GAP0] - gap_end
+    v_ref, f_lim, hold = geo[G_SPEED], geo[G_F_LIM], geo[G_HOLD]
+    dt0 = travel / (v_ref * steps)
+    t_close = dt0 * steps
+    ram_travel = 1.0 + f_lim * rp[R_INV_K] / travel
+    _start(st, rp, geo)
+    prev[:] = st
+    prev_force, prev_ram, closing = 0.0, 0.0, dt0
+    for it in range(rec.shape[2]):
+        out = _evaluate(st, closing, tau, slip, shear, eta0, rp, geo, sx, low, high, q, cum, force_t)
+        if _switch(st, prev, prev_force, out[0], it == 0, rp, geo):
+            out = _evaluate(st, closing, tau, slip, shear, eta0, rp, geo, sx, low, high, q, cum, force_t)
+        force, speed, spread, ram, balance = out
+        _record(rec, r, it, st, force, rp, geo)
+        fc = st[S_PHASE] == PHASE_FORCE
+        jump = _fills_and_stops(s0 >= 1.0, st[S_AREA], geo[G_AREA_M], fc)
+        if jump:
+            st[S_T] += geo[G_JUMP]
+            st[S_PHASE] = PHASE_FORCE
+            st[S_SWITCH] = st[S_T]
+        elif fc and _hold_over(st[S_T], st[S_SWITCH], hold):
+            return it + 1, True, st[S_SWITCH]
+        if st[S_PHASE] == PHASE_FORCE and hold > 0:
+            dt = _hold_step(st[S_T], st[S_SWITCH], speed, dt0, hold, float(hold_steps), travel / steps)
+        else:
+            dt = closing
+        elapsed = st[S_T] - prev[S_T] if st[S_T] > prev[S_T] else 0.0
+        force_rate, ram_rate = _rate(force, prev_force, elapsed), _rate(ram, prev_ram, elapsed)
+        prev[:] = st
+        prev_force, prev_ram = force, ram
+        if not jump:
+            _advance(st, balance, speed, spread, dt, rp, geo)
+        closing = min(max(dt0 * _stretch(ram, force_rate, ram_rate, ram_travel, t_close, v_ref, f_lim),
+                          closing / STEP_GROWTH), closing * STEP_GROWTH)
+    return rec.shape[2], False, st[S_SWITCH]
 
 
 @_jit
@@ -398,60 +472,15 @@ def march_rows(tau: Array, slip: Array, shear: Array, eta0: Array, rp: Array, ge
         switch time (s) and finished flag per row.
     """
     P, M = slip.shape
-    rec = np.empty((6, P, max_iter))
+    rec = np.empty((N_REC, P, max_iter))
     count = np.zeros(P, dtype=np.int64)
     switch = np.full(P, _NAN)
     done = np.zeros(P, dtype=np.bool_)
-    q, cum, force_t = np.empty(M), np.empty(M), np.empty(M)
-    gap0, area0, f_lim, hold, v_ref = geo[4], geo[2], geo[6], geo[7], geo[8]
-    st, prev = np.empty(8), np.empty(8)
+    work = np.empty((3, M))
     for r in range(P):
-        s0 = min(rp[r, 0], 1.0)
-        gap_end = s0 * geo[5]
-        dt0 = (gap0 - gap_end) / (v_ref * steps)
-        t_close = dt0 * steps
-        travel = 1.0 + f_lim * rp[r, 4] / (gap0 - gap_end)
-        st[0], st[1], st[2], st[3], st[4], st[5] = 0.0, gap0, area0, 0.0, PHASE_FLOW, _NAN
-        st[6], st[7] = rp[r, 8], 0.0
-        prev[:] = st
-        prev_force, prev_ram, closing = 0.0, 0.0, dt0
-        last = 0
-        for it in range(max_iter):
-            force, speed, spread, ram, balance = _evaluate(st, closing, tau, slip[r], shear[r], eta0[r],
-                                                           rp[r], geo, sx, low, high, q, cum, force_t)
-            if _switch(st, prev, prev_force, force, it == 0, rp[r], geo):
-                force, speed, spread, ram, balance = _evaluate(st, closing, tau, slip[r], shear[r],
-                                                               eta0[r], rp[r], geo, sx, low, high, q,
-                                                               cum, force_t)
-            rec[0, r, it], rec[1, r, it], rec[2, r, it] = st[0], st[1], st[2]
-            rec[3, r, it], rec[4, r, it] = force, force * rp[r, 4]
-            rec[5, r, it] = s0 * gap0 * area0 / (st[1] * st[2])
-            last = it
-            count[r] = it + 1
-            jump = s0 >= 1.0 and st[2] >= geo[3] * (1 - 1e-12) and st[4] != PHASE_FORCE
-            if jump:
-                st[0] += geo[9]
-                st[4] = PHASE_FORCE
-                st[5] = st[0]
-            elif st[4] == PHASE_FORCE and st[0] >= st[5] + hold - 1e-9:
-                done[r] = True
-                break
-            if st[4] == PHASE_FORCE and hold > 0:
-                dt = _hold_step(st, speed, dt0, gap0 - gap_end, hold_steps, steps, hold)
-            else:
-                dt = closing
-            elapsed = st[0] - prev[0] if st[0] > prev[0] else 0.0
-            force_rate = abs(force - prev_force) / elapsed if elapsed > 0 else (
-                _NAN if force == prev_force else _INF)
-            ram_rate = abs(ram - prev_ram) / elapsed if elapsed > 0 else (
-                _NAN if ram == prev_ram else _INF)
-            prev[:] = st
-            prev_force, prev_ram = force, ram
-            if not jump:
-                _advance(st, balance, speed, spread, dt, rp[r], geo)
-            closing = min(max(dt0 * _stretch(ram, force_rate, ram_rate, v_ref, t_close, f_lim, travel),
-                              closing / STEP_GROWTH), closing * STEP_GROWTH)
-        switch[r] = st[5]
-        for k in range(6):
-            rec[k, r, last + 1:] = rec[k, r, last]
+        n, finished, t_switch = _march_row(r, tau, slip[r], shear[r], eta0[r], rp[r], geo, sx, low, high,
+                                           steps, hold_steps, rec, work)
+        count[r], done[r], switch[r] = n, finished, t_switch
+        for k in range(N_REC):
+            rec[k, r, n:] = rec[k, r, n - 1]
     return rec, count, switch, done

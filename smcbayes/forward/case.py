@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from smcbayes.config import ConfigurationSpec
 from smcbayes.errors import ConfigError
-from smcbayes.forward.layout import union_area
+from smcbayes.forward.layout import square_charge_factor, union_area
 from smcbayes.units import KN, MM, G, celsius_to_kelvin
 
 Array = NDArray[np.float64]
@@ -165,3 +165,18 @@ def _layout_pieces(spec: ConfigurationSpec) -> tuple[tuple[float, float, float, 
                               f"{spec.mould.width_mm:g} mm mould; centres are relative to the mould centre")
         out.append((x, y, lx, ly))
     return tuple(out)
+
+
+def shape_factor(case: Case, area: Array) -> Array | None:
+    """Force factor of the equal-area disc of a centred square charge, or None.
+
+    Applies to a single centred piece in a square mould (see
+    :func:`~smcbayes.forward.layout.square_charge_factor`; measured against the 2-D solver).
+    """
+    pieces = getattr(case, "pieces", ())
+    if case.planar or abs(case.mould_length - case.width) > 1e-12 or len(pieces) != 1:
+        return None
+    piece = pieces[0]
+    if abs(piece[0]) > 1e-12 or abs(piece[1]) > 1e-12 or abs(piece[2] - piece[3]) > 1e-12:
+        return None
+    return square_charge_factor(area / case.area_mould, case.area0 / case.area_mould)

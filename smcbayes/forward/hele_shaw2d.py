@@ -44,43 +44,12 @@ from smcbayes.forward.nodes import Nodes, to_result
 from smcbayes.forward.result import SimulationResult
 from smcbayes.forward.spill2d import spill
 from smcbayes.forward.squeeze1d import material_table
-from smcbayes.forward.stepper2d import Law, Run, Stepper
+from smcbayes.forward.stepper2d import HeleShaw2DOptions, Law, Run, Stepper
 
 __all__ = ["FillHistory", "HeleShaw2D", "HeleShaw2DOptions", "cell_compaction", "make_grid", "spill", "whole_mould"]
 
 Array = NDArray[np.float64]
 SUPPORTED_EFFECTS = ("compressibility",)
-
-
-@dataclass(frozen=True)
-class HeleShaw2DOptions:
-    """Discretisation of the 2-D solver.
-
-    Attributes:
-        cells: cells along the longer mould side (whole mould; rounded up to even).
-        courant: largest share of a cell's capacity a front cell may gain per step.
-        closing_steps: minimum steps over the speed-controlled closing.
-        hold_steps: minimum steps over the force-controlled closing.
-        per_decade, tau_min_Pa, tau_max_Pa: stress grid of the flux table.
-        output_closing_points, output_hold_points: samples per output curve.
-        jump_time_s: time for the force to reach the limit once the cavity is full.
-        snapshots: number of fill-fraction fields kept per run (evenly spaced in time over
-            the closing, plus the switch instant).
-        use_symmetry: solve a half or quarter mould where the layout allows.
-    """
-
-    cells: int = 48
-    courant: float = 0.5
-    closing_steps: int = 100
-    hold_steps: int = 40
-    per_decade: int = 12
-    tau_min_Pa: float = 1e-2
-    tau_max_Pa: float = 1e9
-    output_closing_points: int = 200
-    output_hold_points: int = 50
-    jump_time_s: float = 0.05
-    snapshots: int = 5
-    use_symmetry: bool = True
 
 
 @dataclass

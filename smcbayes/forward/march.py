@@ -30,21 +30,22 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from smcbayes.forward.case import Case
+from smcbayes.forward.case import Case, shape_factor
 from smcbayes.forward.effects.base import EffectStack
 from smcbayes.forward.flux import FlowTable, MaterialTable
 from smcbayes.forward.nodes import Nodes
+from smcbayes.forward.programme import (
+    MAX_STRETCH,
+    STEP_GROWTH,
+    MarchOptions,
+    PressProgramme,
+    closing_stretch,
+    fills_and_stops,
+    hold_step,
+)
 from smcbayes.forward.result import PHASE_FLOW, PHASE_FORCE, PHASE_FULL, STATUS_OK
-from smcbayes.forward.squeeze1d import shape_factor
 
 Array = NDArray[np.float64]
-
-MAX_STRETCH = 4.0
-"""largest speed-controlled step, in nominal steps (see :func:`_closing_step`)"""
-STEP_GROWTH = 1.2
-"""largest ratio of consecutive speed-controlled steps"""
-HOLD_NODE_TOL = 1e-6
-"""distance (in schedule nodes) within which a time counts as on a hold-schedule node"""
 
 
 @dataclass
@@ -94,6 +95,7 @@ class _Context:
     """Everything constant over a run."""
 
     case: Case
+    press: PressProgramme
     p: dict[str, Array]
     effects: EffectStack
     table: MaterialTable
@@ -239,7 +241,8 @@ def _packing(ctx: _Context, st: _State, pc: Array, zeta: Array, zeta_eff: Array,
 
 
 def _setup(case: Case, p: dict[str, Array], effects: EffectStack, table: MaterialTable,
-           steps: int, shape_correction: bool = True) -> _Context:
+           options: MarchOptions) -> _Context:
+    steps = options.closing_steps
     P = p["n"].shape[0]
     s0 = effects.solid_fraction0(case, p, P)
     solid0 = np.ones(P) if s0 is None else np.minimum(np.asarray(s0, float), 1.0)
@@ -249,9 +252,10 @@ def _setup(case: Case, p: dict[str, Array], effects: EffectStack, table: Materia
     v_ref = case.speed if case.profile is None else case.profile.position[-1] / case.profile.time[-1]
     dt_close = (case.gap0 - gap_end) / (v_ref * steps)
     inv_k = effects.compliance(case, p, P)
-    return _Context(case, p, effects, table, solid0, compressible,
-                    inv_k, dt_close, gap_end, v_ref, dt_close * steps,
-                    1.0 + case.force_limit * inv_k / (case.gap0 - gap_end), shape_correction)
+    return _Context(case, PressProgramme.of(case, options.jump_time_s), p, effects, table, solid0,
+                    compressible, inv_k, dt_close, gap_end, v_ref, dt_close * steps,
+                    1.0 + case.force_limit * inv_k / (case.gap0 - gap_end),
+                    getattr(options, "shape_correction", True))
 
 
 def _closing_step(ctx: _Context, ram: Array, force_rate: Array, ram_rate: Array) -> Array:
@@ -269,32 +273,21 @@ def _closing_step(ctx: _Context, ram: Array, force_rate: Array, ram_rate: Array)
     values over the last step (inf or NaN: none yet).
     """
     with np.errstate(divide="ignore", invalid="ignore"):
-        rate = np.maximum(np.maximum(ram / ctx.travel, ram_rate * ctx.t_close) / ctx.v_ref,
-                          force_rate * ctx.t_close / ctx.case.force_limit)
-        stretch = np.clip(np.nan_to_num(1.0 / rate, nan=1.0, posinf=MAX_STRETCH), 1.0, MAX_STRETCH)
+        stretch = closing_stretch(ram, force_rate, ram_rate, ctx.travel, ctx.t_close, ctx.v_ref,
+                                  ctx.press.force_limit)
     return ctx.dt_close * stretch
 
 
 def _step_size(ctx: _Context, st: _State, speed: Array, hold_steps: int, steps: int,
                closing: Array) -> Array:
-    """``closing`` (s) under speed control; geometric hold schedule capped in gap change."""
-    c = ctx.case
-    dt0 = ctx.dt_close
-    fc = st.phase == PHASE_FORCE
-    if c.hold <= 0:
+    """``closing`` (s) under speed control; under force control the hold schedule of
+    :func:`~smcbayes.forward.programme.hold_step`, capped in gap change."""
+    if ctx.press.hold <= 0:
         return closing
-    ratio = np.maximum(c.hold / dt0, 1.0 + 1e-9)
-    elapsed = np.maximum(st.t - st.switch, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        node = hold_steps * np.log(np.maximum(elapsed, dt0 * 1e-3) / dt0) / np.log(ratio)
-    # a row sitting on a schedule node (to rounding) steps to the next one
-    k = np.clip(np.floor(np.nan_to_num(node, nan=-1.0) + HOLD_NODE_TOL) + 1, 0, hold_steps)
-    target = st.switch + dt0 * ratio ** (k / hold_steps)
-    dt_hold = np.minimum(target, st.switch + c.hold) - st.t
-    with np.errstate(divide="ignore"):
-        cap = np.where(speed > 0, (c.gap0 - ctx.gap_end) / steps / speed, np.inf)
-    dt_hold = np.maximum(np.minimum(dt_hold, cap), 1e-12)
-    return np.where(fc, dt_hold, closing)
+        dt_hold = hold_step(st.t, st.switch, speed, ctx.dt_close, ctx.press.hold, float(hold_steps),
+                            (ctx.case.gap0 - ctx.gap_end) / steps)
+    return np.where(st.phase == PHASE_FORCE, dt_hold, closing)
 
 
 def _advance(ctx: _Context, st: _State, rates: _Rates, dt: Array, active: NDArray[np.bool_]) -> _State:
@@ -336,15 +329,13 @@ def _advance(ctx: _Context, st: _State, rates: _Rates, dt: Array, active: NDArra
 def _switch(ctx: _Context, st: _State, prev: _State, prev_force: Array, rates: _Rates,
             first: bool) -> NDArray[np.bool_]:
     """Move rows whose force passed the limit back to the crossing; returns those rows."""
-    c = ctx.case
-    hit = (st.phase != PHASE_FORCE) & (rates.force >= c.force_limit)
+    press = ctx.press
+    hit = (st.phase != PHASE_FORCE) & press.reaches_limit(rates.force)
     if not np.any(hit):
         return hit
     if not first:
         with np.errstate(divide="ignore", invalid="ignore"):
-            theta = (c.force_limit - prev_force) / (rates.force - prev_force)
-        # an infinite force is the pore-free state, where the step ended: switch there
-        theta = np.where(np.isinf(rates.force), 1.0, np.clip(np.nan_to_num(theta, nan=1.0), 0.0, 1.0))
+            theta = press.crossing(prev_force, rates.force)
         back = prev.copy()
         back.blend(st, theta, hit)
         for name in ("t", "gap", "area", "delta"):
@@ -353,12 +344,12 @@ def _switch(ctx: _Context, st: _State, prev: _State, prev_force: Array, rates: _
             st.extra[k] = np.where(hit, back.extra[k], st.extra[k])
     st.phase = np.where(hit, PHASE_FORCE, st.phase).astype(np.int8)
     st.switch = np.where(hit, st.t, st.switch)
-    st.delta = np.where(hit, c.force_limit * ctx.inv_k, st.delta)
+    st.delta = np.where(hit, press.force_limit * ctx.inv_k, st.delta)
     return hit
 
 
 def march(case: Case, p: dict[str, Array], effects: EffectStack, table: MaterialTable,
-          options: object) -> Nodes:
+          options: MarchOptions) -> Nodes:
     """Run the press programme for every parameter set; returns the node histories.
 
     Args:
@@ -369,7 +360,7 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
         options: :class:`~smcbayes.forward.squeeze1d.Squeeze1DOptions`.
     """
     steps, hold_steps = options.closing_steps, options.hold_steps
-    ctx = _setup(case, p, effects, table, steps, getattr(options, "shape_correction", True))
+    ctx = _setup(case, p, effects, table, options)
     P = p["n"].shape[0]
     st = _State(np.zeros(P), np.full(P, case.gap0), np.full(P, case.area0), np.zeros(P),
                 np.full(P, PHASE_FLOW, dtype=np.int8), np.full(P, np.nan),
@@ -386,12 +377,12 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
             rates = _evaluate(ctx, st, closing)
         _record(rec, ctx, st, rates.force)
         count[~done] = it + 1
-        jump = ~done & ~ctx.compressible & (st.area >= case.area_mould * (1 - 1e-12)) & (st.phase != PHASE_FORCE)
+        jump = ~done & fills_and_stops(~ctx.compressible, st.area, case.area_mould, st.phase == PHASE_FORCE)
         if np.any(jump):
-            st.t = np.where(jump, st.t + options.jump_time_s, st.t)
+            st.t = np.where(jump, st.t + ctx.press.jump_time, st.t)
             st.phase = np.where(jump, PHASE_FORCE, st.phase).astype(np.int8)
             st.switch = np.where(jump, st.t, st.switch)
-        done |= (st.phase == PHASE_FORCE) & (st.t >= st.switch + case.hold - 1e-9) & ~jump
+        done |= (st.phase == PHASE_FORCE) & ctx.press.hold_over(st.t, st.switch) & ~jump
         if done.all():
             break
         dt = _step_size(ctx, st, rates.speed, hold_steps, steps, closing)

@@ -23,13 +23,15 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from smcbayes.forward import laws
+
 Array = NDArray[np.float64]
 
 
 def zero_shear_viscosity(B: ArrayLike, T_b: ArrayLike, T: ArrayLike,
                          T_mould: ArrayLike) -> Array:
     """Arrhenius zero-shear viscosity eta0 (Pa s) at temperature ``T`` (K)."""
-    return np.asarray(B) * np.exp(np.asarray(T_b) * (1.0 / np.asarray(T) - 1.0 / np.asarray(T_mould)))
+    return np.asarray(B) * laws.arrhenius_factor(np.asarray(T), np.asarray(T_mould), np.asarray(T_b))
 
 
 def cure_factor(alpha: ArrayLike, alpha_g: ArrayLike, c1: ArrayLike, c2: ArrayLike) -> Array:
@@ -38,10 +40,9 @@ def cure_factor(alpha: ArrayLike, alpha_g: ArrayLike, c1: ArrayLike, c2: ArrayLi
     Infinite at and past gelation (alpha >= alpha_g).
     """
     alpha = np.asarray(alpha, dtype=float)
-    gap = np.asarray(alpha_g) - alpha
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = (np.asarray(alpha_g) / gap) ** (np.asarray(c1) + np.asarray(c2) * alpha)
-    return np.where(gap > 0, out, np.inf)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        return np.asarray(laws.cure_factor(alpha, np.asarray(alpha_g), np.asarray(c1),
+                                           np.asarray(c2), np.inf))
 
 
 def cross_viscosity(gdot: ArrayLike, eta0: ArrayLike, tau_star: ArrayLike, n: ArrayLike) -> Array:

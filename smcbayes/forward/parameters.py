@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from smcbayes.errors import ConfigError, closest
+from smcbayes.errors import ConfigError, SolverError, closest
 
 
 @dataclass(frozen=True)
@@ -173,8 +173,8 @@ class ParameterSpace:
         if theta is None:
             theta = np.array([[self.defaults()[p.name] for p in self.free]])
         theta = np.atleast_2d(np.asarray(theta, dtype=float))
-        if theta.shape[1] != self.dim:
-            raise ConfigError(
+        if theta.shape[1] != self.dim:  # vectors come from code (a sampler, a design)
+            raise SolverError(
                 f"parameter vectors have {theta.shape[1]} columns, expected {self.dim} "
                 f"({', '.join(self.free_names)})"
             )

@@ -27,11 +27,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.config import MaterialSpec
-from smcbayes.forward.case import Case
+from smcbayes.forward import march_compiled
+from smcbayes.forward.case import Case, shape_factor
 from smcbayes.forward.effects.base import EffectStack
 from smcbayes.forward.flux import FlowTable, MaterialTable, log_grid
+from smcbayes.forward.march import march
 from smcbayes.forward.nodes import Nodes, to_result
+from smcbayes.forward.programme import PressProgramme
 from smcbayes.forward.result import STATUS_OK, SimulationResult
+
+__all__ = ["Squeeze1D", "Squeeze1DOptions", "material_table", "shape_factor"]
 
 Array = NDArray[np.float64]
 
@@ -77,23 +82,6 @@ def material_table(p: dict[str, Array], material: MaterialSpec, tau: Array) -> M
                                p["tau_c"], p["m"], material.slip_threshold_exponent)
 
 
-def shape_factor(case: Case, area: Array) -> Array | None:
-    """Force factor of the equal-area disc of a centred square charge, or None.
-
-    Applies to a single centred piece in a square mould (see
-    :func:`~smcbayes.forward.layout.square_charge_factor`; measured against the 2-D solver).
-    """
-    pieces = getattr(case, "pieces", ())
-    if case.planar or abs(case.mould_length - case.width) > 1e-12 or len(pieces) != 1:
-        return None
-    piece = pieces[0]
-    if abs(piece[0]) > 1e-12 or abs(piece[1]) > 1e-12 or abs(piece[2] - piece[3]) > 1e-12:
-        return None
-    from smcbayes.forward.layout import square_charge_factor
-
-    return square_charge_factor(area / case.area_mould, case.area0 / case.area_mould)
-
-
 class Squeeze1D:
     """The 1-D solver plug-in: ``solve(case, params, effects, material) -> result``."""
 
@@ -103,6 +91,24 @@ class Squeeze1D:
         self.options = options or Squeeze1DOptions()
         o = self.options
         self.tau = log_grid(o.tau_min_Pa, o.tau_max_Pa, o.per_decade)
+        self.last_path = ""
+        """Path of the last :meth:`solve`: ``kinematic``, ``compiled`` or ``numpy``."""
+
+    def path(self, case: Case, effects: EffectStack) -> str:
+        """Path :meth:`solve` takes: ``kinematic`` (base model at a constant set speed),
+        ``compiled`` (marching in the numba kernel) or ``numpy`` (NumPy marching)."""
+        if not effects.effects and case.profile is None:
+            return "kinematic"
+        if self.options.compiled and march_compiled.supports(effects, case):
+            return "compiled"
+        return "numpy"
+
+    def slow_path(self, case: Case, effects: EffectStack) -> list[str]:
+        """What sends ``case`` to the NumPy marching path although compiled runs were
+        asked for (empty: nothing, or ``compiled=False``)."""
+        if self.path(case, effects) != "numpy" or not self.options.compiled:
+            return []
+        return march_compiled.unsupported(effects, case)
 
     def solve(self, case: Case, p: dict[str, Array], effects: EffectStack,
               material: MaterialSpec) -> SimulationResult:
@@ -115,14 +121,11 @@ class Squeeze1D:
             material: fixed material constants (slip coefficient and threshold exponent).
         """
         table = material_table(p, material, self.tau)
-        if effects.effects or case.profile is not None:
-            from smcbayes.forward import march_compiled
-            from smcbayes.forward.march import march
-
-            if self.options.compiled and march_compiled.supports(effects, case):
-                nodes = march_compiled.march_compiled(case, p, effects, table, self.options)
-            else:
-                nodes = march(case, p, effects, table, self.options)
+        self.last_path = self.path(case, effects)
+        if self.last_path == "compiled":
+            nodes = march_compiled.march_compiled(case, p, effects, table, self.options)
+        elif self.last_path == "numpy":
+            nodes = march(case, p, effects, table, self.options)
         else:
             nodes = self._kinematic(case, p, table)
         o = self.options
@@ -163,8 +166,9 @@ class Squeeze1D:
 
     def _kinematic(self, case: Case, p: dict[str, Array], table: MaterialTable) -> Nodes:
         o = self.options
+        press = PressProgramme.of(case, o.jump_time_s)
         P, N = p["n"].shape[0], o.closing_steps
-        V, F_lim, H0, H_end = case.speed, case.force_limit, case.gap0, case.gap_full
+        V, H0, H_end = press.speed, case.gap0, case.gap_full
         dt = (H0 - H_end) / (V * N)
         t = np.arange(N + 1) * dt
         H = np.broadcast_to(H0 - V * t, (P, N + 1)).copy()
@@ -172,17 +176,18 @@ class Squeeze1D:
         A = case.area0 * H0 / H
         eta0 = p["B"]
         F = self._solve_chunked(case, table, eta0, H, A, by_force=False)
-        over = F >= F_lim
+        over = press.reaches_limit(F)
         hit = over.any(axis=1)
         first = np.argmax(over, axis=1)
         prev = np.maximum(first - 1, 0)
         rows = np.arange(P)
         with np.errstate(divide="ignore", invalid="ignore"):
-            theta = (F_lim - F[rows, prev]) / (F[rows, first] - F[rows, prev])
-        theta = np.where(first == 0, 0.0, np.clip(np.nan_to_num(theta), 0.0, 1.0))
-        t_sw = np.where(hit, t[prev] + theta * dt * (first > 0), t[-1] + o.jump_time_s)
+            theta = press.crossing(F[rows, prev], F[rows, first])
+        theta = np.where(first == 0, 0.0, theta)
+        # a charge that fills the cavity before the limit stops the press there
+        t_sw = np.where(hit, t[prev] + theta * dt * (first > 0), t[-1] + press.jump_time)
         fc = self._force_controlled(case, table, eta0, np.where(hit, H0 - V * t_sw, H_end))
-        return self._assemble(case, t, H, A, F, hit, first, t_sw, fc)
+        return self._assemble(case, press, t, H, A, F, hit, first, t_sw, fc)
 
     def _force_controlled(self, case: Case, table: MaterialTable, eta0: Array,
                           gap_switch: Array) -> tuple[Array, Array]:
@@ -203,7 +208,8 @@ class Squeeze1D:
                                   np.cumsum(0.5 * (inv_v[:, 1:] + inv_v[:, :-1]) * dH, axis=1)], axis=1)
         return H, elapsed
 
-    def _assemble(self, case: Case, t: Array, H: Array, A: Array, F: Array, hit: NDArray[np.bool_],
+    def _assemble(self, case: Case, press: PressProgramme, t: Array, H: Array, A: Array, F: Array,
+                  hit: NDArray[np.bool_],
                   first: NDArray[np.int64], t_sw: Array, fc: tuple[Array, Array]) -> Nodes:
         """Concatenate speed-control nodes, the switch, force-control nodes and the hold end."""
         P, N1 = H.shape
@@ -212,7 +218,7 @@ class Squeeze1D:
         S = N1 + K + 2
         out = {k: np.zeros((P, S)) for k in ("t", "H", "A", "F")}
         count = np.zeros(P, dtype=np.int64)
-        F_lim, t_end = case.force_limit, t_sw + case.hold
+        F_lim, t_end = press.force_limit, t_sw + press.hold
         area_of = case.area0 * case.gap0
         for r in range(P):
             n_sc = first[r] if hit[r] else N1

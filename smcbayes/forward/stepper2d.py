@@ -17,7 +17,6 @@ step that the Courant, fill or compaction limits cut by more than 30 % is solved
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,11 +31,9 @@ from smcbayes.forward.compaction2d import (
     solid_inflow,
 )
 from smcbayes.forward.grid2d import FULL, Fluidity, Grid, PressureSolution, solve_pressure
+from smcbayes.forward.programme import PressProgramme
 from smcbayes.forward.result import STATUS_OK
 from smcbayes.forward.spill2d import spill_with
-
-if TYPE_CHECKING:
-    from smcbayes.forward.hele_shaw2d import HeleShaw2DOptions
 
 Array = NDArray[np.float64]
 RETRY = 0.7
@@ -54,6 +51,37 @@ MAX_NODES = 100_000
 """A run that needs more steps than this stops with :class:`SolverError` (never hangs)."""
 SNAP = 1e-4
 """Open capacity (in cells) below which a porous charge counts as filling the cavity."""
+
+
+@dataclass(frozen=True)
+class HeleShaw2DOptions:
+    """Discretisation of the 2-D solver.
+
+    Attributes:
+        cells: cells along the longer mould side (whole mould; rounded up to even).
+        courant: largest share of a cell's capacity a front cell may gain per step.
+        closing_steps: minimum steps over the speed-controlled closing.
+        hold_steps: minimum steps over the force-controlled closing.
+        per_decade, tau_min_Pa, tau_max_Pa: stress grid of the flux table.
+        output_closing_points, output_hold_points: samples per output curve.
+        jump_time_s: time for the force to reach the limit once the cavity is full.
+        snapshots: number of fill-fraction fields kept per run (evenly spaced in time over
+            the closing, plus the switch instant).
+        use_symmetry: solve a half or quarter mould where the layout allows.
+    """
+
+    cells: int = 48
+    courant: float = 0.5
+    closing_steps: int = 100
+    hold_steps: int = 40
+    per_decade: int = 12
+    tau_min_Pa: float = 1e-2
+    tau_max_Pa: float = 1e9
+    output_closing_points: int = 200
+    output_hold_points: int = 50
+    jump_time_s: float = 0.05
+    snapshots: int = 5
+    use_symmetry: bool = True
 
 
 @dataclass
@@ -115,6 +143,7 @@ class Stepper:
     def __init__(self, case: Case, grid: Grid, law: Law, options: HeleShaw2DOptions,
                  compaction: CellCompaction | None) -> None:
         self.case, self.grid, self.law, self.o, self.comp = case, grid, law, options, compaction
+        self.press = PressProgramme.of(case, options.jump_time_s)
         self.run = Run()
         self.guess: Array | None = None
         self.speed_guess: float | None = None
@@ -323,9 +352,9 @@ class Stepper:
     def speed_phase(self, st: State) -> tuple[State, Rates | None]:
         """Speed control until the force limit (returns the state and its rates there) or
         until the charge fills the cavity for good (returns the final state and None)."""
-        case = self.case
+        case, press = self.case, self.press
         r = self.rates(st, False)
-        while r is not None and r.force < case.force_limit:
+        while r is not None and not press.reaches_limit(r.force):
             dt, r2 = self.sized(st, r, self.dt_max, False)
             r = r2 if r2 is not None else r
             self.record(st, r.force)
@@ -333,13 +362,13 @@ class Stepper:
             new_r = self.rates(new, False)
             if new_r is None:  # full: the force jumps to the limit
                 self.record(new, r.force)
-                self.run.switch = new.t + self.o.jump_time_s
+                self.run.switch = new.t + press.jump_time
                 self.hold(new, self.run.switch)
                 return new, None
-            if new_r.force >= case.force_limit and self.comp is not None:
+            if press.reaches_limit(new_r.force) and self.comp is not None:
                 # the force there depends on the step of the semi-implicit compaction
                 new_r = self.sized(new, new_r, self.dt_max, False)[1] or new_r
-            if new_r.force >= case.force_limit:
+            if press.reaches_limit(new_r.force):
                 if np.all(new.h >= new.gap * FULL) and not np.all(st.h >= st.gap * FULL):
                     st, r = new, new_r  # the limit comes with the filling of the cavity
                 else:
@@ -349,7 +378,7 @@ class Stepper:
         if r is None:
             raise SolverError(f"configuration '{case.id}': the charge fills the cavity at first contact")
         self.run.switch = st.t
-        self.record(st, case.force_limit)
+        self.record(st, press.force_limit)
         return st, r
 
     def _locate_switch(self, st: State, r: Rates, dt: float, hi: Rates) -> tuple[State, Rates]:
@@ -375,7 +404,7 @@ class Stepper:
     def force_phase(self, st: State) -> None:
         """Force control from the switch state for the hold time."""
         case, run = self.case, self.run
-        t_end = run.switch + case.hold
+        t_end = run.switch + self.press.hold
         dH = max(st.gap - self.gap_end, 0.0) / self.o.hold_steps
         r = self.rates(st, True)
         while r is not None and st.t < t_end:
@@ -391,6 +420,6 @@ class Stepper:
         """Close the record with the force limit held until ``t_end`` (s)."""
         if t_end > self.run.t[-1] or self.run.force[-1] != self.case.force_limit:
             self.record(State(max(t_end, self.run.t[-1]), st.gap, st.h, st.sigma), self.case.force_limit)
-        if self.run.t[-1] < self.run.switch + self.case.hold:
-            self.record(State(self.run.switch + self.case.hold, st.gap, st.h, st.sigma),
+        if self.run.t[-1] < self.run.switch + self.press.hold:
+            self.record(State(self.run.switch + self.press.hold, st.gap, st.h, st.sigma),
                         self.case.force_limit)

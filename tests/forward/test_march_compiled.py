@@ -12,20 +12,25 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from smcbayes.config import ProjectConfig, load_project
+from smcbayes.errors import SlowPathWarning
 from smcbayes.forward import march_compiled
+from smcbayes.forward.effects.thermal import Heating
+from smcbayes.forward.kernel_layout import KERNEL_EFFECTS
 from smcbayes.forward.march import march
 from smcbayes.forward.model import ForwardModel
 from smcbayes.forward.parameters import to_si
 from smcbayes.forward.squeeze1d import material_table
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "thesis.toml"
-SUBSETS = [s for r in range(1, 6) for s in itertools.combinations(sorted(march_compiled.SUPPORTED), r)]
+SUPPORTED = sorted(cls.name for cls in KERNEL_EFFECTS)
+SUBSETS = [s for r in range(1, 6) for s in itertools.combinations(SUPPORTED, r)]
 # a bar and a centre charge with the square-charge correction
 CONFIGS = ("60-bar-03", "80-center-07")
 
@@ -64,9 +69,37 @@ def test_solver_takes_the_compiled_path_only_where_supported(project: ProjectCon
     assert march_compiled.supports(compiled.effects, compiled.cases["60-bar-03"])
     reference = ForwardModel(project, effects=["compressibility", "press_compliance"])
     reference.solver.options = dataclasses.replace(reference.solver.options, compiled=False)
+    runs = march_compiled.RUNS["compiled"]
     a = compiled.simulate(None, ["60-bar-03"])["60-bar-03"]
+    # the comparison below is only meaningful if the kernel ran, and ran only once
+    assert compiled.solver.last_path == "compiled"
+    assert march_compiled.RUNS["compiled"] == runs + 1
     b = reference.simulate(None, ["60-bar-03"])["60-bar-03"]
+    assert reference.solver.last_path == "numpy"
+    assert march_compiled.RUNS["compiled"] == runs + 1
     np.testing.assert_allclose(a.force_kN, b.force_kN, rtol=1e-9)
     np.testing.assert_allclose(a.displacement_mm, b.displacement_mm, rtol=1e-9)
     profiled = dataclasses.replace(compiled.cases["60-bar-03"], profile=object())
     assert not march_compiled.supports(compiled.effects, profiled)
+
+
+class _WarmCharge(Heating):
+    """A user's variant of a built-in effect: the kernel does not know its hooks."""
+
+    name = "warm_charge"
+
+
+def test_an_effect_unknown_to_the_kernel_runs_numpy_and_warns_once(project: ProjectConfig) -> None:
+    model = ForwardModel(project, effects=["heating"])
+    model.effects = type(model.effects)([_WarmCharge()])
+    assert not march_compiled.supports(model.effects, model.cases["60-bar-03"])
+    assert model.solver.slow_path(model.cases["60-bar-03"], model.effects) == ["effect 'warm_charge'"]
+    with pytest.warns(SlowPathWarning, match="warm_charge") as record:
+        model.warn_slow_path()
+    assert len(record) == 1 and "slower" in str(record[0].message)
+    model.simulate(None, ["60-bar-03"])
+    assert model.solver.last_path == "numpy"
+    model.solver.options = dataclasses.replace(model.solver.options, compiled=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SlowPathWarning)
+        model.warn_slow_path()  # asked for: no warning

@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 
 from smcbayes.config import MaterialSpec, ProjectConfig
 from smcbayes.forward.case import Case
-from smcbayes.forward.effects.base import EffectStack, get_effect
+from smcbayes.forward.effects import EffectStack, get_effect
 from smcbayes.forward.march import march
 from smcbayes.forward.model import ForwardModel
 from smcbayes.forward.nodes import Nodes

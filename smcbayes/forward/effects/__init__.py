@@ -4,13 +4,7 @@ Importing this package registers the built-in effects: ``compressibility``, ``he
 ``curing``, ``press_compliance`` and ``speed_ramp``.
 """
 
-from smcbayes.forward.effects import compressibility, press, thermal  # noqa: F401  (registration)
-from smcbayes.forward.effects.base import (
-    Effect,
-    EffectStack,
-    available,
-    get_effect,
-    register,
-)
+from smcbayes.forward.effects.base import Effect, EffectStack, register
+from smcbayes.forward.effects.registry import available, get_effect
 
 __all__ = ["Effect", "EffectStack", "available", "get_effect", "register"]

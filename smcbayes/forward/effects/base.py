@@ -14,7 +14,7 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from smcbayes.errors import ConfigError, closest
+from smcbayes.errors import ConfigError
 from smcbayes.forward.case import Case
 from smcbayes.forward.parameters import Parameter
 
@@ -29,6 +29,17 @@ class Effect:
     name: ClassVar[str] = ""
     description: ClassVar[str] = ""
     parameters: ClassVar[tuple[Parameter, ...]] = ()
+
+    kernel_slots: ClassVar[tuple[str, ...] | None] = None
+    """Symbols of the per-row parameters (SI) this effect hands to the compiled marching
+    kernel (:mod:`smcbayes.forward.kernel_layout`); None: the kernel does not implement
+    the effect, which then runs on the NumPy marching path."""
+    kernel_state: ClassVar[tuple[str, ...]] = ()
+    """Names of the state variables of :meth:`initial_state` the compiled kernel carries."""
+
+    def kernel_values(self, case: Case, p: Params, rows: int) -> dict[str, Array]:
+        """Values of :attr:`kernel_slots`, each ``(rows,)`` SI: the parameters themselves."""
+        return {name: np.broadcast_to(p[name], (rows,)).astype(float) for name in self.kernel_slots or ()}
 
     def initial_state(self, case: Case, p: Params, rows: int) -> State:
         """Extra state variables of this effect at first contact."""
@@ -71,20 +82,10 @@ def register(cls: type[Effect]) -> type[Effect]:
     return cls
 
 
-def available() -> dict[str, type[Effect]]:
-    """Registered effects by name."""
-    from smcbayes.forward import effects as _  # noqa: F401  (import registers the built-ins)
-
+def registered() -> dict[str, type[Effect]]:
+    """Effects registered so far, by name (the built-ins register when
+    :mod:`smcbayes.forward.effects` is imported; see :mod:`~smcbayes.forward.effects.registry`)."""
     return dict(_REGISTRY)
-
-
-def get_effect(name: str) -> Effect:
-    """Instantiate a registered effect; unknown names raise with the closest match."""
-    registry = available()
-    if name not in registry:
-        raise ConfigError(f"unknown effect '{name}'{closest(name, list(registry))}; "
-                          f"available: {', '.join(sorted(registry))}")
-    return registry[name]()
 
 
 class EffectStack:

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from smcbayes.errors import ConfigError
+from smcbayes.forward import laws
 from smcbayes.forward.case import Case
 from smcbayes.forward.effects.base import Array, Effect, Params, register
 from smcbayes.forward.parameters import Parameter
@@ -38,11 +39,10 @@ from smcbayes.units import G_CM3, MPA
 
 
 def compaction_pressure(solid: Array, solid0: Array, modulus: Array, exponent: Array) -> Array:
-    """P_c(s) (Pa): zero at s0, diverging as s -> 1; infinite where s0 >= 1 or s >= 1."""
+    """P_c(s) (Pa) of :func:`smcbayes.forward.laws.compaction_pressure`, arrays of one
+    shape: zero at s0, diverging as s -> 1; infinite where s0 >= 1 or s >= 1."""
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        grow = np.maximum(solid / solid0, 1.0) ** exponent - 1.0
-        out = modulus * grow * (1.0 - solid0) / (1.0 - solid)
-    return np.where((solid0 >= 1.0) | (solid >= 1.0), np.inf, np.maximum(out, 0.0))
+        return laws.compaction_pressure(solid, solid0, modulus, exponent)
 
 
 @register
@@ -62,6 +62,8 @@ class Compressibility(Effect):
         Parameter("bulk_viscosity_MPa_s", "bulk_viscosity", "MPa s", MPA, 0.0, 500.0, False, 0.0,
                   (-1e-300, np.inf), "bulk viscosity of compaction (0: rate-independent)"),
     )
+    # the initial solid fraction reaches the kernel through solid_fraction0
+    kernel_slots = ("compaction_modulus", "compaction_exponent", "bulk_viscosity")
 
     def solid_fraction0(self, case: Case, p: Params, rows: int) -> Array:
         if case.mass is None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from smcbayes.forward import laws
 from smcbayes.forward.case import Case
 from smcbayes.forward.effects.base import Array, Effect, Params, register
 from smcbayes.forward.parameters import Parameter
@@ -27,6 +28,7 @@ class PressCompliance(Effect):
         Parameter("k_press_kN_mm", "k_press", "kN/mm", 1e6, 50.0, 5000.0, True, 500.0,
                   (0.0, np.inf), "press frame stiffness"),
     )
+    kernel_slots = ()  # the kernel takes the compliance of the whole stack
 
     def compliance(self, case: Case, p: Params, rows: int) -> Array:
         return np.broadcast_to(1.0 / p["k_press"], (rows,)).astype(float)
@@ -44,7 +46,8 @@ class SpeedRamp(Effect):
         Parameter("load_slowdown", "load_slowdown", "-", 1.0, 0.0, 0.9, False, 0.2, (-1e-300, 1.0),
                   "fraction of the set speed lost at the force limit"),
     )
+    kernel_slots = ("ramp_time", "load_slowdown")
 
     def ram_speed(self, case: Case, p: Params, t: Array, v_set: Array) -> tuple[Array, Array]:
-        free = v_set * -np.expm1(-t / p["ramp_time"])
+        free = laws.ramp_speed(v_set, t, p["ramp_time"])
         return free, np.broadcast_to(p["load_slowdown"], t.shape).astype(float)

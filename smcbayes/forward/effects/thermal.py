@@ -23,19 +23,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from smcbayes.forward import laws
 from smcbayes.forward.case import Case
 from smcbayes.forward.effects.base import Array, Effect, Params, State, register
-from smcbayes.forward.material import cure_factor
+from smcbayes.forward.laws import CURE_E, GAS_CONSTANT, MAX_CURE_FACTOR, RK4_STEP
 from smcbayes.forward.parameters import Parameter
 from smcbayes.units import ZERO_C_K
 
-GAS_CONSTANT = 8.314462618
-"""J/(mol K)"""
-CURE_E = 60e3
-"""activation energy of the cure kinetics (J/mol); the orders are m_c = 1, n_c = 2"""
-RK4_STEP = 0.25
-"""largest sub-step of the cure integration, in units of 1 / (k1 + k2)"""
-MAX_CURE_FACTOR = 1e12  # past gelation the charge no longer flows; keep numbers finite
+__all__ = ["CURE_E", "GAS_CONSTANT", "MAX_CURE_FACTOR", "RK4_STEP", "Curing", "Heating",
+           "charge_temperature"]
 
 
 def charge_temperature(case: Case, state: State) -> Array | None:
@@ -57,18 +53,19 @@ class Heating(Effect):
         Parameter("T_b_K", "T_b", "K", 1.0, 1000.0, 15000.0, False, 5000.0, (0.0, 1e6),
                   "Arrhenius activation temperature of the zero-shear viscosity"),
     )
+    kernel_slots = ("diffusivity", "T_b")
+    kernel_state = ("temperature",)
 
     def initial_state(self, case: Case, p: Params, rows: int) -> State:
         return {"temperature": np.broadcast_to(p["T_start_C"] + ZERO_C_K, (rows,)).astype(float)}
 
     def advance(self, case: Case, p: Params, state: State, gap: Array, dt: Array) -> State:
-        tau_h = gap**2 / (np.pi**2 * p["diffusivity"])
-        T = state["temperature"]
-        return {"temperature": case.T_mould + (T - case.T_mould) * np.exp(-dt / tau_h)}
+        T = laws.mould_temperature_relaxation(state["temperature"], case.T_mould, gap, p["diffusivity"], dt)
+        return {"temperature": T}
 
     def viscosity_factors(self, case: Case, p: Params, state: State) -> tuple[Array, Array]:
         T = state["temperature"]
-        return np.exp(p["T_b"] * (1.0 / T - 1.0 / case.T_mould)), np.ones_like(T)
+        return laws.arrhenius_factor(T, case.T_mould, p["T_b"]), np.ones_like(T)
 
 
 @register
@@ -89,37 +86,26 @@ class Curing(Effect):
         Parameter("alpha_g", "alpha_g", "-", 1.0, 0.2, 0.9, False, 0.5, (0.0, 1.0),
                   "degree of cure at gelation"),
     )
+    kernel_slots = ("k1", "k2", "c1", "c2", "alpha_g")
+    kernel_state = ("cure",)
 
     def initial_state(self, case: Case, p: Params, rows: int) -> State:
         return {"cure": np.zeros(rows)}
 
     def advance(self, case: Case, p: Params, state: State, gap: Array, dt: Array) -> State:
         T = charge_temperature(case, state)
-        shift = 1.0 if T is None else np.exp(-CURE_E / GAS_CONSTANT * (1.0 / T - 1.0 / case.T_mould))
+        shift = 1.0 if T is None else laws.cure_rate_shift(T, case.T_mould)
         k1, k2 = p["k1"] * shift, p["k2"] * shift
         alpha = state["cure"]
-        # classical Runge-Kutta sub-steps with h (k1 + k2) <= 0.25 (local error ~1e-5 of
-        # the degree of cure); counted per row, so a row's result does not depend on the
-        # other rows of its batch
-        n_sub = np.minimum(np.ceil(dt * (k1 + k2) / RK4_STEP), 50.0)
-        n_sub = np.maximum(n_sub, 1.0)
+        n_sub = laws.cure_substeps(dt, k1, k2)
         h = dt / n_sub
+        # rows needing fewer sub-steps keep their value once done
         for i in range(int(np.max(n_sub, initial=1.0))):
-            r1 = _cure_rate(alpha, k1, k2)
-            r2 = _cure_rate(alpha + 0.5 * h * r1, k1, k2)
-            r3 = _cure_rate(alpha + 0.5 * h * r2, k1, k2)
-            r4 = _cure_rate(alpha + h * r3, k1, k2)
-            step = np.minimum(alpha + (h / 6.0) * (r1 + 2.0 * (r2 + r3) + r4), 1.0)
+            step = laws.cure_rk4_step(alpha, k1, k2, h)
             alpha = step if i == 0 else np.where(i < n_sub, step, alpha)
         return {"cure": alpha}
 
     def viscosity_factors(self, case: Case, p: Params, state: State) -> tuple[Array, Array]:
-        factor = cure_factor(state["cure"], p["alpha_g"], p["c1"], p["c2"])
-        return np.ones_like(factor), np.minimum(factor, MAX_CURE_FACTOR)
-
-
-def _cure_rate(alpha: Array, k1: Array, k2: Array) -> Array:
-    """Kamal-Sourour rate d alpha / dt (1/s) for m_c = 1, n_c = 2; all ``(P,)``."""
-    a = np.minimum(np.maximum(alpha, 0.0), 1.0)
-    u = 1.0 - a
-    return (k1 + k2 * a) * (u * u)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            factor = laws.cure_factor(state["cure"], p["alpha_g"], p["c1"], p["c2"], MAX_CURE_FACTOR)
+        return np.ones_like(factor), factor

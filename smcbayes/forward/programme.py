@@ -1,0 +1,148 @@
+"""The press programme and the marching step control, shared by every solver path.
+
+The press closes at the set speed until the force reaches the limit, then holds the force
+(force control) for the hold time; an incompressible charge that fills the cavity stops
+the press, and the force reaches the limit within ``jump_time``.  :class:`PressProgramme`
+holds these numbers; the functions below are its decisions.  They are plain functions of
+floats or of NumPy arrays (elementwise), built only from what numba compiles for scalars,
+so the 1-D kinematic path, the NumPy marching path, the compiled marching kernel and the
+2-D stepper all call the same code.
+
+The step control of the marching path (:func:`closing_stretch`, :func:`hold_step`) lives
+here too: the NumPy and the compiled marching paths share it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from smcbayes.forward.case import Case
+from smcbayes.forward.laws import select
+
+Array = NDArray[np.float64]
+X = TypeVar("X", float, Array)
+
+MAX_STRETCH = 4.0
+"""largest speed-controlled step, in nominal steps (see :func:`closing_stretch`)"""
+STEP_GROWTH = 1.2
+"""largest ratio of consecutive speed-controlled steps"""
+HOLD_NODE_TOL = 1e-6
+"""distance (in schedule nodes) within which a time counts as on a hold-schedule node"""
+HOLD_END_TOL = 1e-9
+"""time (s) within which the hold counts as over"""
+FULL_TOL = 1e-12
+"""relative shortfall of the charge area within which the cavity counts as full"""
+
+
+class MarchOptions(Protocol):
+    """The discretisation the marching paths read (see ``Squeeze1DOptions``)."""
+
+    closing_steps: int
+    hold_steps: int
+    jump_time_s: float
+    shape_correction: bool
+
+
+@dataclass(frozen=True)
+class PressProgramme:
+    """Set-speed closing, the switch to force control at the limit and the hold (SI).
+
+    Attributes:
+        speed: set closing speed (m/s); a measured ram profile replaces it in
+            :meth:`Case.set_speed`.
+        force_limit: force at which the press switches to force control (N).
+        hold: duration of the force-controlled hold (s).
+        jump_time: time for the force to reach the limit once an incompressible charge
+            fills the cavity (s).
+    """
+
+    speed: float
+    force_limit: float
+    hold: float
+    jump_time: float
+
+    @classmethod
+    def of(cls, case: Case, jump_time: float) -> PressProgramme:
+        """The programme of a configuration."""
+        return cls(case.speed, case.force_limit, case.hold, jump_time)
+
+    def reaches_limit(self, force: X) -> X:
+        """True where the force has reached the limit (switch to force control)."""
+        return reaches_limit(force, self.force_limit)
+
+    def crossing(self, prev_force: X, force: X) -> X:
+        """Share of the last step at which the force crossed the limit, in [0, 1]."""
+        return crossing_fraction(prev_force, force, self.force_limit)
+
+    def hold_over(self, t: X, t_switch: X) -> X:
+        """True where the hold that started at ``t_switch`` (s) is over at ``t`` (s)."""
+        return hold_over(t, t_switch, self.hold)
+
+
+def reaches_limit(force: X, force_limit: float) -> X:
+    """True where ``force`` (N) is at or above the limit (N); False for NaN."""
+    return force >= force_limit
+
+
+def crossing_fraction(prev_force: X, force: X, force_limit: float) -> X:
+    """Share theta in [0, 1] of the last step at which the force passed the limit.
+
+    Linear in the force between the two ends of the step.  An infinite force is the
+    pore-free state of a porous charge, where the step ended: theta = 1 there, and where
+    the ends are equal.
+    """
+    theta = (force_limit - prev_force) / (force - prev_force)
+    theta = select(np.isinf(force) | np.isnan(theta), 1.0, theta)
+    return np.minimum(np.maximum(theta, 0.0), 1.0)
+
+
+def hold_over(t: X, t_switch: X, hold: float) -> X:
+    """True where the hold begun at ``t_switch`` (s) is over at ``t`` (s)."""
+    return t >= t_switch + hold - HOLD_END_TOL
+
+
+def fills_and_stops(incompressible: X, area: X, area_mould: float, force_control: X) -> X:
+    """True where an incompressible charge has just filled the cavity under speed
+    control: the press stops and the force goes to the limit."""
+    return incompressible & (area >= area_mould * (1.0 - FULL_TOL)) & np.logical_not(force_control)
+
+
+def hold_step(t: X, t_switch: X, speed: X, dt0: X, hold: float, hold_steps: float,
+              travel_step: X) -> X:
+    """Force-controlled step (s): the next node of a geometric schedule over the hold.
+
+    Nodes lie at t_switch + dt0 r^(k / hold_steps), r = hold / dt0, so the steps grow from
+    the nominal closing step ``dt0`` (s) to cover the hold in ``hold_steps`` nodes; a row
+    sitting on a node (to rounding) steps to the next one.  The step is capped so that the
+    gap closes by at most ``travel_step`` (m) at the closing ``speed`` (m/s).
+    """
+    ratio = np.maximum(hold / dt0, 1.0 + 1e-9)
+    elapsed = np.maximum(t - t_switch, 0.0)
+    node = hold_steps * np.log(np.maximum(elapsed, dt0 * 1e-3) / dt0) / np.log(ratio)
+    node = select(np.isnan(node), -1.0, node)
+    k = np.minimum(np.maximum(np.floor(node + HOLD_NODE_TOL) + 1.0, 0.0), hold_steps)
+    target = t_switch + dt0 * ratio ** (k / hold_steps)
+    dt = np.minimum(target, t_switch + hold) - t
+    cap = select(speed > 0, travel_step / speed, np.inf)
+    return np.maximum(np.minimum(dt, cap), 1e-12)
+
+
+def closing_stretch(ram: X, force_rate: X, ram_rate: X, travel: X, t_close: X, v_ref: float,
+                    force_limit: float) -> X:
+    """Factor in [1, MAX_STRETCH] on the nominal speed-controlled step.
+
+    The change per step of the ram position (share of its travel to the limit, gap travel
+    + F_limit / k, in units of the nominal travel), of the ram speed (share of the set
+    speed) and of the force (share of the limit) stays at or below what the nominal step
+    allows.  ``ram`` is the ram speed (m/s), the rates are absolute values over the last
+    step (inf or NaN: none yet), ``t_close`` the nominal closing time (s).
+    """
+    rate = np.maximum(np.maximum(ram / travel, ram_rate * t_close) / v_ref,
+                      force_rate * t_close / force_limit)
+    inv = 1.0 / rate
+    inv = select(np.isnan(inv), 1.0, select(inv == np.inf, MAX_STRETCH, inv))
+    return np.minimum(np.maximum(inv, 1.0), MAX_STRETCH)
