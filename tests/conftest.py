@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import copy
+import logging
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from smcbayes import progress
 from smcbayes.config import ProjectConfig, build_project
 
 REPO = Path(__file__).resolve().parents[1]
@@ -63,3 +66,20 @@ def make_project() -> Callable[..., ProjectConfig]:
         return build_project(raw, "<test project>", REPO)
 
     return build
+
+
+@pytest.fixture(autouse=True)
+def _application_output_reset() -> Any:
+    """Undo what the command line sets up for an application (log handler, progress,
+    warning display), so that a test calling ``main`` does not change the next test."""
+    logger = logging.getLogger("smcbayes")
+    handlers, level, propagate = list(logger.handlers), logger.level, logger.propagate
+    show = warnings.showwarning
+    yield
+    for h in logger.handlers[:]:
+        if h not in handlers:
+            logger.removeHandler(h)
+    logger.setLevel(level)
+    logger.propagate = propagate
+    warnings.showwarning = show
+    progress.enable(False)

@@ -50,24 +50,22 @@ def layer_of(module: str) -> int:
     return best
 
 
-def imports_of(path: Path, module: str) -> set[str]:
-    """smcbayes modules imported anywhere in ``path`` (resolved to existing modules)."""
+def imports_of(path: Path, module: str) -> list[list[str]]:
+    """smcbayes imports anywhere in ``path``: per statement, the names it may refer to
+    (``from pkg import x`` refers to the module ``pkg.x`` if there is one, else to ``pkg``)."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
-    found: set[str] = set()
+    found: list[list[str]] = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            names = [a.name for a in node.names]
+            found += [[a.name] for a in node.names]
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
                 anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
                 base = ".".join(anchor + ([base] if base else []))
-            names = [base] + [f"{base}.{a.name}" for a in node.names]
-        else:
-            continue
-        found.update(n for n in names if n == "smcbayes" or n.startswith("smcbayes."))
-    return found
+            found += [[f"{base}.{a.name}", base] for a in node.names]
+    return [names for names in found if names[-1] == "smcbayes" or names[-1].startswith("smcbayes.")]
 
 
 def graph() -> dict[str, set[str]]:
@@ -75,8 +73,9 @@ def graph() -> dict[str, set[str]]:
     edges: dict[str, set[str]] = {}
     for module, path in files.items():
         targets = set()
-        for name in imports_of(path, module):
-            while name and name not in files:  # `from pkg import name` of a non-module
+        for names in imports_of(path, module):
+            name = next((n for n in names if n in files), names[-1])
+            while name and name not in files:  # `import pkg.sub.name` of a non-module
                 name = name.rpartition(".")[0]
             if name and name != module and name != "smcbayes":
                 targets.add(name)

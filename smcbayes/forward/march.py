@@ -35,7 +35,6 @@ from smcbayes.forward.effects.base import EffectStack
 from smcbayes.forward.flux import FlowTable, MaterialTable
 from smcbayes.forward.nodes import Nodes
 from smcbayes.forward.programme import (
-    MAX_STRETCH,
     STEP_GROWTH,
     MarchOptions,
     PressProgramme,
