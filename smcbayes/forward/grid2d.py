@@ -281,6 +281,28 @@ def _linearise(grid: Grid, p: Array, fx: FaceSet, fy: FaceSet, fluidity: Fluidit
     return _Linearised((secant[0], secant[1]), residual, jac)
 
 
+def _first_pressure(grid: Grid, full: NDArray[np.bool_], guess: Array | None,
+                    faces_: tuple[Array, Array], fluidity: Fluidity, V: float, unknown: NDArray[np.int64],
+                    force: float | None, sink: Sink | None, speed_floor: float) -> Array:
+    """Start of the Newton iteration of :func:`solve_pressure` (Pa), ``(nx, ny)``.
+
+    The previous solution where there is one; in a full cavity (no front) the candidate
+    with the smallest merit among those where some cell compacts; else the solution at
+    the zero-stress (Newtonian) fluidity.
+    """
+    p = np.zeros(full.shape) if guess is None else np.where(full, guess, 0.0)
+    if sink is not None and bool(full.all()):
+        weight = grid.multiplicity * grid.cell_area
+        mean = None if force is None else force / (weight * full.size)
+        starts = [pp for pp in [p, *_starts(sink, V * grid.cell_area, mean)] if _acting(pp, sink)]
+        if not starts:
+            raise SolverError("2-D pressure: the cavity is full and no cell can compact")
+        p = min(starts, key=lambda pp: _merit(grid, pp, V, faces_, fluidity, unknown, force, sink, speed_floor))
+    if not np.any(p):
+        p.ravel()[np.flatnonzero(full.ravel())] = _cold_start(grid, p, faces_, fluidity, V, unknown, sink)
+    return p
+
+
 def solve_pressure(grid: Grid, fill: Array, fluidity: Fluidity, speed: float | None,
                    force: float | None, guess: Array | None = None, speed_guess: float | None = None,
                    tol: float = 1e-6, max_iter: int = 80, sink: Sink | None = None,
@@ -313,16 +335,9 @@ def solve_pressure(grid: Grid, fill: Array, fluidity: Fluidity, speed: float | N
     unknown[where] = np.arange(where.size)
     weight = grid.multiplicity * grid.cell_area
     V = speed if speed is not None else (speed_guess or 1e-6)
-    p = np.zeros(full.shape) if guess is None else np.where(full, guess, 0.0)
     closed = sink is not None and bool(full.all())  # no front: some sink must act
     mean = None if force is None else force / (weight * full.size)
-    if closed:
-        starts = [pp for pp in [p, *_starts(sink, V * grid.cell_area, mean)] if _acting(pp, sink)]
-        if not starts:
-            raise SolverError("2-D pressure: the cavity is full and no cell can compact")
-        p = min(starts, key=lambda pp: _merit(grid, pp, V, (fx, fy), fluidity, unknown, force, sink, speed_floor))
-    if not np.any(p):  # cold start: the solution at the zero-stress (Newtonian) fluidity
-        p.ravel()[where] = _cold_start(grid, p, (fx, fy), fluidity, V, unknown, sink)
+    p = _first_pressure(grid, full, guess, (fx, fy), fluidity, V, unknown, force, sink, speed_floor)
     for it in range(1, max_iter + 1):  # noqa: B007  (the count is returned below)
         lin = _linearise(grid, p, fx, fy, fluidity, V, unknown, sink=sink)
         err = np.max(np.abs(lin.residual), initial=0.0) / (max(V, speed_floor) * grid.cell_area)

@@ -23,15 +23,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from smcbayes.errors import SolverError
 from smcbayes.forward.effects.base import Effect
-from smcbayes.forward.effects.compressibility import Compressibility
-from smcbayes.forward.effects.press import PressCompliance, SpeedRamp
-from smcbayes.forward.effects.thermal import Curing, Heating
+from smcbayes.forward.effects.registry import BUILT_IN
 
 Array = NDArray[np.float64]
 
-KERNEL_EFFECTS: tuple[type[Effect], ...] = (Compressibility, PressCompliance, SpeedRamp, Heating, Curing)
-"""Effect classes whose hooks the compiled kernel implements (recognised by class, so a
-subclass that changes a hook runs on the NumPy path)."""
+KERNEL_EFFECTS: tuple[type[Effect], ...] = BUILT_IN
+"""Effect classes whose hooks the compiled kernel implements: the built-in ones,
+recognised by class, so a subclass that changes a hook runs on the NumPy path."""
 
 
 class Slots:

@@ -8,8 +8,13 @@ the same way.
 from __future__ import annotations
 
 from smcbayes.errors import ConfigError, closest
-from smcbayes.forward.effects import compressibility, press, thermal  # noqa: F401  (registration)
 from smcbayes.forward.effects.base import Effect, registered
+from smcbayes.forward.effects.compressibility import Compressibility
+from smcbayes.forward.effects.press import PressCompliance, SpeedRamp
+from smcbayes.forward.effects.thermal import Curing, Heating
+
+BUILT_IN: tuple[type[Effect], ...] = (Compressibility, PressCompliance, SpeedRamp, Heating, Curing)
+"""The built-in effects (registered on import of their modules)."""
 
 
 def available() -> dict[str, type[Effect]]:
