@@ -162,13 +162,14 @@ def posterior(run_dir: PathLike | RunDir, *, workers: int = 1, scheduler: str | 
 
 
 def diagnose(run_dir: PathLike | RunDir, out: PathLike | None = None, *, figures: bool = True,
-             **settings: Any) -> DiagnosisResult:
+             workers: int = 1, scheduler: str | None = None, **settings: Any) -> DiagnosisResult:
     """The gap diagnosis of a calibration run (as ``smcbayes diagnose``).
 
     Args:
         run_dir: the calibration's run directory.
         out: output folder (default ``RUN_DIR/diagnose``).
         figures: write the figures.
+        workers, scheduler: where the forward runs execute.
         **settings: fields of the ``[diagnose]`` table, e.g. ``effects=["press_compliance"]``.
     """
     from smcbayes.diagnose.fit import FitSettings
@@ -183,14 +184,17 @@ def diagnose(run_dir: PathLike | RunDir, out: PathLike | None = None, *, figures
     spec = override(base, settings, source="diagnose()")
     fit = FitSettings(population=spec.population, generations=spec.generations, restarts=spec.restarts)
     fit.check()
-    ctx = context_from_run(run)
+    ctx = context_from_run(run, lambda: make_executor(workers, scheduler))
     names = spec.effects or [n for n in sorted(available()) if n not in ctx.base_effects]
     settings_ = DiagnoseSettings(candidates=tuple(names),
                                  holdout=None if spec.holdout is None else tuple(spec.holdout),
                                  pair=spec.pair, seed=spec.seed, fit=fit, min_score=spec.min_score,
                                  figures=figures)
     folder = run.begin_stage("diagnose", spec.model_dump(mode="json"), None if out is None else Path(out))
-    summary = run_diagnosis(ctx, settings_, folder)
+    try:
+        summary = run_diagnosis(ctx, settings_, folder)
+    finally:
+        ctx.close()
     run.complete_stage("diagnose", summary, folder)
     return DiagnosisResult(folder, summary)
 

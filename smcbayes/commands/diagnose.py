@@ -6,10 +6,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from smcbayes.commands.common import add_executor_options
 from smcbayes.config import DiagnoseSpec, help_of, override
 from smcbayes.errors import ConfigError, closest
 from smcbayes.forward.effects import available
 from smcbayes.run import RunDir
+from smcbayes.simulation.executors.base import make_executor
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -36,6 +38,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        ("min_score", float)):
         p.add_argument("--" + name.replace("_", "-"), type=kind, default=None, help=help_of(DiagnoseSpec, name))
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
+    add_executor_options(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.set_defaults(run=run)
 
@@ -92,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     spec = settings_from(run_dir.identity().project_config().diagnose, args)
     fit = FitSettings(population=spec.population, generations=spec.generations, restarts=spec.restarts)
     fit.check()
-    ctx = context_from_run(run_dir)
+    ctx = context_from_run(run_dir, lambda: make_executor(args.workers, args.scheduler))
     chosen = None if spec.effects is None else tuple(spec.effects)
     settings = DiagnoseSettings(candidates=not_on(chosen, ctx.base_effects),
                                 holdout=None if spec.holdout is None else tuple(spec.holdout),
@@ -100,7 +103,10 @@ def run(args: argparse.Namespace) -> int:
                                 figures=not args.no_figures)
     out = run_dir.begin_stage("diagnose", spec.model_dump(mode="json"), folder=Path(args.out))
     run_dir.record_command("diagnose", args.argv)
-    summary = diagnose(ctx, settings, out)
+    try:
+        summary = diagnose(ctx, settings, out)
+    finally:
+        ctx.close()
     run_dir.complete_stage("diagnose", summary, folder=out)
     print(f"where: {summary['where']['verdict']}")
     print(f"{'rank':>4}  {'effect':<34} {'held-out loss kN2':>18} {'shrink %':>9} {'z':>7} "

@@ -38,7 +38,7 @@ effect never wins merely by a longer search.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,6 +54,9 @@ from smcbayes.errors import ConfigError
 from smcbayes.forward.model import ForwardModel
 from smcbayes.forward.result import SimulationResult
 from smcbayes.progress import Progress
+from smcbayes.simulation.executors.base import Executor
+from smcbayes.simulation.objective import SimulatorObjective
+from smcbayes.simulation.runner import Runner
 
 Array = NDArray[np.float64]
 
@@ -135,6 +138,9 @@ class DiagnosisContext:
         fidelity: forward solver fidelity.
         base_params: the calibrated values of every base parameter (user units).
         truth: true parameters of synthetic data, if known.
+        executor: makes the executor of each model's forward batches (default: in process);
+            every forward run of the diagnosis goes through a
+            :class:`~smcbayes.simulation.runner.Runner` of its model.
     """
 
     project: ProjectConfig
@@ -145,7 +151,9 @@ class DiagnosisContext:
     fidelity: str | None
     base_params: dict[str, float]
     truth: dict[str, float] | None = None
+    executor: Callable[[], Executor] | None = None
     _models: dict[tuple[str, ...], ForwardModel] = field(default_factory=dict, repr=False)
+    _runners: dict[tuple[str, ...], Runner] = field(default_factory=dict, repr=False)
 
     def model(self, extra: Sequence[str] = ()) -> ForwardModel:
         """Forward model with the run's effects plus ``extra`` (cached)."""
@@ -156,6 +164,24 @@ class DiagnosisContext:
                                              overrides=self.overrides, fidelity=self.fidelity)
         return self._models[key]
 
+    def runner(self, extra: Sequence[str] = ()) -> Runner:
+        """The model with ``extra`` on its own executor (cached; released by :meth:`close`)."""
+        key = tuple(extra)
+        if key not in self._runners:
+            objective = SimulatorObjective(self.model(key), self.dataset, self.ids, self.project.loss)
+            self._runners[key] = Runner(objective, None if self.executor is None else self.executor())
+        return self._runners[key]
+
+    @property
+    def forward_runs(self) -> int:
+        """Parameter sets x configurations simulated so far."""
+        return sum(r.forward_runs for r in self._runners.values())
+
+    def close(self) -> None:
+        """Release the executors' workers."""
+        for r in self._runners.values():
+            r.close()
+
     def start(self, extra: Sequence[str], known: Mapping[str, float] | None = None) -> Array:
         """Warm start ``(1, d)`` of a model: known values, else base optimum, else defaults."""
         space = self.model(extra).space
@@ -165,7 +191,7 @@ class DiagnosisContext:
 
     def losses(self, extra: Sequence[str], theta: Array, ids: Sequence[str]) -> Array:
         """Per-configuration force/displacement errors ``(P, K)`` (kN^2); NaN where failed."""
-        results = self.model(extra).simulate(theta, ids)
+        results = self.runner(extra).simulate(theta, ids)
         loss = evaluate_loss(results, self.dataset, self.project.loss, ids)
         per = loss.per_config()
         return np.column_stack([per[cid] for cid in ids])
@@ -173,7 +199,7 @@ class DiagnosisContext:
     def simulate(self, extra: Sequence[str], theta: Array,
                  ids: Sequence[str]) -> dict[str, SimulationResult]:
         """Simulations of ``theta`` ``(P, d)`` on ``ids``."""
-        return self.model(extra).simulate(theta, ids)
+        return self.runner(extra).simulate(theta, ids)
 
 
 def window_end(res: SimulationResult, m: Measurement, clip: str) -> Array:

@@ -207,7 +207,7 @@ def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None
                "min_score": settings.min_score, "where": where.to_json(), "ranking": rows,
                "decision": decision, "shrink": shrink, **evidence,
                "base_calibrated_params": ctx.base_params, "truth": ctx.truth,
-               "seconds": time.perf_counter() - t0}
+               "simulator_runs": ctx.forward_runs, "seconds": time.perf_counter() - t0}
     if out is not None:
         write_outputs(ctx, summary, where, shown, out, settings.figures)
     return summary

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from smcbayes.config import ProjectConfig
+from smcbayes.data.dataset import load_dataset
 from smcbayes.errors import SmcBayesError
 from smcbayes.plotting import MEASURED, grid_shape, save, subplots
 
@@ -32,8 +33,6 @@ def search_ranges(calibration: Mapping[str, Any]) -> dict[str, tuple[float, floa
 
 def load_measured(project: ProjectConfig) -> Any:
     """The project's dataset (all configurations with data), or ``None`` if unreadable."""
-    from smcbayes.data.dataset import load_dataset
-
     root = project.data_path()
     if root is None or not root.is_dir():
         return None

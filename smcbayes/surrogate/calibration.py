@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from smcbayes.config import CalibrationSpec
+from smcbayes.data.loss import evaluate_loss
 from smcbayes.data.readers.csv import write_curves
 from smcbayes.errors import ParameterOnBoundWarning
 from smcbayes.forward.result import SimulationResult
@@ -110,7 +111,6 @@ def _save_gp(bo: BayesOpt, problem: Problem, run: RunDir) -> Any:
 
 def validation_errors(problem: Problem, results: dict[str, SimulationResult]) -> dict[str, dict[str, float]]:
     """Force MSE (kN^2) and RMSE (kN) of the best point on validation configurations with data."""
-    from smcbayes.data.loss import evaluate_loss
 
     ids = [cid for cid in problem.model.ids("validation") if cid in problem.dataset.measurements
            and problem.dataset.measurements[cid].force is not None]

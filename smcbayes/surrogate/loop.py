@@ -141,6 +141,7 @@ class BayesOpt:
         x, y = training_data(self.state, self.space.to_unit, self.space.free_names, s.failed, rnd)
         if x.shape[0] < 2 or np.ptp(y) == 0:
             return round_rng(s.seed, rnd).random((q, self.space.dim))
+        # torch: loaded once a GP is fitted, so a loop on a test objective stays light
         from smcbayes.surrogate.acquisition import propose
         from smcbayes.surrogate.gp import fit_surrogate, gp_session
 

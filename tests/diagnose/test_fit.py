@@ -64,3 +64,24 @@ def test_small_population_keeps_perturbations_of_the_base_parameters() -> None:
     assert pop.shape == (6, 6)
     assert np.all(np.ptp(pop[:, :5], axis=0) > 0.0)
     assert np.sum(np.all(pop[:, :5] == 0.5, axis=1)) <= 2  # warm start and one scan row
+
+
+def test_a_process_pool_gives_the_serial_diagnosis(synthetic_ctx) -> None:
+    """The diagnosis's forward runs go through the executor: a pool of two processes gives
+    the same re-fit as in process, and the runs are counted."""
+    from smcbayes.simulation.executors.local import LocalExecutor
+
+    serial = synthetic_ctx("press_compliance")
+    pooled = replace(serial, executor=lambda: LocalExecutor(2))
+    fits = []
+    for ctx in (serial, pooled):
+        fresh = replace(ctx, _models={}, _runners={})
+        try:
+            fits.append(refit(fresh, ("press_compliance",), fresh.ids, fresh.start(("press_compliance",)),
+                              FitSettings(population=10, generations=2, lhs_starts=4, global_starts=2,
+                                          restarts=1, polish=2), np.random.default_rng(3)))
+            assert fresh.forward_runs > 0
+        finally:
+            fresh.close()
+    np.testing.assert_array_equal(fits[0].theta, fits[1].theta)
+    assert fits[0].loss == fits[1].loss

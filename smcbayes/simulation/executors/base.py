@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from typing import Protocol
 
+from smcbayes.simulation.executors.local import LocalExecutor
 from smcbayes.simulation.objective import Objective, Task, TaskResult
 
 
@@ -33,10 +34,9 @@ class Executor(Protocol):
 
 def make_executor(workers: int = 1, scheduler: str | None = None) -> Executor:
     """A Dask executor when ``scheduler`` is given, else a local one with ``workers`` processes."""
-    if scheduler:
+    if scheduler:  # Dask is an optional extra: imported only when a cluster is named
         from smcbayes.simulation.executors.dask import DaskExecutor
 
         return DaskExecutor(scheduler)
-    from smcbayes.simulation.executors.local import LocalExecutor
 
     return LocalExecutor(workers)

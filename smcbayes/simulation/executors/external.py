@@ -27,7 +27,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.config import ProjectConfig
-from smcbayes.errors import ConfigError, SmcBayesError
+from smcbayes.data.readers.csv import read_csv
+from smcbayes.data.readers.moldflow import read_moldflow
+from smcbayes.errors import ConfigError, DataError, SolverError
 from smcbayes.forward.parameters import ParameterSpace
 from smcbayes.forward.result import STATUS_OK, SimulationResult
 
@@ -76,7 +78,8 @@ class ExternalSimulator:
         """Run the command for one parameter set; returns time (s), force (kN), displacement (mm) or None.
 
         Raises:
-            SmcBayesError: the command failed, timed out or wrote no readable curve.
+            SolverError: the command failed or timed out.
+            DataError: it wrote no readable curve.
         """
         folder = self._folder(values, config_id)
         folder.mkdir(parents=True, exist_ok=True)
@@ -94,24 +97,20 @@ class ExternalSimulator:
             proc = subprocess.run(argv, cwd=folder, capture_output=True, text=True,
                                   timeout=self.timeout_s, check=False)
         except subprocess.TimeoutExpired:
-            raise SmcBayesError(f"external command timed out after {self.timeout_s:g} s") from None
+            raise SolverError(f"external command timed out after {self.timeout_s:g} s") from None
         except OSError as err:
-            raise SmcBayesError(f"external command could not start: {err}") from None
+            raise SolverError(f"external command could not start: {err}") from None
         (folder / "stdout.txt").write_text(proc.stdout, encoding="utf-8")
         (folder / "stderr.txt").write_text(proc.stderr, encoding="utf-8")
         if proc.returncode != 0:
             tail = proc.stderr.strip().splitlines()[-1:] or ["(no stderr)"]
-            raise SmcBayesError(f"external command exited with {proc.returncode}: {tail[0]}")
+            raise SolverError(f"external command exited with {proc.returncode}: {tail[0]}")
         return self._read(output)
 
     def _read(self, output: Path) -> tuple[Array, Array, Array | None]:
         if self.output_format == "moldflow":
-            from smcbayes.data.readers.moldflow import read_moldflow
-
             force = read_moldflow(output, "force")
             return force.time_s, force.values, None
-        from smcbayes.data.readers.csv import read_csv
-
         force = read_csv(output, "force_kN", "force")
         header = output.read_text(encoding="utf-8").splitlines()[0].split(",")
         disp = None
@@ -132,7 +131,7 @@ class ExternalSimulator:
                 try:
                     curves.append(self.run_one(values, cid))
                     status.append(STATUS_OK)
-                except SmcBayesError as err:
+                except (SolverError, DataError) as err:  # that run failed; the batch goes on
                     curves.append(None)
                     status.append(f"failed: {err}")
             out[cid] = _stack(cid, curves, status, self.project.get(cid).press.force_limit_kN)
