@@ -71,6 +71,7 @@ def _kernel() -> Any:
     compiled code takes about half a second, which runs that never march should not pay."""
     global _KERNEL
     if _KERNEL is None:
+        # lazy on purpose: numba and the compiled code load only when a run marches
         from smcbayes.forward import _march_kernel as module
 
         # numba keys its disk cache on the kernel's own file only; drop cached machine

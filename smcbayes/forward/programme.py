@@ -41,10 +41,21 @@ FULL_TOL = 1e-12
 class MarchOptions(Protocol):
     """The discretisation the marching paths read (see ``Squeeze1DOptions``)."""
 
-    closing_steps: int
-    hold_steps: int
-    jump_time_s: float
-    shape_correction: bool
+    @property
+    def closing_steps(self) -> int:
+        """Nominal steps over the speed-controlled closing."""
+
+    @property
+    def hold_steps(self) -> int:
+        """Nodes of the hold schedule."""
+
+    @property
+    def jump_time_s(self) -> float:
+        """Time (s) for the force to reach the limit once an incompressible charge fills."""
+
+    @property
+    def shape_correction(self) -> bool:
+        """Whether the square-charge correction of the 1-D force applies."""
 
 
 @dataclass(frozen=True)

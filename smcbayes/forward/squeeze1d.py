@@ -5,7 +5,7 @@ centre charge, with the generalised Hele-Shaw flux law of :mod:`smcbayes.forward
 The press closes at the set speed until the force reaches the limit, then holds the force
 (force control) for the hold time.  An incompressible charge that fills the cavity stops
 the press: the force goes to the limit (in ``jump_time_s``), as in the thesis's Moldflow
-runs.
+runs.  Every path takes these decisions from :mod:`smcbayes.forward.programme`.
 
 Two paths share node placement and resampling, so they agree to round-off where both
 apply:
@@ -15,7 +15,11 @@ apply:
   of shape ``(P x N, M)``; under force control t(H) = t_switch + integral dH / V(H) is a
   quadrature in the gap;
 * the *marching* path (:mod:`smcbayes.forward.march`) steps in time and carries the state
-  of effects (compaction, temperature, cure, frame deflection, ram speed).
+  of effects (compaction, temperature, cure, frame deflection, ram speed); for the
+  built-in effects at a constant set speed it runs compiled
+  (:mod:`smcbayes.forward.march_compiled`, same results), otherwise in NumPy, which
+  :class:`~smcbayes.forward.model.ForwardModel` reports with a
+  :class:`~smcbayes.errors.SlowPathWarning` unless ``compiled=False`` asked for it.
 """
 
 from __future__ import annotations
