@@ -31,8 +31,8 @@ from smcbayes.errors import (
 
 __version__ = "0.1.0"
 
-_API = ("load_project", "calibrate", "posterior", "diagnose", "report", "CalibrationResult",
-        "PosteriorResult", "DiagnosisResult")
+_API = ("load_project", "calibrate", "sample_posterior", "diagnose_gap", "write_report",
+        "CalibrationResult", "PosteriorResult", "DiagnosisResult")
 
 __all__ = [
     "ConfigError", "ConvergenceWarning", "DataError", "ParameterOnBoundWarning", "SlowPathWarning",

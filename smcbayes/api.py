@@ -6,10 +6,12 @@ started in a notebook can be continued, reported or inspected from the shell and
     import smcbayes
     project = smcbayes.load_project("configs/verify-slip-2d.toml")
     cal = smcbayes.calibrate(project, "runs/slip", budget=12, init=6)
-    post = smcbayes.posterior(cal.run_dir, walkers=16, steps=300, correct_draws=0)
+    post = smcbayes.sample_posterior(cal.run_dir, walkers=16, steps=300, correct_draws=0)
     print(cal.best_params, post.table())
 
 Torch and the other heavy modules load when a stage runs, not on ``import smcbayes``.
+The names differ from the subpackages (``smcbayes.posterior`` is the package of the
+posterior stage, ``smcbayes.sample_posterior`` the function).
 """
 
 from __future__ import annotations
@@ -27,8 +29,8 @@ from smcbayes.simulation.problem import ExternalSpec, build_problem
 
 PathLike = str | os.PathLike[str]
 
-__all__ = ["CalibrationResult", "DiagnosisResult", "PosteriorResult", "calibrate", "diagnose",
-           "load_project", "posterior", "report"]
+__all__ = ["CalibrationResult", "DiagnosisResult", "PosteriorResult", "calibrate", "diagnose_gap",
+           "load_project", "sample_posterior", "write_report"]
 
 
 @dataclass(frozen=True)
@@ -143,7 +145,7 @@ def calibrate(project: ProjectConfig | PathLike, out: PathLike, *, effects: Sequ
     return CalibrationResult(run, summary)
 
 
-def posterior(run_dir: PathLike | RunDir, *, workers: int = 1, scheduler: str | None = None,
+def sample_posterior(run_dir: PathLike | RunDir, *, workers: int = 1, scheduler: str | None = None,
               **settings: Any) -> PosteriorResult:
     """The posterior stage of a calibration run (as ``smcbayes posterior``).
 
@@ -161,7 +163,7 @@ def posterior(run_dir: PathLike | RunDir, *, workers: int = 1, scheduler: str | 
     return PosteriorResult(run, run_posterior(run, spec, make_executor(workers, scheduler)))
 
 
-def diagnose(run_dir: PathLike | RunDir, out: PathLike | None = None, *, figures: bool = True,
+def diagnose_gap(run_dir: PathLike | RunDir, out: PathLike | None = None, *, figures: bool = True,
              workers: int = 1, scheduler: str | None = None, **settings: Any) -> DiagnosisResult:
     """The gap diagnosis of a calibration run (as ``smcbayes diagnose``).
 
@@ -199,10 +201,10 @@ def diagnose(run_dir: PathLike | RunDir, out: PathLike | None = None, *, figures
     return DiagnosisResult(folder, summary)
 
 
-def report(run_dir: PathLike | RunDir, formats: Sequence[str] = ("html", "md"),
+def write_report(run_dir: PathLike | RunDir, formats: Sequence[str] = ("html", "md"),
            diagnosis_dir: PathLike | None = None) -> list[Path]:
     """Write the run's report (as ``smcbayes report``); returns the files written."""
-    from smcbayes.report import write_report
+    from smcbayes.report import write_report as write
 
     root = run_dir.root if isinstance(run_dir, RunDir) else Path(run_dir)
-    return write_report(root, formats, None if diagnosis_dir is None else Path(diagnosis_dir))
+    return write(root, formats, None if diagnosis_dir is None else Path(diagnosis_dir))

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pytest
 
-import smcbayes
 from smcbayes.api import CalibrationResult, PosteriorResult
 
 REPO = Path(__file__).resolve().parents[1]
@@ -44,6 +43,14 @@ def test_readme_example_runs(tmp_path: Path, capsys: pytest.CaptureFixture[str])
 
 
 def test_package_exposes_the_api_lazily() -> None:
+    """The stage functions are reachable from the package, even once the subpackages of
+    the same stages are imported (their names must not collide)."""
+    import smcbayes.diagnose
+    import smcbayes.posterior
+    import smcbayes.report
+
+    for name in ("calibrate", "sample_posterior", "diagnose_gap", "write_report", "load_project"):
+        assert callable(getattr(smcbayes, name)), name
     assert smcbayes.calibrate is smcbayes.api.calibrate
     with pytest.raises(AttributeError):
         smcbayes.no_such_thing  # noqa: B018

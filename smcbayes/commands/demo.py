@@ -142,13 +142,13 @@ def run_stage(plan: DemoPlan, stage: str, out: Path) -> None:
             elif stage == "calibrate":
                 api.calibrate(out / "data" / "project.toml", run, budget=s["budget"], init=s["init"], seed=0)
             elif stage == "posterior":
-                api.posterior(run, walkers=s["walkers"], steps=s["steps"], functions=s["functions"],
+                api.sample_posterior(run, walkers=s["walkers"], steps=s["steps"], functions=s["functions"],
                               draws=s["draws"], seed=0)
             elif stage == "diagnose":
-                api.diagnose(run, run / "diagnose", seed=0, population=s["population"],
+                api.diagnose_gap(run, run / "diagnose", seed=0, population=s["population"],
                              generations=s["generations"], effects=s.get("candidates") or None)
             else:
-                api.report(run)
+                api.write_report(run)
     except SmcBayesError as err:  # same class (exit code), with the stage and its log named
         raise type(err)(f"demo stage '{stage}': {err} (log: {log})") from err
 
