@@ -142,3 +142,26 @@ def test_simulate_2d_draws_the_flow_front_and_the_solid_fraction(tmp_path: Path,
     assert figure.stat().st_size > 0
     svg = figure.read_text(encoding="utf-8")
     assert "solid fraction" in svg and "filled area" in svg
+
+
+def test_every_option_with_a_default_shows_it_in_help() -> None:
+    """`--help` names the default of every option that has one (settings that come from a
+    project table name the table's default)."""
+    import argparse
+
+    from smcbayes.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    missing = []
+    for name, command in sub.choices.items():
+        text = " ".join(command.format_help().split())
+        for action in command._actions:
+            if not action.option_strings or action.help == argparse.SUPPRESS or action.dest == "help":
+                continue
+            helptext = " ".join(command._get_formatter()._expand_help(action).split())
+            trivial = action.default is None or action.default is False or action.default == []
+            if not trivial and "default" not in helptext:
+                missing.append(f"{name} {action.option_strings[0]}")
+            assert helptext in text
+    assert not missing, missing
