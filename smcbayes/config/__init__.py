@@ -22,6 +22,7 @@ from smcbayes.config.project import (
 )
 from smcbayes.config.settings import (
     CalibrationSpec,
+    CorrectionSpec,
     DiagnoseSpec,
     PosteriorSpec,
     Strict,
@@ -35,6 +36,6 @@ __all__ = [
     "CalibrationSpec", "ChargeSpec", "ClipMode", "ConfigurationSpec", "DataSpec", "LossSpec",
     "MaterialSpec", "MouldSpec", "ParameterSpec", "PieceSpec", "PreprocessSpec", "PressSpec",
     "ProjectConfig", "SolverSpec", "Strict", "build_project", "format_validation_error",
-    "load_project", "parse_assignments", "PosteriorSpec", "DiagnoseSpec", "default_of", "help_of",
+    "load_project", "parse_assignments", "PosteriorSpec", "DiagnoseSpec", "CorrectionSpec", "default_of", "help_of",
     "override",
 ]

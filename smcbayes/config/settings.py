@@ -22,6 +22,20 @@ class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+class CodeBuilt(Strict):
+    """Settings that library code and scripts build by keyword: a bad value raises
+    :class:`ConfigError` naming the field (not pydantic's multi-line error)."""
+
+    def __init__(self, **data: Any) -> None:
+        try:
+            super().__init__(**data)
+        except ValidationError as err:
+            e = err.errors()[0]
+            where = ".".join(str(p) for p in e["loc"]) or type(self).__name__
+            raise ConfigError(f"{type(self).__name__}.{where} = {e.get('input')!r}: "
+                              f"{e['msg'].removeprefix('Value error, ')}") from None
+
+
 class CalibrationSpec(Strict):
     """Settings of ``smcbayes calibrate`` (Bayesian optimisation); CLI options override them."""
 
@@ -59,6 +73,76 @@ class CalibrationSpec(Strict):
             raise ConfigError(f"calibration: need init ({self.init}) <= budget ({self.budget})")
 
 
+class CorrectionSpec(CodeBuilt):
+    """Settings of the importance-sampling correction of the posterior
+    (``[posterior.correction]``; its ``draws`` is set by ``[posterior] correct_draws``).
+
+    Attributes:
+        draws: most proposal draws in total (points outside the prior box cost no forward run).
+        per_iteration: proposal draws per AMIS iteration.
+        ess_target, k_target: stop early, after at least two iterations, once the smoothed
+            weights have an ESS >= ess_target and a Pareto k-hat <= k_target.  An ESS of
+            2000, not a few hundred: a second region holding a few per cent of the posterior
+            moves the correlations by up to 0.2, and its estimated mass settles only as the
+            proposals keep drawing there; neither the ESS nor k-hat sees a region that is
+            under-drawn (``benchmarks/posterior_accuracy.py``).
+        centres: kernels M of the mixture proposal.
+        nu: degrees of freedom of the Student-t kernels.
+        defensive: share beta of the uniform prior in every proposal.  A quarter: the
+            emulator can miss a second region of high posterior density altogether, and only
+            the uniform draws can find it (with 10 % the corrected correlations of a
+            two-region test posterior were off by 0.18-0.29 over four seeds, with 25 % by
+            0.10-0.21, for a similar number of forward runs: 2,983-3,743 against 2,081-4,258).
+        widen_first: bandwidth factor of the first proposal (fitted to emulator draws).
+        widen: bandwidth factor of the later proposals.
+        ess_floor: minimum effective sample size of the tempered weights a proposal is fitted to.
+        fit_temperature: exponent T of the tempered posterior pi^T the proposals are fitted
+            to (see the module docstring; 1: fitted to pi).  With 1/2 the accuracy
+            benchmark's quantile and correlation errors over eight seeds (fixed emulator
+            start) fell from 0.086 and 0.130 on average to 0.069 and 0.081 in its first case
+            and from 0.057 and 0.116 to 0.053 and 0.097 in its second.  The cost: the draws now
+            run out on both (10,200-10,900 forward runs, were 8,900-10,900), and the coverage
+            benchmark spends 7,200 runs per dataset (was 5,500); the thesis posterior still
+            stops at ESS 2000 after about 2,300 runs.
+        local: kernels shaped by the centres' nearest neighbours (see :func:`fit_proposal`).
+        clusters: components of the Gaussian mixture that shapes the kernels and shares out
+            the centres (see :func:`fit_proposal`); 1: one global covariance, centres drawn
+            in proportion to the weights.  With 1, the accuracy benchmark's thin second
+            region was drawn with kernels shaped for the main one: correlation errors of
+            0.15-0.21 remained after 10,500 forward runs (four seeds).
+        chains: centres carried by Metropolis-Hastings chains on the exact posterior (the
+            rest are drawn afresh every iteration; at most ``centres``; 0: none).  A chain
+            moves at most once per iteration, with the first draw of its own kernel, so it
+            costs no forward run; a chain that reaches a long arm of the posterior walks
+            along it (see the module docstring and ``benchmarks/posterior_accuracy.py``).
+            The correction then needs more draws to reach its ESS target, since chains
+            started where the emulator was wrong walk in slowly.
+        batch: points per forward call.
+    """
+
+    draws: int = Field(14000, ge=0,
+                        description="most proposal draws in total (points outside the prior box cost no forward run)")
+    per_iteration: int = Field(500, ge=1, description="proposal draws per iteration")
+    ess_target: float = Field(2000.0, gt=0,
+                               description="stop early once the smoothed weights have at least this importance ESS")
+    k_target: float = Field(0.5, gt=0, description="... and a Pareto k-hat at most this")
+    centres: int = Field(200, ge=1, description="Student-t kernels of the mixture proposal")
+    nu: float = Field(5.0, gt=0, description="degrees of freedom of the Student-t kernels")
+    defensive: float = Field(0.25, ge=0, lt=1, description="share of the uniform prior in every proposal")
+    widen_first: float = Field(1.5, gt=0,
+                                description="bandwidth factor of the first proposal (fitted to emulator draws)")
+    widen: float = Field(1.0, gt=0, description="bandwidth factor of the later proposals")
+    ess_floor: float = Field(50.0, gt=0,
+                              description="minimum ESS of the tempered weights a proposal is fitted to")
+    batch: int = Field(500, ge=1, description="points per forward call")
+    local: bool = Field(False, description="kernels shaped by the centres' nearest neighbours")
+    clusters: int = Field(8, ge=1, description="components of the Gaussian mixture that shapes the kernels")
+    chains: int = Field(100, ge=0,
+                         description="centres carried by Metropolis-Hastings chains on the exact posterior")
+    fit_temperature: float = Field(0.5, gt=0, le=1,
+                                    description="exponent T of the tempered posterior pi^T the proposals are fitted to")
+
+
 class PosteriorSpec(Strict):
     """Settings of ``smcbayes posterior``; CLI options override them."""
 
@@ -76,9 +160,11 @@ class PosteriorSpec(Strict):
         1.0, gt=0, description="refinement stops once the emulator's out-of-sample error at fresh "
                                "posterior draws is below this (nats) twice in a row")
     correct_draws: int = Field(
-        14000, ge=0, le=10_000_000,
+        CorrectionSpec.model_fields["draws"].default, ge=0, le=10_000_000,
         description="most proposal draws of the importance correction (each inside the prior box "
                     "costs a forward run); 0 reports the emulated posterior uncorrected")
+    correction: CorrectionSpec = Field(CorrectionSpec(), description="the importance correction's "
+                                       "other settings ([posterior.correction])")
 
 
 class DiagnoseSpec(Strict):

@@ -46,7 +46,7 @@ from numpy.typing import NDArray
 from scipy.optimize import differential_evolution
 from scipy.stats import qmc
 
-from smcbayes.config import ProjectConfig
+from smcbayes.config import DiagnoseSpec, ProjectConfig
 from smcbayes.data.dataset import Dataset, Measurement
 from smcbayes.data.loss import evaluate_loss, interp_rows
 from smcbayes.data.preprocess import crossing_time
@@ -67,6 +67,10 @@ LM_STEP = 2e-3
 LM_DAMPINGS = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)
 
 
+_DEFAULTS = DiagnoseSpec()
+"""The user-facing defaults (the ``[diagnose]`` table) written once, in the config layer."""
+
+
 @dataclass(frozen=True)
 class FitSettings:
     """Budget of one warm-started re-calibration.
@@ -83,13 +87,13 @@ class FitSettings:
         polish: Levenberg-Marquardt iterations after the evolution (0: none).
     """
 
-    population: int = 64
-    generations: int = 50
+    population: int = _DEFAULTS.population
+    generations: int = _DEFAULTS.generations
     lhs_starts: int = 12
     global_starts: int = 24
     spread: float = 0.05
     crossover: float = 0.9
-    restarts: int = 2
+    restarts: int = _DEFAULTS.restarts
     polish: int = 8
 
     def check(self) -> None:

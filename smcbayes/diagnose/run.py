@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from smcbayes.config import DiagnoseSpec
 from smcbayes.diagnose.figures import before_after, heat_map, phase_bars
 from smcbayes.diagnose.fit import DiagnosisContext, Fit, FitSettings, refit
 from smcbayes.diagnose.shrink import shrink_summary
@@ -31,6 +32,9 @@ RANKING_COLUMNS = ("rank", "effect", "extra_parameters", "sensitivity_kN", "most
                    "absorbable_share", "fit_loss_kN2", "holdout_loss_kN2", "holdout_loss_base_kN2",
                    "holdout_shrink_pct", "n_eff_holdout", "dm_z", "delta_bic_fit", "score",
                    "significant")
+
+
+_DEFAULTS = DiagnoseSpec()
 
 
 @dataclass(frozen=True)
@@ -49,10 +53,10 @@ class DiagnoseSettings:
 
     candidates: tuple[str, ...]
     holdout: tuple[str, ...] | None = None
-    pair: bool = False
-    seed: int = 0
+    pair: bool = _DEFAULTS.pair
+    seed: int = _DEFAULTS.seed
     fit: FitSettings = field(default_factory=FitSettings)
-    min_score: float = 3.0
+    min_score: float = _DEFAULTS.min_score
     figures: bool = True
 
 

@@ -14,79 +14,16 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import gammaln, logsumexp
 
-from smcbayes.errors import ConfigError
+from smcbayes.config import CorrectionSpec
 from smcbayes.posterior.mixture import fit_mixture
 from smcbayes.posterior.weights import ess_of, temper, weighted_cov
 
 Array = NDArray[np.float64]
 
 
-@dataclass(frozen=True)
-class CorrectionSettings:
-    """Settings of the importance-sampling correction.
-
-    Attributes:
-        draws: most proposal draws in total (points outside the prior box cost no forward run).
-        per_iteration: proposal draws per AMIS iteration.
-        ess_target, k_target: stop early, after at least two iterations, once the smoothed
-            weights have an ESS >= ess_target and a Pareto k-hat <= k_target.  An ESS of
-            2000, not a few hundred: a second region holding a few per cent of the posterior
-            moves the correlations by up to 0.2, and its estimated mass settles only as the
-            proposals keep drawing there; neither the ESS nor k-hat sees a region that is
-            under-drawn (``benchmarks/posterior_accuracy.py``).
-        centres: kernels M of the mixture proposal.
-        nu: degrees of freedom of the Student-t kernels.
-        defensive: share beta of the uniform prior in every proposal.  A quarter: the
-            emulator can miss a second region of high posterior density altogether, and only
-            the uniform draws can find it (with 10 % the corrected correlations of a
-            two-region test posterior were off by 0.18-0.29 over four seeds, with 25 % by
-            0.10-0.21, for a similar number of forward runs: 2,983-3,743 against 2,081-4,258).
-        widen_first: bandwidth factor of the first proposal (fitted to emulator draws).
-        widen: bandwidth factor of the later proposals.
-        ess_floor: minimum effective sample size of the tempered weights a proposal is fitted to.
-        fit_temperature: exponent T of the tempered posterior pi^T the proposals are fitted
-            to (see the module docstring; 1: fitted to pi).  With 1/2 the accuracy
-            benchmark's quantile and correlation errors over eight seeds (fixed emulator
-            start) fell from 0.086 and 0.130 on average to 0.069 and 0.081 in its first case
-            and from 0.057 and 0.116 to 0.053 and 0.097 in its second.  The cost: the draws now
-            run out on both (10,200-10,900 forward runs, were 8,900-10,900), and the coverage
-            benchmark spends 7,200 runs per dataset (was 5,500); the thesis posterior still
-            stops at ESS 2000 after about 2,300 runs.
-        local: kernels shaped by the centres' nearest neighbours (see :func:`fit_proposal`).
-        clusters: components of the Gaussian mixture that shapes the kernels and shares out
-            the centres (see :func:`fit_proposal`); 1: one global covariance, centres drawn
-            in proportion to the weights.  With 1, the accuracy benchmark's thin second
-            region was drawn with kernels shaped for the main one: correlation errors of
-            0.15-0.21 remained after 10,500 forward runs (four seeds).
-        chains: centres carried by Metropolis-Hastings chains on the exact posterior (the
-            rest are drawn afresh every iteration; at most ``centres``; 0: none).  A chain
-            moves at most once per iteration, with the first draw of its own kernel, so it
-            costs no forward run; a chain that reaches a long arm of the posterior walks
-            along it (see the module docstring and ``benchmarks/posterior_accuracy.py``).
-            The correction then needs more draws to reach its ESS target, since chains
-            started where the emulator was wrong walk in slowly.
-        batch: points per forward call.
-    """
-
-    draws: int = 14000
-    per_iteration: int = 500
-    ess_target: float = 2000.0
-    k_target: float = 0.5
-    centres: int = 200
-    nu: float = 5.0
-    defensive: float = 0.25
-    widen_first: float = 1.5
-    widen: float = 1.0
-    ess_floor: float = 50.0
-    batch: int = 500
-    local: bool = False
-    clusters: int = 8
-    chains: int = 100
-    fit_temperature: float = 0.5
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.fit_temperature <= 1.0:
-            raise ConfigError(f"fit_temperature must lie in (0, 1], got {self.fit_temperature}")
+CorrectionSettings = CorrectionSpec
+"""The correction's settings are the ``[posterior.correction]`` table (one model, one set of
+defaults, in :mod:`smcbayes.config.settings`)."""
 
 
 def _log_t_norm(chol: Array, nu: float) -> Array:

@@ -27,7 +27,7 @@ from smcbayes.config import PosteriorSpec
 from smcbayes.data.loss import force_pair
 from smcbayes.forward.nodes import interp_rows
 from smcbayes.posterior.context import RunContext, exact_log_posterior, load_run, true_log_loss
-from smcbayes.posterior.correct import CorrectionSettings, correct
+from smcbayes.posterior.correct import correct
 from smcbayes.posterior.likelihood import EmulatedPosterior, effective_points, sandwich_points
 from smcbayes.posterior.refine import check_values, round_design
 from smcbayes.posterior.report import write_outputs
@@ -132,7 +132,7 @@ def correct_posterior(ctx: RunContext, chains: list, n_eff: float, settings: Pos
     log posterior is known and helps shape the first proposal.
     """
     unit, _ = stack_components(chains)
-    cs = CorrectionSettings(draws=settings.correct_draws)
+    cs = settings.correction.model_copy(update={"draws": settings.correct_draws})
     known = (data[0], -0.5 * n_eff * np.asarray(data[1], dtype=float))
     return correct(exact_log_posterior(ctx, n_eff), unit.reshape(-1, ctx.space.dim), cs, rng, known)
 
