@@ -3,16 +3,18 @@
 Library code reports progress through :class:`Progress` and never prints.  Progress is
 shown only once an application switches it on with :func:`enable` (the command line
 does; a notebook user may): on a terminal as a tqdm bar whose remaining-time estimate
-comes from the measured rate, otherwise (a log file, CI) as one plain log line on the
-``smcbayes.progress`` logger at most every ``interval_s`` seconds, so that files are not
-garbled by carriage returns.
+comes from the measured rate (see :class:`Progress`), otherwise (a log file, CI) as one
+plain log line on the ``smcbayes.progress`` logger at most every ``interval_s`` seconds
+(and the last), so that files are not garbled by carriage returns.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import sys
 import time
+from collections.abc import Callable
 from types import TracebackType
 from typing import Any
 
@@ -47,30 +49,46 @@ class Progress:
     """Progress of ``total`` units of work (forward runs, evaluations, steps).
 
     Use as a context manager; :meth:`update` after each finished unit or batch.  The
-    remaining time is estimated from the rate measured since the first update (the first
-    unit often includes a compilation or a pool start-up, so it is left out of the rate).
+    remaining time is the measured time per unit since the end of the first batch times
+    the units left.  The first batch is left out because it often includes a compilation
+    or a pool start-up.  Units of one batch often finish together (the calibration's
+    initial design: ``init`` evaluations in one batched call, reported one by one within
+    microseconds): an update that follows the previous one within ``burst_s`` belongs to
+    the same batch, so the reference point moves on to it instead of a rate being taken
+    from an instant.  Whatever runs between batches (the calibration's GP fit of each
+    round) lies between two updates and so is in the rate.  Until a unit has finished
+    after the first batch the remaining time is unknown (``?``), not guessed.
 
     Args:
         total: units expected (``None``: unknown, no remaining-time estimate).
         desc: what is being done, e.g. ``"calibration"``.
         unit: name of one unit, e.g. ``"eval"``.
+        clock: seconds of a monotonic clock (a fake one in tests).
+        burst_s: updates closer than this (s) count as one batch.
     """
 
-    def __init__(self, total: int | None, desc: str, unit: str = "run") -> None:
+    def __init__(self, total: int | None, desc: str, unit: str = "run",
+                 clock: Callable[[], float] = time.perf_counter, burst_s: float = 0.05) -> None:
         self.total = total
         self.desc = desc
         self.unit = unit
         self.done = 0
         self.postfix = ""
-        self._start = time.perf_counter()
-        self._first: tuple[float, int] | None = None
-        self._last_line = 0.0
+        self._clock = clock
+        self._burst_s = burst_s
+        self._start = clock()
+        self._ref: tuple[float, int] | None = None  # end of the first batch: (time, done)
+        self._frozen = False
+        self._last_update = -math.inf
+        self._last_line = -math.inf
         self._bar: Any = None
         if enabled() and sys.stderr.isatty():
             from tqdm import tqdm
 
+            # tqdm's own estimate would take a rate from a burst of units; ours is shown instead
             self._bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=True,
-                             dynamic_ncols=True)
+                             dynamic_ncols=True,
+                             bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} {unit} [{elapsed}]{postfix}")
 
     def __enter__(self) -> Progress:
         return self
@@ -80,34 +98,37 @@ class Progress:
         self.close()
 
     def remaining_s(self) -> float:
-        """Remaining time (s) from the measured rate; NaN while unknown."""
-        if self.total is None or self._first is None:
+        """Remaining time (s) from the measured rate after the first batch; NaN while unknown."""
+        if self.total is None or self._ref is None:
             return float("nan")
-        t0, n0 = self._first
+        t0, n0 = self._ref
         done = self.done - n0
         if done <= 0:
             return float("nan")
-        rate = (time.perf_counter() - t0) / done
+        rate = (self._last_update - t0) / done
         return max(self.total - self.done, 0) * rate
 
     def elapsed_s(self) -> float:
         """Seconds since the start."""
-        return time.perf_counter() - self._start
+        return self._clock() - self._start
 
     def update(self, n: int = 1, note: str = "") -> None:
         """``n`` more units done; ``note`` is a short status such as ``"best 12.3 kN^2"``."""
-        if self._first is None:
-            self._first = (time.perf_counter(), self.done + n)
+        now = self._clock()
+        if not self._frozen and self._ref is not None and now - self._last_update > self._burst_s:
+            self._frozen = True  # the first batch is over: rates are measured from its end
         self.done += n
+        if not self._frozen:
+            self._ref = (now, self.done)
+        self._last_update = now
         self.postfix = note
         if self._bar is not None:
             self._bar.update(n)
-            if note:
-                self._bar.set_postfix_str(note, refresh=False)
+            self._bar.set_postfix_str(f"{note}  remaining ~{_format_s(self.remaining_s())}".strip(),
+                                      refresh=False)
             return
         if not enabled():
             return
-        now = time.perf_counter()
         finished = self.total is not None and self.done >= self.total
         if finished or now - self._last_line >= _STATE["interval_s"]:
             self._last_line = now

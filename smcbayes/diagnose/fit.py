@@ -40,6 +40,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,12 +49,14 @@ from scipy.stats import qmc
 
 from smcbayes.config import DiagnoseSpec, ProjectConfig
 from smcbayes.data.dataset import Dataset, Measurement
-from smcbayes.data.loss import evaluate_loss, interp_rows
+from smcbayes.data.loss import interp_rows
 from smcbayes.data.preprocess import crossing_time
 from smcbayes.errors import ConfigError
 from smcbayes.forward.model import ForwardModel
 from smcbayes.forward.result import SimulationResult
 from smcbayes.progress import Progress
+from smcbayes.run import RunDir
+from smcbayes.run.cache import ForwardCache
 from smcbayes.simulation.executors.base import Executor
 from smcbayes.simulation.objective import SimulatorObjective
 from smcbayes.simulation.runner import Runner
@@ -145,6 +148,9 @@ class DiagnosisContext:
         executor: makes the executor of each model's forward batches (default: in process);
             every forward run of the diagnosis goes through a
             :class:`~smcbayes.simulation.runner.Runner` of its model.
+        run: the calibration run directory, if the context was read from one: with
+            :meth:`keep_runs_in` each model's runner then keeps its forward runs in the
+            stage's cache, so a killed diagnosis rerun with the same seed redoes none.
     """
 
     project: ProjectConfig
@@ -156,6 +162,8 @@ class DiagnosisContext:
     base_params: dict[str, float]
     truth: dict[str, float] | None = None
     executor: Callable[[], Executor] | None = None
+    run: RunDir | None = None
+    _cache_folder: Path | None = field(default=None, repr=False)
     _models: dict[tuple[str, ...], ForwardModel] = field(default_factory=dict, repr=False)
     _runners: dict[tuple[str, ...], Runner] = field(default_factory=dict, repr=False)
 
@@ -173,8 +181,20 @@ class DiagnosisContext:
         key = tuple(extra)
         if key not in self._runners:
             objective = SimulatorObjective(self.model(key), self.dataset, self.ids, self.project.loss)
-            self._runners[key] = Runner(objective, None if self.executor is None else self.executor())
+            cache = (None if self.run is None or self._cache_folder is None
+                     else self.run.forward_cache("diagnose", self._cache_folder, key))
+            self._runners[key] = Runner(objective, None if self.executor is None else self.executor(), cache)
         return self._runners[key]
+
+    def keep_runs_in(self, folder: Path) -> None:
+        """Keep the forward runs of models made from now on in ``folder``'s cache (the
+        diagnosis's output folder; needs :attr:`run`)."""
+        self._cache_folder = Path(folder)
+
+    @property
+    def forward_runs_reused(self) -> int:
+        """Of :attr:`forward_runs`, those taken from the cache of an earlier run."""
+        return sum(r.forward_runs_reused for r in self._runners.values())
 
     @property
     def forward_runs(self) -> int:
@@ -185,6 +205,8 @@ class DiagnosisContext:
         """Release the executors' workers."""
         for r in self._runners.values():
             r.close()
+            if isinstance(r.cache, ForwardCache):
+                r.cache.close()
 
     def start(self, extra: Sequence[str], known: Mapping[str, float] | None = None) -> Array:
         """Warm start ``(1, d)`` of a model: known values, else base optimum, else defaults."""
@@ -194,11 +216,11 @@ class DiagnosisContext:
         return space.from_unit(np.clip(space.to_unit(theta), 0.0, 1.0))
 
     def losses(self, extra: Sequence[str], theta: Array, ids: Sequence[str]) -> Array:
-        """Per-configuration force/displacement errors ``(P, K)`` (kN^2); NaN where failed."""
-        results = self.runner(extra).simulate(theta, ids)
-        loss = evaluate_loss(results, self.dataset, self.project.loss, ids)
-        per = loss.per_config()
-        return np.column_stack([per[cid] for cid in ids])
+        """Per-configuration force/displacement errors ``(P, K)`` (kN^2); NaN where failed.
+
+        The objective's loss terms, without curves: the evolutions' many rows then cost the
+        cache a line each, not their curves."""
+        return self.runner(extra).errors(theta, ids)
 
     def simulate(self, extra: Sequence[str], theta: Array,
                  ids: Sequence[str]) -> dict[str, SimulationResult]:

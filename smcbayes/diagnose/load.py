@@ -30,4 +30,4 @@ def context_from_run(run_dir: Path | RunDir,
         project=problem.project, dataset=problem.dataset, ids=list(problem.train_ids),
         base_effects=tuple(problem.model.effects.names), overrides=dict(identity.overrides),
         fidelity=identity.fidelity, base_params={k: float(v[0]) for k, v in batch.items()}, truth=truth,
-        executor=executor)
+        executor=executor, run=run)

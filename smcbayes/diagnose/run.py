@@ -188,6 +188,8 @@ def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None
     they go to this module's logger at INFO level.
     """
     log = log or logger.info
+    if out is not None and ctx.run is not None:
+        ctx.keep_runs_in(out)
     rng = np.random.default_rng(settings.seed)
     holdout = check_holdout(ctx, settings.holdout or default_holdout(ctx))
     fit_ids = [c for c in ctx.ids if c not in holdout]
@@ -211,7 +213,8 @@ def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None
                "min_score": settings.min_score, "where": where.to_json(), "ranking": rows,
                "decision": decision, "shrink": shrink, **evidence,
                "base_calibrated_params": ctx.base_params, "truth": ctx.truth,
-               "simulator_runs": ctx.forward_runs, "seconds": time.perf_counter() - t0}
+               "simulator_runs": ctx.forward_runs, "forward_runs_reused": ctx.forward_runs_reused,
+               "forward_runs_made": ctx.forward_runs - ctx.forward_runs_reused, "seconds": time.perf_counter() - t0}
     if out is not None:
         write_outputs(ctx, summary, where, shown, out, settings.figures)
     return summary

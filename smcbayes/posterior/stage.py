@@ -208,6 +208,8 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     ctx = load_run(run_dir, executor)
     settings = settings if settings is not None else ctx.problem.project.posterior
     out_dir = ctx.run.begin_stage("posterior", settings.model_dump(mode="json"))
+    # every step is seeded: a rerun after a kill asks for the same rows and finds them here
+    ctx.runner.cache = cache = ctx.run.forward_cache("posterior")
     rng = np.random.default_rng(settings.seed)
     calibration_gp, _ = load_surrogate(ctx.run.gp_path)
     with ctx.runner:
@@ -222,11 +224,16 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         corrected = correct_posterior(ctx, chains, n_eff, settings, rng, data) if settings.correct_draws > 0 else None
         t_outputs = time.perf_counter()
         info = write_outputs(ctx, emul, chains, budget, settings, rng, out_dir, corrected)
+    cache.close()
     info["stage_seconds"] = {"setup_and_refine": t_sample - start, "emulator_sampling": t_correct - t_sample,
                              "correction": t_outputs - t_correct, "outputs": time.perf_counter() - t_outputs}
     info["forward_evaluations"].update(refine=refined, residual_budget=2 * ctx.space.dim + 1)
     info["forward_evaluations"]["total"] = sum(info["forward_evaluations"].values())
-    info["simulator_runs"] = ctx.runner.forward_runs  # parameter sets x configurations
+    # parameter sets x configurations: all that shaped the result, those found in the cache
+    # (made by an earlier, interrupted or differently set, run) and those made now
+    info["simulator_runs"] = ctx.runner.forward_runs
+    info["forward_runs_reused"] = ctx.runner.forward_runs_reused
+    info["forward_runs_made"] = ctx.runner.forward_runs_made
     info["simulator"] = ctx.summary.get("simulator", "native")
     info["seconds"] = time.perf_counter() - start
     info["settings"] = settings.model_dump(mode="json")

@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 
 from smcbayes.config import ProjectConfig
 from smcbayes.errors import ConfigError
+from smcbayes.run.cache import ForwardCache, cache_tag
 from smcbayes.run.runlog import LOG_NAME, RunLog, write_json
 from smcbayes.simulation.problem import ExternalSpec, Problem, build_problem
 
@@ -241,6 +242,16 @@ class RunDir:
             return "interrupted"
         # a stage folder written before status files existed
         return "complete" if isinstance(summary, dict) else "interrupted"
+
+    def forward_cache(self, stage: str, folder: Path | None = None,
+                      model: Sequence[str] = ()) -> ForwardCache:
+        """The forward-run cache of a stage's model (``<stage folder>/forward_cache/``), tied
+        to the run's identity (project, effects, overrides, fidelity, external simulator),
+        the model's extra effects ``model`` and the package version, so that runs of
+        another calibration or model are never reused."""
+        ident = self.identity().to_json()
+        tag = cache_tag({k: ident.get(k) for k in _MODEL_KEYS}, model)
+        return ForwardCache(self.stage_dir(stage, folder) / "forward_cache", tag)
 
     def stage_summary(self, stage: str, folder: Path | None = None) -> dict[str, Any] | None:
         """A complete stage's ``summary.json``, or ``None``."""

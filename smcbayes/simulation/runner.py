@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from types import TracebackType
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -59,22 +60,54 @@ def concat_rows(parts: Sequence[SimulationResult]) -> SimulationResult:
         parts[0].effects)
 
 
+class RunCache(Protocol):
+    """Forward runs kept from earlier batches (implemented by the run layer's
+    :class:`~smcbayes.run.cache.ForwardCache`), keyed by configuration and parameter row."""
+
+    def lookup(self, config_id: str, theta: Array, curves: bool) -> list[TaskResult | None]:
+        """Per row of ``theta`` ``(P, d)``: its one-row result (with curves if ``curves``), or ``None``."""
+        ...
+
+    def begin(self, runs: int) -> None:
+        """``runs`` forward runs (rows x configurations) are about to be made."""
+        ...
+
+    def store(self, result: TaskResult, theta: Array) -> None:
+        """Keep a finished task's rows; ``theta`` ``(len(result.indices), d)`` are its rows."""
+        ...
+
+    def commit(self) -> None:
+        """Make everything stored so far durable (the end of a batch)."""
+        ...
+
+
 class Runner:
     """A run's simulator and objective bound to its executor.
 
     Args:
         objective: the run's objective (its simulator, data and loss).
         executor: where batches run (default: in this process).
+        cache: earlier forward runs to reuse and where to keep new ones (``None``: none).
 
     Attributes:
-        forward_runs: parameter sets simulated so far, counted once per configuration.
+        forward_runs: parameter sets asked for so far, counted once per configuration
+            (made or reused: what shaped the results).
+        forward_runs_reused: of those, the ones taken from ``cache``.
     """
 
-    def __init__(self, objective: SimulatorObjective, executor: Executor | None = None) -> None:
+    def __init__(self, objective: SimulatorObjective, executor: Executor | None = None,
+                 cache: RunCache | None = None) -> None:
         self.objective = objective
         self.executor: Executor = executor if executor is not None else LocalExecutor(1)
+        self.cache = cache
         self.forward_runs = 0
+        self.forward_runs_reused = 0
         self._started = False
+
+    @property
+    def forward_runs_made(self) -> int:
+        """Forward runs simulated by this runner (not taken from the cache)."""
+        return self.forward_runs - self.forward_runs_reused
 
     @property
     def space(self) -> ParameterSpace:
@@ -112,8 +145,10 @@ class Runner:
 
         Returns each configuration's task results in row order.
         """
-        self.start()
         theta = np.atleast_2d(np.asarray(theta, dtype=float))
+        if self.cache is not None:
+            return self._run_cached(self.cache, theta, config_ids, curves)
+        self.start()
         out: dict[str, list[TaskResult]] = {cid: [] for cid in config_ids}
         for result in self.executor.run(self._tasks(theta, config_ids, curves)):
             out[result.config_id].append(result)
@@ -121,6 +156,32 @@ class Runner:
         for parts in out.values():
             parts.sort(key=lambda r: r.indices[0] if r.indices else -1)
         return out
+
+    def _run_cached(self, cache: RunCache, theta: Array, config_ids: Sequence[str],
+                    curves: bool) -> dict[str, list[TaskResult]]:
+        """:meth:`run` through ``cache``: only rows it lacks are simulated, and they are
+        kept (durably at the end of the batch).  Returns one result per configuration,
+        rows in order, whatever mix of kept and new rows made it."""
+        hits = {cid: cache.lookup(cid, theta, curves) for cid in dict.fromkeys(config_ids)}
+        size = self.executor.rows_per_task
+        tasks = []
+        for cid, rows in hits.items():
+            missing = [i for i, h in enumerate(rows) if h is None]
+            step = size or max(len(missing), 1)
+            tasks += [Task(tuple(missing[lo:lo + step]), theta[missing[lo:lo + step]], cid, curves)
+                      for lo in range(0, len(missing), step)]
+        made = sum(len(t.indices) for t in tasks)
+        fresh: dict[str, list[TaskResult]] = {cid: [] for cid in hits}
+        if tasks:
+            self.start()
+            cache.begin(made)
+            for result in self.executor.run(tasks):
+                cache.store(result, theta[list(result.indices)])
+                fresh[result.config_id].append(result)
+            cache.commit()
+        self.forward_runs += theta.shape[0] * len(hits)
+        self.forward_runs_reused += theta.shape[0] * len(hits) - made
+        return {cid: [_merge(theta.shape[0], cid, rows, fresh[cid], curves)] for cid, rows in hits.items()}
 
     def simulate(self, theta: Array, config_ids: Sequence[str]) -> dict[str, SimulationResult]:
         """Curves of ``theta`` ``(P, d)`` on each configuration (the :class:`Simulator` contract)."""
@@ -144,6 +205,45 @@ class Runner:
         """Global loss ``(P,)`` of ``theta`` on the objective's configurations: the mean of
         the per-configuration terms (thesis eq. 3.7), NaN where any failed."""
         return np.mean(self.errors(theta), axis=1)
+
+
+def _row_curves(result: SimulationResult, i: int) -> SimulationResult:
+    """Row ``i`` of ``result`` as a one-row result."""
+    def take(name: str) -> Array:
+        return getattr(result, name)[i:i + 1]
+
+    return SimulationResult(result.config_id, take("time_s"), take("gap_mm"), take("displacement_mm"),
+                            take("force_kN"), take("fill_fraction"), take("solid_fraction"),
+                            take("phase"), take("switch_time_s"), [result.status[i]], result.effects)
+
+
+def _merge(rows: int, config_id: str, kept: Sequence[TaskResult | None], fresh: Sequence[TaskResult],
+           curves: bool) -> TaskResult:
+    """One result of ``rows`` rows (indices ``0..rows-1``) from kept one-row results and the
+    new tasks' results (whose indices are row numbers)."""
+    error, force, disp = (np.full(rows, np.nan) for _ in range(3))
+    status = [""] * rows
+    parts: list[SimulationResult | None] = [None] * rows
+    seconds = 0.0
+    for i, h in enumerate(kept):
+        if h is not None:
+            error[i], force[i], disp[i] = h.error[0], h.force_mse_kN2[0], h.displacement_mse_mm2[0]
+            status[i] = h.status[0]
+            parts[i] = h.curves
+    for r in fresh:
+        idx = list(r.indices)
+        error[idx], force[idx], disp[idx] = r.error, r.force_mse_kN2, r.displacement_mse_mm2
+        seconds += r.seconds
+        full = r.curves if r.curves is not None else _failed_curves(r, fresh) if curves else None
+        for j, i in enumerate(idx):
+            status[i] = r.status[j]
+            parts[i] = None if full is None else _row_curves(full, j)
+    joined = None
+    if curves and rows:
+        joined = concat_rows([p if p is not None else _failed_curves(
+            TaskResult((i,), config_id, error[i:i + 1], force[i:i + 1], disp[i:i + 1], [status[i]], 0.0),
+            fresh) for i, p in enumerate(parts)])
+    return TaskResult(tuple(range(rows)), config_id, error, force, disp, status, seconds, joined)
 
 
 def _failed_curves(result: TaskResult, parts: Sequence[TaskResult]) -> SimulationResult:

@@ -110,3 +110,62 @@ def test_residual_budget_with_a_parameter_on_its_bound(run_dir: Path) -> None:
     eff = residual_budget(ctx)
     assert np.isfinite(eff["n_eff_sandwich"]) and eff["n_eff_sandwich"] > 0
     assert eff["n_eff_total"] == min(eff["n_eff_sandwich"], eff["n_eff_residual"])
+
+
+class _Killed(Exception):
+    """Stands for a kill of the process in the middle of a batch."""
+
+
+def _fresh_copy(run_dir: Path, dest: Path) -> Path:
+    import shutil
+
+    shutil.copytree(run_dir, dest, ignore=shutil.ignore_patterns("posterior"))
+    return dest
+
+
+def _stage_result(folder: Path) -> tuple[dict, np.ndarray, str]:
+    import arviz as az
+
+    info = json.loads((folder / "summary.json").read_text())
+    for key in ("seconds", "stage_seconds", "forward_runs_reused", "forward_runs_made", "warnings"):
+        info.pop(key, None)
+    idata = az.from_netcdf(str(folder / "posterior.nc"))
+    sample = np.column_stack([idata.posterior[v].values.reshape(-1) for v in ("tau_c_MPa", "m")])
+    return info, sample, (folder / "refine.jsonl").read_text()
+
+
+def test_killed_and_rerun_posterior_equals_uninterrupted(run_dir: Path, tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    from smcbayes.posterior.stage import PosteriorSettings, run_posterior
+    from smcbayes.run.cache import ForwardCache
+
+    settings = PosteriorSettings(walkers=8, steps=200, functions=2, refine=18, draws=6,
+                                 correct_draws=1000, seed=4)
+    whole = run_posterior(_fresh_copy(run_dir, tmp_path / "whole"), settings)
+    assert whole["forward_runs_reused"] == 0
+
+    stores = {"n": 0}
+    keep = ForwardCache.store
+
+    def store_then_die(self: ForwardCache, result: object, theta: np.ndarray) -> None:
+        stores["n"] += 1
+        # 5 configurations: the sensitivities' batch, refinement round 1 (logged), then
+        # the middle of round 2
+        if stores["n"] == 13:
+            raise _Killed
+        keep(self, result, theta)  # type: ignore[arg-type]
+
+    broken = _fresh_copy(run_dir, tmp_path / "broken")
+    monkeypatch.setattr(ForwardCache, "store", store_then_die)
+    with pytest.raises(_Killed):
+        run_posterior(broken, settings)
+    monkeypatch.setattr(ForwardCache, "store", keep)
+    assert len((broken / "posterior" / "refine.jsonl").read_text().splitlines()) == 9
+    rerun = run_posterior(broken, settings)
+
+    a, b = _stage_result(tmp_path / "whole" / "posterior"), _stage_result(broken / "posterior")
+    assert a[0] == b[0]  # every number of the summary, forward_evaluations included
+    np.testing.assert_array_equal(a[1], b[1])
+    assert a[2] == b[2]  # the refinement log: no round lost or counted twice
+    assert rerun["forward_runs_reused"] > 0
+    assert rerun["forward_runs_reused"] + rerun["forward_runs_made"] == whole["forward_runs_made"]

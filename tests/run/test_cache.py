@@ -1,0 +1,107 @@
+"""The forward-run cache: reuse by exact parameter row, durability across a cut line,
+identity tags, and the runner's lookup before it simulates."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smcbayes.forward.parameters import BASE_PARAMETERS, ParameterSpace
+from smcbayes.forward.result import SimulationResult
+from smcbayes.run.cache import ForwardCache, cache_tag
+from smcbayes.simulation.objective import Task, TaskResult
+from smcbayes.simulation.runner import Runner
+
+
+class _CurveObjective:
+    """Analytic per-row errors and curves; counts the rows it evaluates."""
+
+    def __init__(self) -> None:
+        # the runner reads only the space's presence; two free parameters
+        self.space = ParameterSpace(BASE_PARAMETERS, {"n": 0.4, "tau_star_Pa": 1e4, "B_Pa_s": 1e4})
+        self.config_ids = ["c1", "c2"]
+        self.rows = 0
+
+    def evaluate(self, task: Task) -> TaskResult:
+        self.rows += len(task.indices)
+        th = task.theta
+        err = (th[:, 0] - 0.3) ** 2 + (th[:, 1] - 1.1) ** 2 + (1.0 if task.config_id == "c2" else 0.0)
+        curves = None
+        if task.curves:
+            t = np.tile(np.linspace(0.0, 1.0, 5), (len(th), 1))
+            f = th[:, :1] * t
+            curves = SimulationResult(task.config_id, t, f.copy(), f.copy(), f.copy(), f.copy(), f.copy(),
+                                      np.zeros_like(t, dtype=np.int8), th[:, 1].copy(), ["ok"] * len(th))
+        return TaskResult(task.indices, task.config_id, err, err * 2, err * 3, ["ok"] * len(th), 0.0, curves)
+
+
+@pytest.fixture
+def objective() -> _CurveObjective:
+    return _CurveObjective()
+
+
+def test_runner_reuses_rows_across_instances(tmp_path: Path, objective: _CurveObjective) -> None:
+    rng = np.random.default_rng(0)
+    theta = rng.uniform(0, 2, (6, 2))
+    plain = Runner(objective).errors(theta)
+    objective.rows = 0
+    first = Runner(objective, cache=ForwardCache(tmp_path, "t"))
+    np.testing.assert_array_equal(first.errors(theta[:4]), plain[:4])
+    assert objective.rows == 8 and first.forward_runs_made == 8
+    first.cache.close()  # type: ignore[union-attr]
+    # a new process: rows 0-3 are read back, only 4-5 are simulated
+    objective.rows = 0
+    second = Runner(objective, cache=ForwardCache(tmp_path, "t"))
+    np.testing.assert_array_equal(second.errors(theta), plain)
+    assert objective.rows == 4
+    assert (second.forward_runs, second.forward_runs_reused, second.forward_runs_made) == (12, 8, 4)
+
+
+def test_curves_kept_and_errors_only_rows_rerun_for_curves(tmp_path: Path,
+                                                           objective: _CurveObjective) -> None:
+    theta = np.array([[0.5, 1.0], [1.5, 0.2], [0.1, 1.9]])
+    plain = Runner(objective).simulate(theta, ["c1"])["c1"]
+    Runner(objective, cache=ForwardCache(tmp_path, "t")).errors(theta[:1], ["c1"])
+    objective.rows = 0
+    cached = Runner(objective, cache=ForwardCache(tmp_path, "t"))
+    got = cached.simulate(theta, ["c1"])["c1"]
+    assert objective.rows == 3  # errors alone cannot give curves
+    objective.rows = 0
+    again = Runner(objective, cache=ForwardCache(tmp_path, "t")).simulate(theta, ["c1"])["c1"]
+    assert objective.rows == 0
+    for res in (got, again):
+        np.testing.assert_array_equal(res.force_kN, plain.force_kN)
+        np.testing.assert_array_equal(res.switch_time_s, plain.switch_time_s)
+        assert res.status == plain.status and res.phase.dtype == np.int8
+
+
+def test_cut_line_is_dropped_and_appends_stay_readable(tmp_path: Path, objective: _CurveObjective) -> None:
+    theta = np.array([[0.5, 1.0], [1.5, 0.2]])
+    cache = ForwardCache(tmp_path, "t")
+    Runner(objective, cache=cache).errors(theta)
+    cache.close()
+    with cache.path.open("a", encoding="utf-8") as fh:
+        fh.write('{"k": "abc", "c": "c1", "e": 1.')  # a kill in the middle of a line
+    cache = ForwardCache(tmp_path, "t")
+    assert len(cache) == 4 and cache.stats().started == 4
+    Runner(objective, cache=cache).errors(theta + 0.1)
+    cache.close()
+    reread = ForwardCache(tmp_path, "t")
+    assert len(reread) == 8 and reread.stats().stored == 8
+
+
+def test_failed_rows_are_not_kept(tmp_path: Path, objective: _CurveObjective) -> None:
+    cache = ForwardCache(tmp_path, "t")
+    task = Task((0, 1), np.array([[0.5, 1.0], [1.5, 0.2]]), "c1")
+    cache.store(TaskResult.failed(task, "worker process died"), task.theta)
+    assert len(cache) == 0
+    assert cache.lookup("c1", task.theta, False) == [None, None]
+
+
+def test_tags_separate_runs_and_models() -> None:
+    ident = {"project": {"name": "a"}, "effects": None}
+    assert cache_tag(ident) == cache_tag(dict(ident))
+    assert cache_tag(ident) != cache_tag({**ident, "project": {"name": "b"}})
+    assert cache_tag(ident) != cache_tag(ident, ("press_compliance",))
