@@ -139,8 +139,8 @@ def test_killed_and_rerun_posterior_equals_uninterrupted(run_dir: Path, tmp_path
     from smcbayes.posterior.stage import PosteriorSettings, run_posterior
     from smcbayes.run.cache import ForwardCache
 
-    settings = PosteriorSettings(walkers=8, steps=200, functions=2, refine=18, draws=6,
-                                 correct_draws=1000, seed=4)
+    settings = PosteriorSettings(walkers=8, steps=100, functions=1, refine=18, draws=4,
+                                 correct_draws=500, seed=4)
     whole = run_posterior(_fresh_copy(run_dir, tmp_path / "whole"), settings)
     assert whole["forward_runs_reused"] == 0
 
