@@ -40,6 +40,9 @@ class CalibrationSpec(Strict):
         3, ge=0, le=10, description="extra attempts of a simulation that failed or timed out before "
                                     "its configuration counts as failed (external solvers; the native "
                                     "model's failures repeat and are not retried)")
+    worker_timeout_s: float = Field(
+        300.0, gt=0, description="--scheduler: stop with an error after this long (s) without any "
+                                 "Dask worker")
     truth: dict[str, float] | None = Field(
         None, description="synthetic check: 'measured' curves simulated at these values")
     restarts: int = Field(8, ge=1, le=1000, description="acquisition optimiser restarts")

@@ -247,6 +247,8 @@ class BayesOpt:
         """Run (or resume) until the budget or the tolerance rule stops it."""
         self.state = self.log.read(repair=True)
         self._start = time.perf_counter()
+        if hasattr(self.executor, "worker_timeout_s"):  # a cluster executor: the run's patience
+            self.executor.worker_timeout_s = self.settings.worker_timeout_s
         self.executor.start(with_retries(self.objective, self.settings.retries))
         try:
             rnd, proposed = 0, 0
