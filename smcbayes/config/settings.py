@@ -50,6 +50,13 @@ class CalibrationSpec(Strict):
     seed: int = Field(0, ge=0)
     failed: Literal["impute", "exclude"] = Field(
         "impute", description="failed evaluations: imputed at the worst loss seen, or left out")
+    retries: int = Field(
+        3, ge=0, le=10, description="extra attempts of a simulation that failed or timed out before "
+                                    "its configuration counts as failed (external solvers; the native "
+                                    "model's failures repeat and are not retried)")
+    worker_timeout_s: float = Field(
+        300.0, gt=0, description="--scheduler: stop with an error after this long (s) without any "
+                                 "Dask worker")
     truth: dict[str, float] | None = Field(
         None, description="synthetic check: 'measured' curves simulated at these values")
     restarts: int = Field(8, ge=1, le=1000, description="acquisition optimiser restarts")

@@ -68,7 +68,8 @@ def load_run(run_dir: Path | RunDir, executor: Executor | None = None) -> RunCon
     theta = run.best_theta(problem.space.free_names)
     if problem.truth is None:
         problem.truth = synthetic_truth(problem.project, problem.space.defaults())
-    return RunContext(run, problem, summary, theta, problem.runner(executor))
+    retries = run.identity().settings.get("retries")  # as calibrated, not the project's current table
+    return RunContext(run, problem, summary, theta, problem.runner(executor, retries))
 
 
 def synthetic_truth(project: ProjectConfig, defaults: dict[str, float]) -> dict[str, float] | None:

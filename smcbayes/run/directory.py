@@ -44,7 +44,7 @@ StageState = Literal["absent", "running", "interrupted", "complete"]
 
 IDENTITY_KEYS = ("project", "effects", "overrides", "fidelity", "external", "seed", "init",
                  "batch", "kernel", "failed", "restarts", "raw_samples", "noise",
-                 "local_evaluations", "local_radius", "patience")
+                 "local_evaluations", "local_radius", "patience", "retries")
 """Settings that must match for ``--resume`` (the budget and tolerance may change)."""
 
 _MODEL_KEYS = ("project", "effects", "overrides", "fidelity", "external")

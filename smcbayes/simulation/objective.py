@@ -11,6 +11,7 @@ picklable: executors ship them to worker processes or cluster nodes.
 
 from __future__ import annotations
 
+import hashlib
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -23,6 +24,7 @@ from smcbayes.config import LossSpec
 from smcbayes.data.dataset import Dataset
 from smcbayes.data.loss import evaluate_loss
 from smcbayes.errors import SolverError
+from smcbayes.forward.model import ForwardModel
 from smcbayes.forward.parameters import ParameterSpace
 from smcbayes.forward.result import STATUS_OK, SimulationResult
 
@@ -38,12 +40,15 @@ class Task:
         theta: free-parameter vectors in user units, shape ``(P, d)``.
         config_id: the configuration.
         curves: return the simulated curves with the errors.
+        attempt: 0 for the first run of these rows, ``k`` for their ``k``-th retry after a
+            failure (:class:`~smcbayes.simulation.runner.RetryObjective`).
     """
 
     indices: tuple[int, ...]
     theta: Array
     config_id: str
     curves: bool = False
+    attempt: int = 0
 
 
 @dataclass(frozen=True)
@@ -58,8 +63,9 @@ class TaskResult:
         force_mse_kN2: force mean squared error, shape ``(P,)`` (kN^2).
         displacement_mse_mm2: displacement mean squared error, shape ``(P,)`` (mm^2).
         status: ``"ok"`` or ``"failed: reason"`` per row.
-        seconds: wall time of the whole task (s).
+        seconds: wall time of the whole task (s), retries included.
         curves: the simulated curves of the rows (``P`` rows) if the task asked for them.
+        retried: row runs repeated after failures (retries), on top of the ``P`` first runs.
     """
 
     indices: tuple[int, ...]
@@ -70,6 +76,7 @@ class TaskResult:
     status: list[str]
     seconds: float
     curves: SimulationResult | None = None
+    retried: int = 0
 
     @staticmethod
     def failed(task: Task, reason: str, seconds: float = 0.0) -> TaskResult:
@@ -137,6 +144,12 @@ class SimulatorObjective:
         self.config_ids = list(config_ids)
         self.loss_spec = loss_spec
 
+    @property
+    def deterministic(self) -> bool:
+        """Whether a failed row would fail again: true of the native model, whose retries
+        are skipped; an external command may fail transiently (licence, disk, node)."""
+        return isinstance(self.simulator, ForwardModel)
+
     def evaluate(self, task: Task) -> TaskResult:
         """Simulate the task's rows on its configuration and score them.
 
@@ -192,6 +205,7 @@ class QuadraticObjective:
         self.delay_s = delay_s
         self.scale = scale
         self.floor = floor
+        self.deterministic = True
 
     def evaluate(self, task: Task) -> TaskResult:
         """Analytic errors of the task's rows."""
@@ -204,6 +218,43 @@ class QuadraticObjective:
         status = [STATUS_OK] * len(task.indices)
         return TaskResult(task.indices, task.config_id, err, err.copy(),
                           np.zeros_like(err), status, time.perf_counter() - start)
+
+
+class FlakyObjective:
+    """A test objective that fails a share of its runs at random, reproducibly.
+
+    Each (evaluation, configuration, attempt) fails with probability ``share``, decided by
+    a hash of the three and ``seed``: independent transient failures, the same in every
+    run, interrupted or not (a retry is a new draw).
+
+    Args:
+        inner: the objective whose rows are failed.
+        share: probability that one run fails (0-1).
+        seed: seeds the failure draws.
+    """
+
+    deterministic = False
+
+    def __init__(self, inner: Objective, share: float = 0.2, seed: int = 0) -> None:
+        self.inner = inner
+        self.space = inner.space
+        self.config_ids = inner.config_ids
+        self.share = share
+        self.seed = seed
+
+    def fails(self, index: int, config_id: str, attempt: int) -> bool:
+        """Whether that run fails."""
+        key = f"{self.seed}/{index}/{config_id}/{attempt}".encode()
+        return int(hashlib.sha256(key).hexdigest()[:13], 16) / 16**13 < self.share
+
+    def evaluate(self, task: Task) -> TaskResult:
+        """The inner errors, with the drawn failures as failed rows."""
+        res = self.inner.evaluate(task)
+        bad = np.array([self.fails(i, task.config_id, task.attempt) for i in task.indices], dtype=bool)
+        status = ["failed: injected transient failure" if b else s for s, b in zip(res.status, bad, strict=True)]
+        nan_where = lambda a: np.where(bad, np.nan, a)  # noqa: E731
+        return TaskResult(res.indices, res.config_id, nan_where(res.error), nan_where(res.force_mse_kN2),
+                          nan_where(res.displacement_mse_mm2), status, res.seconds, res.curves)
 
 
 def combine(errors: Mapping[str, float], config_ids: Sequence[str]) -> float:

@@ -76,9 +76,11 @@ class Problem:
         return {cid: (m.force.time_s, m.force.values) for cid, m in self.dataset.measurements.items()
                 if cid in ids and m.force is not None}
 
-    def runner(self, executor: Executor | None = None) -> Runner:
-        """The run's objective bound to ``executor`` (in process when ``None``)."""
-        return Runner(self.objective, executor)
+    def runner(self, executor: Executor | None = None, retries: int | None = None) -> Runner:
+        """The run's objective bound to ``executor`` (in process when ``None``), failed
+        runs retried ``retries`` times (default: the project's ``[calibration] retries``)."""
+        return Runner(self.objective, executor,
+                      retries=self.project.calibration.retries if retries is None else retries)
 
 
 def write_truth_data(model: ForwardModel, truth: Mapping[str, float], ids: Sequence[str],

@@ -5,6 +5,18 @@ report's curves all run their forward batches through a :class:`Runner`: the run
 simulator (native or external) wrapped in its objective, on the run's executor (in
 process, a local process pool or a Dask cluster).  The runner counts the forward runs it
 made, so every stage can say what it cost.
+
+Failed runs are retried here, in the executor layer, the way Dakota's failure capture
+does ("retry N"; Adams et al., Dakota User's Manual, "Simulation Failure Capturing"): a
+row whose simulation failed or timed out is run again, up to ``retries`` times, inside
+the task that ran it (:class:`RetryObjective`), before it counts as failed.  Living below
+the optimiser, the retries serve every stage alike (calibration, posterior, bands, best
+curves) on every executor (in process, pool, Dask worker), and they keep runs
+deterministic and resumable: a task's outcome depends only on its rows and their attempt
+numbers, and the evaluation log records an evaluation only once all its attempts are
+done, so a resumed run repeats exactly the attempts an uninterrupted run makes.  The
+native model is deterministic (a retry fails the same way), so its failures are not
+retried; the retries are for external solvers that fail transiently.
 """
 
 from __future__ import annotations
@@ -17,10 +29,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.forward.parameters import ParameterSpace
-from smcbayes.forward.result import SimulationResult
+from smcbayes.forward.result import STATUS_OK, SimulationResult
 from smcbayes.simulation.executors.base import Executor
 from smcbayes.simulation.executors.local import LocalExecutor
-from smcbayes.simulation.objective import SimulatorObjective, Task, TaskResult
+from smcbayes.simulation.objective import Objective, SimulatorObjective, Task, TaskResult
 
 Array = NDArray[np.float64]
 
@@ -81,6 +93,88 @@ class RunCache(Protocol):
         ...
 
 
+def _take(result: SimulationResult, rows: Sequence[int]) -> SimulationResult:
+    """The ``rows`` of a result, as a result of their own."""
+    idx = list(rows)
+    return SimulationResult(result.config_id, result.time_s[idx], result.gap_mm[idx],
+                            result.displacement_mm[idx], result.force_kN[idx], result.fill_fraction[idx],
+                            result.solid_fraction[idx], result.phase[idx], result.switch_time_s[idx],
+                            [result.status[i] for i in idx], result.effects)
+
+
+class RetryObjective:
+    """An objective whose failed rows are run again, up to ``retries`` times.
+
+    The rows of a task that come back failed (``"failed: reason"``: a solver error, a
+    timeout, a non-finite curve) form a smaller task with ``attempt`` 1, 2, ... and replace
+    their failed results when they succeed; a row still failed after the last attempt
+    keeps its last reason, with the number of attempts.  A ``deterministic`` inner
+    objective (the native model) is not retried: its failure would repeat.  Picklable when
+    the inner objective is, so it runs on the executor's workers.
+
+    Args:
+        inner: the objective to retry.
+        retries: extra attempts per failed row (0: none).
+    """
+
+    def __init__(self, inner: Objective, retries: int) -> None:
+        self.inner = inner
+        self.retries = retries
+        self.space = inner.space
+        self.config_ids = inner.config_ids
+
+    def evaluate(self, task: Task) -> TaskResult:
+        """The task's results, its failed rows retried (attempts counted in ``retried``)."""
+        result = self.inner.evaluate(task)
+        if self.retries <= 0 or getattr(self.inner, "deterministic", False):
+            return result
+        error, force = result.error.copy(), result.force_mse_kN2.copy()
+        disp, status = result.displacement_mse_mm2.copy(), list(result.status)
+        # which result holds each row's curves, and at which of its rows
+        source: list[tuple[TaskResult, int]] = [(result, j) for j in range(len(task.indices))]
+        seconds, retried, attempt = result.seconds, 0, 0
+        failed = [j for j, s in enumerate(status) if s != STATUS_OK]
+        while failed and attempt < self.retries:
+            attempt += 1
+            again = self.inner.evaluate(Task(tuple(task.indices[j] for j in failed), task.theta[failed],
+                                             task.config_id, task.curves, attempt))
+            seconds += again.seconds
+            retried += len(failed)
+            for k, j in enumerate(failed):
+                error[j], force[j] = again.error[k], again.force_mse_kN2[k]
+                disp[j], status[j] = again.displacement_mse_mm2[k], again.status[k]
+                source[j] = (again, k)
+            failed = [j for j in failed if status[j] != STATUS_OK]
+        for j in failed:
+            status[j] = f"{status[j]} (after {attempt + 1} attempts)"
+        curves = _merge_curves(task, source, status) if task.curves else None
+        return TaskResult(result.indices, result.config_id, error, force, disp, status, seconds,
+                          curves, result.retried + retried)
+
+
+def _merge_curves(task: Task, source: Sequence[tuple[TaskResult, int]],
+                  status: list[str]) -> SimulationResult | None:
+    """One result of the task's rows, each taken from the attempt that last ran it."""
+    if all(r.curves is None for r, _ in source):
+        return None
+    parts = []
+    for r, k in source:
+        if r.curves is None:  # the whole attempt failed: NaN rows shaped like the others
+            part = _failed_curves(r, [p for p, _ in source])
+            parts.append(_take(part, [k]))
+        else:
+            parts.append(_take(r.curves, [k]))
+    merged = concat_rows(parts)
+    return SimulationResult(merged.config_id, merged.time_s, merged.gap_mm, merged.displacement_mm,
+                            merged.force_kN, merged.fill_fraction, merged.solid_fraction, merged.phase,
+                            merged.switch_time_s, list(status), merged.effects)
+
+
+def with_retries(objective: Objective, retries: int) -> Objective:
+    """``objective`` with its failed rows retried ``retries`` times (itself when 0)."""
+    return RetryObjective(objective, retries) if retries > 0 else objective
+
+
 class Runner:
     """A run's simulator and objective bound to its executor.
 
@@ -88,18 +182,21 @@ class Runner:
         objective: the run's objective (its simulator, data and loss).
         executor: where batches run (default: in this process).
         cache: earlier forward runs to reuse and where to keep new ones (``None``: none).
+        retries: extra attempts of a failed row (:class:`RetryObjective`).
 
     Attributes:
         forward_runs: parameter sets asked for so far, counted once per configuration
-            (made or reused: what shaped the results).
+            (made or reused: what shaped the results), failed attempts that were retried
+            included.
         forward_runs_reused: of those, the ones taken from ``cache``.
     """
 
     def __init__(self, objective: SimulatorObjective, executor: Executor | None = None,
-                 cache: RunCache | None = None) -> None:
+                 cache: RunCache | None = None, retries: int = 0) -> None:
         self.objective = objective
         self.executor: Executor = executor if executor is not None else LocalExecutor(1)
         self.cache = cache
+        self.retries = retries
         self.forward_runs = 0
         self.forward_runs_reused = 0
         self._started = False
@@ -125,7 +222,7 @@ class Runner:
     def start(self) -> None:
         """Start the executor (ship the objective to its workers) if not yet started."""
         if not self._started:
-            self.executor.start(self.objective)
+            self.executor.start(with_retries(self.objective, self.retries))
             self._started = True
 
     def close(self) -> None:
@@ -152,6 +249,7 @@ class Runner:
         out: dict[str, list[TaskResult]] = {cid: [] for cid in config_ids}
         for result in self.executor.run(self._tasks(theta, config_ids, curves)):
             out[result.config_id].append(result)
+            self.forward_runs += result.retried
         self.forward_runs += theta.shape[0] * len(out)
         for parts in out.values():
             parts.sort(key=lambda r: r.indices[0] if r.indices else -1)
@@ -178,6 +276,7 @@ class Runner:
             for result in self.executor.run(tasks):
                 cache.store(result, theta[list(result.indices)])
                 fresh[result.config_id].append(result)
+                self.forward_runs += result.retried
             cache.commit()
         self.forward_runs += theta.shape[0] * len(hits)
         self.forward_runs_reused += theta.shape[0] * len(hits) - made

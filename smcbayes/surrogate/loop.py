@@ -6,6 +6,14 @@ round's candidates are logged before they run, and each evaluation as soon as al
 configurations are done, so a run killed at any moment resumes where it stopped, and
 (every random step being seeded from the run seed and the round) ends exactly where an
 uninterrupted run ends.
+
+A simulation that fails is retried ``retries`` times inside its task, below the loop
+(:class:`~smcbayes.simulation.runner.RetryObjective`, as every stage's runner does), so
+the loop sees a configuration as failed only once its attempts are used up.  The loss
+stays honest: an evaluation with a configuration still failed is failed (its loss, the
+mean over all configurations, does not exist), logged with the reasons, and given to the
+GP at the worst loss seen (``failed = "impute"``) or left out (``"exclude"``).  A run
+whose evaluations all fail proposes at random and ends at its budget.
 """
 
 from __future__ import annotations
@@ -23,6 +31,7 @@ from smcbayes.config import CalibrationSpec
 from smcbayes.run.runlog import LogState, RunLog
 from smcbayes.simulation.executors.base import Executor
 from smcbayes.simulation.objective import Objective, Task, TaskResult, combine
+from smcbayes.simulation.runner import with_retries
 from smcbayes.surrogate.design import latin_hypercube, round_rng, round_seed
 
 Array = NDArray[np.float64]
@@ -238,7 +247,9 @@ class BayesOpt:
         """Run (or resume) until the budget or the tolerance rule stops it."""
         self.state = self.log.read(repair=True)
         self._start = time.perf_counter()
-        self.executor.start(self.objective)
+        if hasattr(self.executor, "worker_timeout_s"):  # a cluster executor: the run's patience
+            self.executor.worker_timeout_s = self.settings.worker_timeout_s
+        self.executor.start(with_retries(self.objective, self.settings.retries))
         try:
             rnd, proposed = 0, 0
             while True:

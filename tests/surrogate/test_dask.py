@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from smcbayes.errors import SolverError
 from smcbayes.forward.parameters import BASE_PARAMETERS, ParameterSpace
 from smcbayes.run.runlog import RunLog
 from smcbayes.simulation.executors.dask import DaskExecutor
@@ -73,3 +74,41 @@ def test_worker_killed_mid_run(client, tmp_path: Path) -> None:
     assert bo.failures() == 0
     reference = BayesOpt(objective(), SETTINGS, RunLog(tmp_path / "ref.jsonl"), LocalExecutor(1)).run()
     assert records(bo) == records(reference)
+
+
+@pytest.mark.timeout(60)  # before the fix the run waited for a worker forever
+def test_no_worker_left_stops_with_a_solver_error_and_resumes(tmp_path: Path) -> None:
+    cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                       dashboard_address=None)
+    own = distributed.Client(cluster)
+    log = RunLog(tmp_path / "alone.jsonl")
+    settings = SETTINGS.model_copy(update={"worker_timeout_s": 1.0})
+
+    def close_workers() -> None:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            if log.path.exists() and '"evaluation"' in log.path.read_text():
+                cluster.scale(0)
+                return
+            time.sleep(0.05)
+
+    thread = threading.Thread(target=close_workers)
+    try:
+        thread.start()
+        start = time.monotonic()
+        with pytest.raises(SolverError, match=r"no Dask worker left at \S+ for 1 s; start workers "
+                                              r"with `dask worker \S+` and resume with --resume"):
+            BayesOpt(objective(delay_s=0.3), settings, log, DaskExecutor(own.scheduler.address)).run()
+        assert time.monotonic() - start < 10
+        thread.join()
+        logged = len(log.read().evaluations)
+        assert 1 <= logged < 8
+        # workers back: the run resumes to the uninterrupted result
+        cluster.scale(1)
+        own.wait_for_workers(1, timeout=10)
+        bo = BayesOpt(objective(), settings, log, DaskExecutor(own)).run()
+        reference = BayesOpt(objective(), SETTINGS, RunLog(tmp_path / "ref.jsonl"), LocalExecutor(1)).run()
+        assert records(bo) == records(reference)
+    finally:
+        own.close()
+        cluster.close()

@@ -12,6 +12,7 @@ from smcbayes.errors import ConfigError
 from smcbayes.forward.parameters import BASE_PARAMETERS, ParameterSpace
 from smcbayes.run.runlog import RunLog
 from smcbayes.simulation.executors.local import LocalExecutor
+from smcbayes.simulation.objective import FlakyObjective as FlakyObjectiveAttempts
 from smcbayes.simulation.objective import QuadraticObjective, Task, TaskResult
 from smcbayes.surrogate.loop import BayesOpt, BOSettings, training_data
 
@@ -98,3 +99,53 @@ def test_tolerance_rule_stops_early(tmp_path: Path) -> None:
 def test_bad_settings_are_config_errors() -> None:
     with pytest.raises(ConfigError, match="init"):
         BOSettings(budget=3, init=5).check()
+
+
+NINE = [f"c{k}" for k in range(9)]
+
+
+def test_retries_keep_evaluations_of_nine_flaky_configurations(tmp_path: Path) -> None:
+    """20 % of runs fail at random: the default retries lose (almost) no evaluation."""
+    space = slip_space()
+    flaky = FlakyObjectiveAttempts(QuadraticObjective(space, [0.02, 1.3], NINE, seed=1), share=0.2, seed=3)
+    bare = run(tmp_path / "bare", flaky, budget=12, init=12, retries=0)
+    default = run(tmp_path / "default", flaky, budget=12, init=12)
+    assert default.settings.retries == 3
+    assert bare.failures() >= 6  # 1 - 0.8^9 = 87 % of evaluations lost without retries
+    assert default.failures() <= 1
+    assert len(default.state.evaluations) == 12
+
+
+def test_interrupted_flaky_run_resumes_to_the_uninterrupted_run(tmp_path: Path) -> None:
+    space = slip_space()
+    flaky = FlakyObjectiveAttempts(QuadraticObjective(space, [0.02, 1.3], NINE[:3], seed=1), 0.3, seed=5)
+
+    class Interrupting:
+        """Stops the process (as Ctrl-C does) at the first run of evaluation 7."""
+
+        space, config_ids, armed = flaky.space, flaky.config_ids, True
+
+        def evaluate(self, task: Task) -> TaskResult:
+            if self.armed and 7 in task.indices:
+                self.armed = False
+                raise KeyboardInterrupt
+            return flaky.evaluate(task)
+
+    kw = {"budget": 10, "init": 4, "batch": 3}
+    with pytest.raises(KeyboardInterrupt):
+        run(tmp_path / "cut", Interrupting(), **kw)
+    run(tmp_path / "cut", flaky, **kw)
+    run(tmp_path / "whole", flaky, **kw)
+    strip = lambda name: [{k: v for k, v in r.items() if k != "seconds"}  # noqa: E731
+                          for _, r in sorted(RunLog(tmp_path / name / "log.jsonl").read().evaluations.items())]
+    assert strip("cut") == strip("whole") and len(strip("whole")) == 10
+    assert any(r["status"] != "ok" for r in strip("whole"))
+
+
+def test_a_run_whose_evaluations_all_fail_ends_at_its_budget(tmp_path: Path) -> None:
+    space = slip_space()
+    broken = FlakyObjectiveAttempts(QuadraticObjective(space, [0.02, 1.3], ["a", "b"]), share=1.0)
+    bo = run(tmp_path, broken, budget=8, init=4, batch=2, retries=1)
+    assert len(bo.state.evaluations) == 8 and bo.failures() == 8
+    assert bo.best() is None and bo.stop_reason.startswith("budget")
+    assert all("after 2 attempts" in r["reason"] for r in bo.state.evaluations.values())

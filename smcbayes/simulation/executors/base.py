@@ -15,6 +15,10 @@ class Executor(Protocol):
     Attributes:
         rows_per_task: how many parameter vectors go into one task (``None``: all rows of
             a round per configuration, which suits batched solvers).
+
+    An executor of a cluster may also have ``worker_timeout_s``: how long its tasks may
+    wait with no worker before ``run`` raises :class:`~smcbayes.errors.SolverError`; the
+    calibration sets it from ``[calibration] worker_timeout_s``.
     """
 
     rows_per_task: int | None
@@ -32,11 +36,14 @@ class Executor(Protocol):
         ...
 
 
-def make_executor(workers: int = 1, scheduler: str | None = None) -> Executor:
-    """A Dask executor when ``scheduler`` is given, else a local one with ``workers`` processes."""
+def make_executor(workers: int = 1, scheduler: str | None = None,
+                  worker_timeout_s: float | None = None) -> Executor:
+    """A Dask executor when ``scheduler`` is given (giving up after ``worker_timeout_s``
+    without workers, default ``[calibration] worker_timeout_s``), else a local one with
+    ``workers`` processes."""
     if scheduler:  # Dask is an optional extra: imported only when a cluster is named
-        from smcbayes.simulation.executors.dask import DaskExecutor
+        from smcbayes.simulation.executors.dask import WORKER_TIMEOUT_S, DaskExecutor
 
-        return DaskExecutor(scheduler)
+        return DaskExecutor(scheduler, worker_timeout_s=worker_timeout_s or WORKER_TIMEOUT_S)
 
     return LocalExecutor(workers)

@@ -12,13 +12,20 @@ reads the curve the command wrote to ``{output}``: CSV with ``time_s,force_kN`` 
 optionally ``displacement_mm``), or a Moldflow XML result file.  A non-zero exit, a
 timeout or an unreadable output fails that evaluation with the reason; the run goes on.
 Work folders are named after a hash of the parameters, so a rerun finds the same folder.
+
+Each command runs in a process group of its own: on a timeout, on an interruption
+(Ctrl-C, a kill of the calling process) and after it exits, the whole group is ended
+(SIGTERM, then SIGKILL after a short grace), so a wrapper's children (the solver it
+started) never outlive it.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
 import shlex
+import signal
 import subprocess
 from collections.abc import Sequence
 from pathlib import Path
@@ -36,6 +43,64 @@ from smcbayes.forward.result import STATUS_OK, SimulationResult
 Array = NDArray[np.float64]
 FORMATS = ("csv", "moldflow")
 FIELDS = ("params", "output", "config", "workdir")
+GRACE_S = 2.0
+"""Seconds between SIGTERM and SIGKILL when a command's process group is ended."""
+
+
+def _end_group(proc: subprocess.Popen[bytes], grace_s: float) -> None:
+    """End every process of ``proc``'s group: SIGTERM, then SIGKILL after ``grace_s``.
+
+    The group outlives its leader when a wrapper's children still run, so SIGKILL goes to
+    the group even when the leader has already exited.
+    """
+    if not hasattr(os, "killpg"):  # no process groups (Windows): the direct child only
+        proc.kill()
+        proc.wait()
+        return
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+    except ProcessLookupError:  # nothing of the group left
+        proc.wait()
+        return
+    try:
+        proc.wait(timeout=grace_s)
+    except subprocess.TimeoutExpired:
+        pass
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait()
+
+
+def run_command(argv: Sequence[str], cwd: Path, timeout_s: float, grace_s: float = GRACE_S) -> int:
+    """Run ``argv`` in ``cwd`` in a new session, its output in ``cwd/stdout.txt`` and
+    ``cwd/stderr.txt``; returns the exit code.
+
+    The command's whole process group is ended on a timeout, on an interruption while
+    waiting (``KeyboardInterrupt``, ``SystemExit``: re-raised once the group is gone) and
+    after the command exits (children it left behind).
+
+    Raises:
+        SolverError: the command could not start or ran longer than ``timeout_s`` (s).
+    """
+    with open(cwd / "stdout.txt", "wb") as out, open(cwd / "stderr.txt", "wb") as err:
+        try:
+            proc = subprocess.Popen(list(argv), cwd=cwd, stdout=out, stderr=err,
+                                    stdin=subprocess.DEVNULL, start_new_session=True)
+        except OSError as error:
+            raise SolverError(f"external command could not start: {error}") from None
+        try:
+            code = proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            _end_group(proc, grace_s)
+            raise SolverError(f"external command timed out after {timeout_s:g} s; raise "
+                              "--external-timeout if the solver needs longer") from None
+        except (KeyboardInterrupt, SystemExit):  # no orphan, then go on unwinding
+            _end_group(proc, grace_s)
+            raise
+        _end_group(proc, grace_s)
+        return code
 
 
 class ExternalSimulator:
@@ -93,18 +158,12 @@ class ExternalSimulator:
         fields = {"params": str(params), "output": str(output), "config": config_id,
                   "workdir": str(folder)}
         argv = [token.format(**fields) for token in self.args]
-        try:
-            proc = subprocess.run(argv, cwd=folder, capture_output=True, text=True,
-                                  timeout=self.timeout_s, check=False)
-        except subprocess.TimeoutExpired:
-            raise SolverError(f"external command timed out after {self.timeout_s:g} s") from None
-        except OSError as err:
-            raise SolverError(f"external command could not start: {err}") from None
-        (folder / "stdout.txt").write_text(proc.stdout, encoding="utf-8")
-        (folder / "stderr.txt").write_text(proc.stderr, encoding="utf-8")
-        if proc.returncode != 0:
-            tail = proc.stderr.strip().splitlines()[-1:] or ["(no stderr)"]
-            raise SolverError(f"external command exited with {proc.returncode}: {tail[0]}")
+        output.unlink(missing_ok=True)  # a retry must not read the curve of an earlier attempt
+        code = run_command(argv, folder, self.timeout_s)
+        if code != 0:
+            stderr = (folder / "stderr.txt").read_text(encoding="utf-8", errors="replace")
+            tail = stderr.strip().splitlines()[-1:] or ["(no stderr)"]
+            raise SolverError(f"external command exited with {code}: {tail[0]}")
         return self._read(output)
 
     def _read(self, output: Path) -> tuple[Array, Array, Array | None]:
