@@ -135,6 +135,7 @@ def calibrate(project: ProjectConfig | PathLike, out: PathLike, *, effects: Sequ
     project = _project(project)
     spec = override(project.calibration, settings, source="calibrate()")
     spec.check()
+    project = project.model_copy(update={"calibration": spec})  # truth= included
     run = RunDir(out)
     fixed = dict(overrides or {})
     run.prepare(RunIdentity(project.model_dump(mode="json"), None if effects is None else list(effects),
@@ -174,24 +175,16 @@ def diagnose_gap(run_dir: PathLike | RunDir, out: PathLike | None = None, *, fig
         workers, scheduler: where the forward runs execute.
         **settings: fields of the ``[diagnose]`` table, e.g. ``effects=["press_compliance"]``.
     """
-    from smcbayes.diagnose.fit import FitSettings
     from smcbayes.diagnose.load import context_from_run
-    from smcbayes.diagnose.run import DiagnoseSettings
     from smcbayes.diagnose.run import diagnose as run_diagnosis
-    from smcbayes.forward.effects import available
+    from smcbayes.diagnose.run import settings_for
 
     run = run_dir if isinstance(run_dir, RunDir) else RunDir(run_dir)
     run.require()
     base: DiagnoseSpec = run.identity().project_config().diagnose
-    spec = override(base, settings, source="diagnose()")
-    fit = FitSettings(population=spec.population, generations=spec.generations, restarts=spec.restarts)
-    fit.check()
+    spec = override(base, settings, source="diagnose_gap()")
     ctx = context_from_run(run, lambda: make_executor(workers, scheduler))
-    names = spec.effects or [n for n in sorted(available()) if n not in ctx.base_effects]
-    settings_ = DiagnoseSettings(candidates=tuple(names),
-                                 holdout=None if spec.holdout is None else tuple(spec.holdout),
-                                 pair=spec.pair, seed=spec.seed, fit=fit, min_score=spec.min_score,
-                                 figures=figures)
+    settings_ = settings_for(spec, ctx.base_effects, figures)  # bad effects fail here, before any run
     folder = run.begin_stage("diagnose", spec.model_dump(mode="json"), None if out is None else Path(out))
     try:
         summary = run_diagnosis(ctx, settings_, folder)

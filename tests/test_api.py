@@ -54,3 +54,20 @@ def test_package_exposes_the_api_lazily() -> None:
     assert smcbayes.calibrate is smcbayes.api.calibrate
     with pytest.raises(AttributeError):
         smcbayes.no_such_thing  # noqa: B018
+
+
+def test_calibrate_takes_a_truth_and_diagnose_refuses_bad_effects_before_any_run(tmp_path: Path) -> None:
+    """`truth=` makes a known-truth check (synthetic curves in the run); a misspelt effect
+    stops the diagnosis before its stage starts."""
+    from smcbayes.errors import ConfigError
+
+    project = smcbayes.load_project(REPO / "configs" / "verify-slip-2d.toml")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cal = smcbayes.calibrate(project, tmp_path / "run", fidelity="1d", budget=4, init=3, figures=False,
+                                 truth={"tau_c_MPa": 0.02, "m": 1.4})
+    assert cal.summary["truth"]["tau_c_MPa"] == 0.02
+    assert (tmp_path / "run" / "truth-data" / "force").is_dir()
+    with pytest.raises(ConfigError, match="unknown effect 'press_complience'.*press_compliance"):
+        smcbayes.diagnose_gap(cal.run_dir, effects=["press_complience"])
+    assert not (tmp_path / "run" / "diagnose").exists()

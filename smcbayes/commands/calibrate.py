@@ -30,16 +30,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help=f"GP kernel (default {CalibrationSpec().kernel})")
     p.add_argument("--tolerance", type=float, default=None, help=help_of(CalibrationSpec, "tolerance"))
     p.add_argument("--patience", type=int, default=None, help=help_of(CalibrationSpec, "patience"))
-    p.add_argument("--seed", type=int, default=None,
-                   help="random seed; same seed, same run (default 0)")
+    p.add_argument("--seed", type=int, default=None, help=help_of(CalibrationSpec, "seed"))
     add_executor_options(p)
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR")
     p.add_argument("--external", metavar="COMMAND", default=None,
                    help="external simulator command template with {params} {output} {config} "
                         "{workdir}, e.g. \"python sim.py {params} {output}\"")
-    p.add_argument("--external-timeout", type=float, default=3600.0, metavar="S",
+    p.add_argument("--external-timeout", type=float, default=ExternalSpec.timeout_s, metavar="S",
                    help="time limit of one external run (s)")
-    p.add_argument("--external-format", choices=("csv", "moldflow"), default="csv",
+    p.add_argument("--external-format", choices=("csv", "moldflow"), default=ExternalSpec.output_format,
                    help="what the external command writes to {output}")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     add_model_options(p)

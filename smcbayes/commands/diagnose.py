@@ -8,8 +8,7 @@ from pathlib import Path
 
 from smcbayes.commands.common import add_executor_options
 from smcbayes.config import DiagnoseSpec, help_of, override
-from smcbayes.errors import ConfigError, closest
-from smcbayes.forward.effects import available
+from smcbayes.forward.effects import check_names
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import make_executor
 
@@ -44,32 +43,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def candidates(spec: str | None) -> tuple[str, ...] | None:
-    """Validated candidate names (None: all); unknown names raise with the closest match."""
-    if spec is None:
-        return None
-    names = sorted(available())
-    chosen = [s.strip() for s in spec.split(",") if s.strip()]
-    if not chosen:
-        raise ConfigError(f"--effects: no effect named; available: {', '.join(names)}")
-    for name in chosen:
-        if name not in names:
-            raise ConfigError(f"--effects: unknown effect '{name}'{closest(name, names)}; "
-                              f"available: {', '.join(names)}")
-    if len(set(chosen)) != len(chosen):
-        raise ConfigError("--effects: an effect is listed twice")
-    return tuple(chosen)
-
-
-def not_on(chosen: tuple[str, ...] | None, already_on: tuple[str, ...]) -> tuple[str, ...]:
-    """Candidates that the calibration did not already have on."""
-    if chosen is None:
-        chosen = tuple(n for n in sorted(available()) if n not in already_on)
-    on = [n for n in chosen if n in already_on]
-    if on:
-        raise ConfigError(f"--effects: '{on[0]}' is already on in the calibration; drop it")
-    if not chosen:
-        raise ConfigError("no candidate effect to try: every available effect is already on")
-    return chosen
+    """``--effects NAME,...`` parsed and validated (None: all); unknown names raise with the
+    closest match."""
+    return None if spec is None else check_names(spec.split(","), "--effects")
 
 
 def settings_from(spec: DiagnoseSpec, args: argparse.Namespace) -> DiagnoseSpec:
@@ -85,22 +61,15 @@ def settings_from(spec: DiagnoseSpec, args: argparse.Namespace) -> DiagnoseSpec:
 def run(args: argparse.Namespace) -> int:
     """Execute ``diagnose``."""
     # the stage loads torch and scipy.optimize: only when it runs, not at start-up
-    from smcbayes.diagnose.fit import FitSettings
     from smcbayes.diagnose.load import context_from_run
-    from smcbayes.diagnose.run import DiagnoseSettings, diagnose
+    from smcbayes.diagnose.run import diagnose, settings_for
 
     candidates(args.effects)  # a misspelt effect is reported before the run is read
     run_dir = RunDir(args.run_dir)
     run_dir.require()
     spec = settings_from(run_dir.identity().project_config().diagnose, args)
-    fit = FitSettings(population=spec.population, generations=spec.generations, restarts=spec.restarts)
-    fit.check()
     ctx = context_from_run(run_dir, lambda: make_executor(args.workers, args.scheduler))
-    chosen = None if spec.effects is None else tuple(spec.effects)
-    settings = DiagnoseSettings(candidates=not_on(chosen, ctx.base_effects),
-                                holdout=None if spec.holdout is None else tuple(spec.holdout),
-                                pair=spec.pair, seed=spec.seed, fit=fit, min_score=spec.min_score,
-                                figures=not args.no_figures)
+    settings = settings_for(spec, ctx.base_effects, figures=not args.no_figures)
     out = run_dir.begin_stage("diagnose", spec.model_dump(mode="json"), folder=Path(args.out))
     run_dir.record_command("diagnose", args.argv)
     try:

@@ -47,7 +47,7 @@ class CalibrationSpec(Strict):
                              description="stop when the best loss improves by less than this "
                                          "fraction over `patience` rounds (0: off)")
     patience: int = Field(10, ge=1, le=100000)
-    seed: int = Field(0, ge=0)
+    seed: int = Field(0, ge=0, description="random seed; same seed, same run, interrupted or not")
     failed: Literal["impute", "exclude"] = Field(
         "impute", description="failed evaluations: imputed at the worst loss seen, or left out")
     retries: int = Field(
@@ -182,7 +182,7 @@ class DiagnoseSpec(Strict):
         None, description="held-out configurations (default: the middle speed of each charge group)")
     pair: bool = Field(False, description="also re-calibrate the best two effects together")
     seed: int = Field(0, ge=0, description="random seed (same seed, same ranking)")
-    population: int = Field(64, ge=4, le=100000, description="parameter sets per generation")
+    population: int = Field(64, ge=5, le=100000, description="parameter sets per generation")
     generations: int = Field(50, ge=1, le=100000,
                              description="optimiser generations per re-calibration")
     restarts: int = Field(2, ge=1, le=1000,

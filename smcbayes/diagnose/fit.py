@@ -177,8 +177,14 @@ class DiagnosisContext:
         return self._models[key]
 
     def runner(self, extra: Sequence[str] = ()) -> Runner:
-        """The model with ``extra`` on its own executor (cached; released by :meth:`close`)."""
+        """The model with ``extra`` on its own executor (cached; released by :meth:`close`).
+
+        Only the model in use keeps its workers: the others' are released (and started
+        again when used), so a pool of N processes is never held once per model."""
         key = tuple(extra)
+        for other, r in self._runners.items():
+            if other != key:
+                r.close()
         if key not in self._runners:
             objective = SimulatorObjective(self.model(key), self.dataset, self.ids, self.project.loss)
             cache = (None if self.run is None or self._cache_folder is None

@@ -25,6 +25,7 @@ from smcbayes.diagnose.shrink import shrink_summary
 from smcbayes.diagnose.where import WhereReport, analyse
 from smcbayes.diagnose.which import HeldOutTest, Signature, held_out_test, n_eff_of, score_row, signature
 from smcbayes.errors import ConfigError, closest
+from smcbayes.forward.effects import available, check_names
 
 logger = logging.getLogger(__name__)
 
@@ -58,6 +59,37 @@ class DiagnoseSettings:
     fit: FitSettings = field(default_factory=FitSettings)
     min_score: float = _DEFAULTS.min_score
     figures: bool = True
+
+
+def candidate_effects(chosen: Sequence[str] | None, already_on: Sequence[str],
+                      source: str = "effects") -> tuple[str, ...]:
+    """The effects to try: ``chosen`` validated (``None``: every registered effect not
+    already on in the calibration).
+
+    Raises:
+        ConfigError: an unknown or repeated name, one already on, or nothing left to try.
+    """
+    if chosen is None:
+        names = tuple(n for n in sorted(available()) if n not in already_on)
+    else:
+        names = check_names(chosen, source)
+    on = [n for n in names if n in already_on]
+    if on:
+        raise ConfigError(f"{source}: '{on[0]}' is already on in the calibration; drop it")
+    if not names:
+        raise ConfigError("no candidate effect to try: every available effect is already on")
+    return names
+
+
+def settings_for(spec: DiagnoseSpec, already_on: Sequence[str], figures: bool = True) -> DiagnoseSettings:
+    """The diagnosis's settings from its ``[diagnose]`` table (validated; raises
+    :class:`ConfigError` before any forward run)."""
+    fit = FitSettings(population=spec.population, generations=spec.generations, restarts=spec.restarts)
+    fit.check()
+    return DiagnoseSettings(candidates=candidate_effects(spec.effects, already_on),
+                            holdout=None if spec.holdout is None else tuple(spec.holdout),
+                            pair=spec.pair, seed=spec.seed, fit=fit, min_score=spec.min_score,
+                            figures=figures)
 
 
 def default_holdout(ctx: DiagnosisContext) -> list[str]:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from smcbayes.forward.model import ForwardModel
+from smcbayes.simulation.objective import Simulator
 
 Array = NDArray[np.float64]
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
@@ -56,7 +56,7 @@ def _curves_on_grid(time: Array, values: Array, grid: Array) -> Array:
     return np.stack([np.interp(grid, t, v) for t, v in zip(time, values, strict=True)])
 
 
-def predictive_bands(model: ForwardModel, theta: Array, config_ids: Sequence[str],
+def predictive_bands(model: Simulator, theta: Array, config_ids: Sequence[str],
                      measured: Mapping[str, tuple[Array, Array]], noise_kN: Mapping[str, float],
                      rng: np.random.Generator, grid_points: int = 300) -> dict[str, Band]:
     """Bands on ``config_ids`` from posterior draws ``theta`` ``(D, d)`` (user units)."""

@@ -207,6 +207,11 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     start = time.perf_counter()
     ctx = load_run(run_dir, executor)
     settings = settings if settings is not None else ctx.problem.project.posterior
+    if ctx.summary.get("simulator") == "external" and settings.correct_draws > 0:
+        # each correction draw inside the box is one run of the user's solver per configuration
+        logger.warning("the importance correction may run the external simulator up to %d times "
+                       "on each of %d configuration(s); --correct-draws 0 reports the emulated "
+                       "posterior without it", settings.correct_draws, len(ctx.problem.train_ids))
     out_dir = ctx.run.begin_stage("posterior", settings.model_dump(mode="json"))
     # every step is seeded: a rerun after a kill asks for the same rows and finds them here
     ctx.runner.cache = cache = ctx.run.forward_cache("posterior")

@@ -153,17 +153,20 @@ class SimulatorObjective:
     def evaluate(self, task: Task) -> TaskResult:
         """Simulate the task's rows on its configuration and score them.
 
-        A configuration without measured data (a validation trial without files) gets NaN
-        errors with an ``ok`` status: its curves can still be asked for.
+        Only the objective's own configurations (those of the loss) are scored; any other
+        (a validation trial, with or without data) gets NaN errors and the simulator's
+        statuses: its curves can still be asked for.  A solver's numerical failure
+        (:class:`SolverError`, an arithmetic or linear-algebra error) fails the task's rows;
+        any other exception is a bug and propagates.
         """
         start = time.perf_counter()
         try:
             results = self.simulator.simulate(task.theta, [task.config_id])
-        except (SolverError, ArithmeticError) as err:
+        except (SolverError, ArithmeticError, np.linalg.LinAlgError) as err:
             return TaskResult.failed(task, f"{type(err).__name__}: {err}", time.perf_counter() - start)
         result = results[task.config_id]
         curves = result if task.curves else None
-        if task.config_id not in self.dataset.measurements:
+        if task.config_id not in self.config_ids:
             nan = np.full(result.rows, np.nan)
             status = [s if s == STATUS_OK or s.startswith("failed") else f"failed: {s}" for s in result.status]
             return TaskResult(task.indices, task.config_id, nan, nan.copy(), nan.copy(), status,

@@ -9,6 +9,7 @@ as the project's data directory.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,7 +19,7 @@ import numpy as np
 from smcbayes.config import DataSpec, ProjectConfig
 from smcbayes.data.dataset import Dataset, load_dataset
 from smcbayes.data.readers.csv import write_csv
-from smcbayes.errors import ConfigError, SolverError
+from smcbayes.errors import ConfigError, DataError, DataWarning, SolverError
 from smcbayes.forward.model import ForwardModel
 from smcbayes.simulation.executors.base import Executor
 from smcbayes.simulation.executors.external import ExternalSimulator
@@ -142,9 +143,9 @@ def build_problem(project: ProjectConfig, run_dir: Path, effects: Sequence[str] 
             write_truth_data(model, truth, ids, folder)
         project = with_data_dir(project, folder, ids)
         model = ForwardModel(project, effects=effects, overrides=overrides, fidelity=fidelity)
-    dataset = _load_data(project, ids)
+    dataset = _load_data(project, ids, synthetic=truth is not None)
     bare = [cid for cid in ids if cid not in dataset.measurements or dataset.measurements[cid].force is None]
-    if bare and external is None:
+    if bare:
         raise ConfigError(f"training configuration(s) {', '.join(bare)} have no measured force "
                           "curve: add data.force or set role = \"validation\"")
     simulator: Simulator = model
@@ -156,10 +157,22 @@ def build_problem(project: ProjectConfig, run_dir: Path, effects: Sequence[str] 
     return Problem(project, model, objective, ids, full_truth)
 
 
-def _load_data(project: ProjectConfig, train_ids: Sequence[str]) -> Dataset:
-    """Training curves (required) and the validation curves that exist (for bands and
-    held-out errors); a project without a data folder has none of the latter."""
+def _load_data(project: ProjectConfig, train_ids: Sequence[str], synthetic: bool) -> Dataset:
+    """Training curves (required: a bad file stops here) and the validation curves that can
+    be read (for bands and held-out errors: a missing or bad one is left out with a
+    :class:`DataWarning`, as it takes no part in the calibration).  A truth check has
+    synthetic training curves only."""
+    dataset = load_dataset(project, ids=train_ids, preprocess=project.preprocess)
     root = project.data_path()
-    if root is None or not root.is_dir():
-        return load_dataset(project, ids=train_ids, preprocess=project.preprocess)
-    return load_dataset(project, preprocess=project.preprocess)
+    if synthetic or root is None or not root.is_dir():
+        return dataset
+    for spec in project.configuration:
+        if spec.role != "validation" or spec.data is None:
+            continue
+        try:
+            dataset.measurements.update(load_dataset(project, [spec.id], project.preprocess).measurements)
+        except DataError as err:
+            warnings.warn(f"validation configuration '{spec.id}' left out of bands and held-out "
+                          f"errors: {err}", DataWarning, stacklevel=3)
+    order = [c.id for c in project.configuration if c.id in dataset.measurements]
+    return Dataset(project, {cid: dataset.measurements[cid] for cid in order}, dataset.preprocess)

@@ -113,10 +113,12 @@ def validation_errors(problem: Problem, results: dict[str, SimulationResult]) ->
     """Force MSE (kN^2) and RMSE (kN) of the best point on validation configurations with data."""
 
     ids = [cid for cid in problem.model.ids("validation") if cid in problem.dataset.measurements
-           and problem.dataset.measurements[cid].force is not None]
+           and problem.dataset.measurements[cid].force is not None and cid in results]
     if not ids:
         return {}
-    loss = evaluate_loss(results, problem.dataset, problem.project.loss, ids=ids)
+    # the force alone: a validation trial need not have a measured hold
+    force_only = problem.project.loss.model_copy(update={"w_displacement": 0.0})
+    loss = evaluate_loss(results, problem.dataset, force_only, ids=ids)
     out = {}
     for k, cid in enumerate(ids):
         mse = float(loss.force_mse_kN2[0, k])

@@ -5,6 +5,6 @@ Importing this package registers the built-in effects: ``compressibility``, ``he
 """
 
 from smcbayes.forward.effects.base import Effect, EffectStack, register
-from smcbayes.forward.effects.registry import available, get_effect
+from smcbayes.forward.effects.registry import available, check_names, get_effect
 
-__all__ = ["Effect", "EffectStack", "available", "get_effect", "register"]
+__all__ = ["Effect", "EffectStack", "available", "check_names", "get_effect", "register"]

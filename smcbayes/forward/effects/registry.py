@@ -7,6 +7,8 @@ the same way.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from smcbayes.errors import ConfigError, closest
 from smcbayes.forward.effects.base import Effect, registered
 from smcbayes.forward.effects.compressibility import Compressibility
@@ -29,3 +31,22 @@ def get_effect(name: str) -> Effect:
         raise ConfigError(f"unknown effect '{name}'{closest(name, list(registry))}; "
                           f"available: {', '.join(sorted(registry))}")
     return registry[name]()
+
+
+def check_names(names: Sequence[str], source: str = "effects") -> tuple[str, ...]:
+    """``names`` validated: at least one, each registered (else the closest is named), none twice.
+
+    Raises:
+        ConfigError: one line naming ``source`` (e.g. ``--effects``) and what is accepted.
+    """
+    registry = sorted(available())
+    chosen = [n.strip() for n in names if n.strip()]
+    if not chosen:
+        raise ConfigError(f"{source}: no effect named; available: {', '.join(registry)}")
+    for name in chosen:
+        if name not in registry:
+            raise ConfigError(f"{source}: unknown effect '{name}'{closest(name, registry)}; "
+                              f"available: {', '.join(registry)}")
+    if len(set(chosen)) != len(chosen):
+        raise ConfigError(f"{source}: an effect is listed twice")
+    return tuple(chosen)
