@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+import smcbayes
 from smcbayes.api import CalibrationResult, PosteriorResult
 
 REPO = Path(__file__).resolve().parents[1]
