@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import shlex
 import sys
 import warnings
 from collections.abc import Sequence
@@ -83,6 +84,16 @@ def setup_output(verbose: bool = False) -> None:
     progress.enable(True)
 
 
+def _continue_hint(args: argparse.Namespace) -> str:
+    """How to go on after an interruption: nothing finished is lost in any stage."""
+    if args.command == "calibrate":
+        again = list(args.argv) + ([] if "--resume" in args.argv else ["--resume"])
+        return f"continue with: {shlex.join(again)}"
+    if args.command in ("posterior", "diagnose"):
+        return "rerun the same command to continue (its finished forward runs are reused)"
+    return "rerun the command"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``smcbayes`` console script; returns the exit code."""
     parser = build_parser()
@@ -95,12 +106,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except InputError as err:
         print(f"smcbayes {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except (FileExistsError, NotADirectoryError, IsADirectoryError, PermissionError) as err:
+        # a path given on the command line that cannot be used as asked
+        print(f"smcbayes {args.command}: error: {err.filename}: {err.strerror}; choose another path",
+              file=sys.stderr)
+        return 2
     except SmcBayesError as err:
         print(f"smcbayes {args.command}: failed: {err}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        hint = " (rerun with --resume to continue)" if args.command == "calibrate" else ""
-        print(f"smcbayes {args.command}: interrupted{hint}", file=sys.stderr)
+        print(f"smcbayes {args.command}: interrupted; {_continue_hint(args)}", file=sys.stderr)
         return 130
 
 

@@ -32,6 +32,12 @@ class DataError(InputError):
     """A measured-data file is missing, unreadable or inconsistent."""
 
 
+class RunDirError(InputError):
+    """A file of a run directory is missing, foreign or damaged (a line of the evaluation
+    log that cannot be read, a summary without its log): the message names the file, the
+    line and what to do."""
+
+
 class SolverError(SmcBayesError, RuntimeError):
     """A forward solver (native or external) could not produce a result."""
 
@@ -54,6 +60,10 @@ class UnreliablePosteriorWarning(SmcBayesWarning):
 
 class ParameterOnBoundWarning(SmcBayesWarning):
     """A calibrated parameter lies at a search bound: the data want it beyond the box."""
+
+
+class FixedOutsideBoxWarning(SmcBayesWarning):
+    """A parameter was fixed (``--set``, ``[parameters]``) outside its search bounds."""
 
 
 class SlowPathWarning(SmcBayesWarning):

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+from collections import Counter
 
 from smcbayes.commands.common import add_executor_options, add_model_options
 from smcbayes.config import CalibrationSpec, ProjectConfig, help_of, load_project, override, parse_assignments
+from smcbayes.errors import ConfigError, SolverError
 from smcbayes.run import RunDir, RunIdentity
 from smcbayes.simulation.executors.base import make_executor
 from smcbayes.simulation.problem import ExternalSpec, build_problem
@@ -32,7 +34,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--patience", type=int, default=None, help=help_of(CalibrationSpec, "patience"))
     p.add_argument("--seed", type=int, default=None, help=help_of(CalibrationSpec, "seed"))
     add_executor_options(p)
-    p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in RUN_DIR with its own settings (only --budget and "
+                        "--tolerance may change them)")
     p.add_argument("--external", metavar="COMMAND", default=None,
                    help="external simulator command template with {params} {output} {config} "
                         "{workdir}, e.g. \"python sim.py {params} {output}\"")
@@ -45,10 +49,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def settings_from(project: ProjectConfig, args: argparse.Namespace) -> CalibrationSpec:
-    """The config's ``[calibration]`` table with command-line overrides, validated."""
-    fields = ("budget", "init", "batch", "kernel", "tolerance", "patience", "seed")
-    settings = override(project.calibration, {k: getattr(args, k) for k in fields})
+FIELDS = ("budget", "init", "batch", "kernel", "tolerance", "patience", "seed")
+RESUME_FIELDS = ("budget", "tolerance")
+"""What ``--resume`` may change: the run's other settings are its own."""
+
+
+def settings_from(project: ProjectConfig, args: argparse.Namespace, run_dir: RunDir) -> CalibrationSpec:
+    """The calibration's settings, validated: the config's ``[calibration]`` table with the
+    command-line overrides, or on ``--resume`` the run's own settings with only ``--budget``
+    and ``--tolerance`` changed (any other option given must agree with the run)."""
+    given = {k: getattr(args, k) for k in FIELDS}
+    if args.resume and run_dir.is_run():
+        recorded = {k: v for k, v in run_dir.identity().settings.items() if k in CalibrationSpec.model_fields}
+        base = override(project.calibration, recorded, source=str(run_dir.root / "config.json"))
+        for key in FIELDS:
+            if key not in RESUME_FIELDS and given[key] is not None and given[key] != getattr(base, key):
+                raise ConfigError(f"--{key} {given[key]}: the run in {run_dir.root} was started with "
+                                  f"{key} = {getattr(base, key)}; --resume changes only --budget and "
+                                  "--tolerance (drop the option, or start a new run with another --out)")
+        settings = override(base, {k: given[k] for k in RESUME_FIELDS})
+    else:
+        settings = override(project.calibration, given)
     settings.check()
     return settings
 
@@ -60,11 +81,11 @@ def run(args: argparse.Namespace) -> int:
 
     project = load_project(args.config, args.data_dir)
     overrides = parse_assignments(args.set)
-    settings = settings_from(project, args)
+    run_dir = RunDir(args.out)
+    settings = settings_from(project, args, run_dir)
     external = None
     if args.external:
         external = ExternalSpec(args.external, args.external_timeout, args.external_format)
-    run_dir = RunDir(args.out)
     identity = RunIdentity(project.model_dump(mode="json"), args.effect, overrides, args.fidelity,
                            None if external is None else vars(external).copy(),
                            settings.model_dump(mode="json", exclude={"truth"}))
@@ -80,6 +101,11 @@ def run(args: argparse.Namespace) -> int:
     info = calibrate(problem, settings, run_dir, executor, figures=not args.no_figures)
     print(f"stopped: {info['stop_reason']}; {info['evaluations']} evaluations, "
           f"{info['failures']} failed, {info['seconds_wall']:.1f} s")
+    if not info["best_params"]:
+        reasons = Counter(r["reason"] for r in info.get("failure_reasons") or [])
+        common = f" (most often: {reasons.most_common(1)[0][0]})" if reasons else ""
+        raise SolverError(f"every evaluation failed{common}; reasons per evaluation in "
+                          f"{run_dir.log_path}")
     if info["best_params"]:
         print(f"best loss {info['best_loss_kN2']:.6g} kN^2 at evaluation {info['best_index']}:")
         for name, v in info["best_params"].items():

@@ -262,6 +262,11 @@ def load_project(path: str | Path, data_dir: str | Path | None = None) -> Projec
         data_dir: overrides the file's ``data_dir`` (absolute, or relative to the cwd).
     """
     path = Path(path)
+    if path.is_dir():
+        found = sorted(p.name for p in path.glob("*.toml"))
+        hint = f"; it holds {', '.join(found)}" if found else ""
+        raise ConfigError(f"{path}: is a directory; give the project TOML file, e.g. "
+                          f"{path / (found[0] if found else 'project.toml')}{hint}")
     if not path.is_file():
         raise ConfigError(f"{path}: config file not found")
     try:

@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.config import ProjectConfig
-from smcbayes.errors import ConfigError
+from smcbayes.errors import ConfigError, RunDirError
 from smcbayes.run.cache import ForwardCache, cache_tag
 from smcbayes.run.runlog import LOG_NAME, RunLog, write_json
 from smcbayes.simulation.problem import ExternalSpec, Problem, build_problem
@@ -155,21 +155,37 @@ class RunDir:
         """Create the directory, or check that a resumed run is the same calibration.
 
         Raises:
-            ConfigError: a run exists without ``resume``, or ``resume`` with other settings.
+            ConfigError: the path is a file; a run exists without ``resume``; ``resume`` of
+                a folder that holds no run, or with other settings.
+            RunDirError: ``resume`` of a run whose evaluation log is missing or emptied
+                while its summary counts evaluations.
         """
-        self.root.mkdir(parents=True, exist_ok=True)
+        if self.root.exists() and not self.root.is_dir():
+            raise ConfigError(f"{self.root}: is a file, not a run directory; choose another --out")
         cfg = self.root / "config.json"
-        if not resume and (self.log_path.exists() or cfg.exists()):
+        if resume:
+            self._check_resumable(identity)
+        elif self.log_path.exists() or cfg.exists():
             raise ConfigError(f"{self.root}: already holds a calibration run; add --resume to "
                               "continue it or choose another --out")
-        clean = identity.to_json()
-        if resume and cfg.exists():
-            old = read_json(cfg) or {}
-            for key in IDENTITY_KEYS:
-                if old.get(key) != clean.get(key):
-                    raise ConfigError(f"{self.root}: --resume with a different '{key}' than the run "
-                                      "was started with; use the same config and options")
-        write_json(cfg, clean)
+        self.root.mkdir(parents=True, exist_ok=True)
+        write_json(cfg, identity.to_json())
+
+    def _check_resumable(self, identity: RunIdentity) -> None:
+        """A resumed run must exist, hold its log, and be the same calibration."""
+        if not self.is_run():
+            where = "does not exist" if not self.root.exists() else "holds no calibration run (no config.json)"
+            raise ConfigError(f"{self.root}: {where}; --resume continues a run started with the same --out")
+        done = (self.calibration_summary() or {}).get("evaluations") or 0
+        if done and (not self.log_path.is_file() or self.log_path.stat().st_size == 0):
+            raise RunDirError(f"{self.log_path}: missing or empty, but {self.root / 'summary.json'} counts "
+                              f"{done} evaluations; restore the log from a copy (a resume would evaluate "
+                              "everything again) or start a new run with another --out")
+        old, new = _comparable(read_json(self.root / "config.json") or {}), _comparable(identity.to_json())
+        for key in IDENTITY_KEYS:
+            if key in old and old.get(key) != new.get(key):
+                raise ConfigError(f"{self.root}: --resume with a different '{key}' than the run "
+                                  "was started with; use the same config and options")
 
     def load_problem(self) -> Problem:
         """The calibration problem of the run, as calibrated (no curve is simulated again:
@@ -282,6 +298,20 @@ class RunDir:
             if isinstance(rec, dict) and isinstance(rec.get("argv"), list):
                 out.append(rec)
         return out
+
+
+def _comparable(identity: Mapping[str, Any]) -> dict[str, Any]:
+    """What must match on resume, written the same way by every version: the project
+    without its stage tables (the settings are compared one by one, and the later stages'
+    tables do not change the calibration), a fitted noise as ``"fit"``."""
+    out = dict(identity)
+    project = out.get("project")
+    if isinstance(project, dict):
+        out["project"] = {k: v for k, v in project.items() if k not in ("calibration", "posterior", "diagnose")}
+        out["project"]["truth"] = (project.get("calibration") or {}).get("truth")
+    if "noise" in out and out["noise"] is None:
+        out["noise"] = "fit"
+    return out
 
 
 def _now() -> str:

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from smcbayes.errors import SurrogateError
+from smcbayes.errors import RunDirError
 
 LOG_NAME = "evaluations.jsonl"
 
@@ -74,7 +74,8 @@ class RunLog:
         """Parse the log; a truncated last line is ignored (and cut off if ``repair``).
 
         Raises:
-            SurrogateError: a corrupt line other than the last one.
+            RunDirError: a damaged line other than the last one (not JSON, not UTF-8, or a
+                record with a field of the wrong type), named with its line number.
         """
         state = LogState()
         if not self.path.exists():
@@ -89,15 +90,17 @@ class RunLog:
                 continue
             try:
                 record = json.loads(line)
-            except json.JSONDecodeError:
+            except (json.JSONDecodeError, UnicodeDecodeError) as err:
                 if complete:
-                    raise SurrogateError(f"{self.path}: line {number} is not valid JSON; the log is "
-                                         "corrupt (remove the line or start a new run)") from None
+                    kind = "not UTF-8" if isinstance(err, UnicodeDecodeError) else "not valid JSON"
+                    raise RunDirError(f"{self.path}: line {number} is {kind}; the log is damaged: "
+                                      "restore the file from a copy, or remove the line and rerun "
+                                      "with --resume to evaluate it again") from None
                 break
             if not complete:
                 break  # parsed but without its newline: written partly, rewrite on resume
             good_end += len(line) + 1
-            self._add(state, record)
+            self._add(state, _checked(record, self.path, number))
         if repair and good_end < len(raw):
             with self.path.open("r+b") as fh:
                 fh.truncate(good_end)
@@ -120,3 +123,22 @@ class RunLog:
             fh.write(line + "\n")
             fh.flush()
             os.fsync(fh.fileno())
+
+
+def _checked(record: Any, path: Path, number: int) -> dict[str, Any]:
+    """``record`` if its fields have the types the log writes, else :class:`RunDirError`
+    naming the line (a hand-edited or foreign file would otherwise fail far from here)."""
+    def bad(what: str) -> RunDirError:
+        return RunDirError(f"{path}: line {number}: {what}; the log is damaged: restore the file "
+                           "from a copy, or remove the line and rerun with --resume")
+
+    if not isinstance(record, dict) or record.get("type") not in ("round", "evaluation"):
+        raise bad("not a round or evaluation record")
+    key = "round" if record["type"] == "round" else "index"
+    if not isinstance(record.get(key), int) or isinstance(record.get(key), bool):
+        raise bad(f"'{key}' is not an integer")
+    if record["type"] == "evaluation":
+        loss = record.get("loss")
+        if loss is not None and (isinstance(loss, bool) or not isinstance(loss, int | float)):
+            raise bad(f"'loss' = {loss!r} is not a number")
+    return record

@@ -19,7 +19,7 @@ import numpy as np
 from smcbayes.config import DataSpec, ProjectConfig
 from smcbayes.data.dataset import Dataset, load_dataset
 from smcbayes.data.readers.csv import write_csv
-from smcbayes.errors import ConfigError, DataError, DataWarning, SolverError
+from smcbayes.errors import ConfigError, DataError, DataWarning, FixedOutsideBoxWarning, SolverError
 from smcbayes.forward.model import ForwardModel
 from smcbayes.simulation.executors.base import Executor
 from smcbayes.simulation.executors.external import ExternalSimulator
@@ -131,6 +131,7 @@ def build_problem(project: ProjectConfig, run_dir: Path, effects: Sequence[str] 
             where the calibration wrote them, instead of simulating them again.
     """
     model = ForwardModel(project, effects=effects, overrides=overrides, fidelity=fidelity)
+    _warn_outside_box(model, overrides or {})
     if model.space.dim == 0:
         raise ConfigError("every parameter is fixed: free at least one ([parameters.X] fixed = false)")
     ids = model.ids("train")
@@ -155,6 +156,16 @@ def build_problem(project: ProjectConfig, run_dir: Path, effects: Sequence[str] 
     objective = SimulatorObjective(simulator, dataset, ids, project.loss)
     full_truth = None if truth is None else {**model.space.defaults(), **truth}
     return Problem(project, model, objective, ids, full_truth)
+
+
+def _warn_outside_box(model: ForwardModel, overrides: Mapping[str, float]) -> None:
+    """A value fixed outside its parameter's search bounds is allowed (the bounds are for
+    the search) but said, since it is often a typo or a unit slip."""
+    for p in model.space.parameters:
+        value = overrides.get(p.name)
+        if value is not None and not p.lower <= value <= p.upper:
+            warnings.warn(f"{p.name} = {value:g} is fixed outside its search bounds "
+                          f"{p.lower:g}-{p.upper:g} {p.unit}", FixedOutsideBoxWarning, stacklevel=3)
 
 
 def _load_data(project: ProjectConfig, train_ids: Sequence[str], synthetic: bool) -> Dataset:

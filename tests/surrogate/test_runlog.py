@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from smcbayes.errors import SurrogateError
+from smcbayes.errors import RunDirError
 from smcbayes.run.runlog import RunLog
 
 
@@ -34,7 +34,25 @@ def test_complete_line_without_newline_is_rewritten(tmp_path: Path) -> None:
 def test_corrupt_middle_line_is_an_error(tmp_path: Path) -> None:
     log = RunLog(tmp_path / "log.jsonl")
     log.path.write_text('{"type": "round", "round": 0}\nnot json\n{"type": "round", "round": 1}\n')
-    with pytest.raises(SurrogateError, match="line 2"):
+    with pytest.raises(RunDirError, match="line 2 is not valid JSON.*remove the line"):
+        log.read()
+
+
+def test_non_utf8_bytes_in_a_line_name_the_line(tmp_path: Path) -> None:
+    log = RunLog(tmp_path / "log.jsonl")
+    log.path.write_bytes(b'{"type": "round", "round": 0}\n{"type": "round", "round": 1, "x": "\xff"}\n'
+                         b'{"type": "round", "round": 2}\n')
+    with pytest.raises(RunDirError, match="line 2 is not UTF-8"):
+        log.read()
+
+
+@pytest.mark.parametrize("line", ['{"type": "evaluation", "index": 0, "round": 0, "loss": "abc"}',
+                                  '{"type": "evaluation", "index": "0", "round": 0, "loss": 1.0}',
+                                  '{"type": "note"}', '[1, 2]'])
+def test_a_record_of_the_wrong_shape_names_the_line(tmp_path: Path, line: str) -> None:
+    log = RunLog(tmp_path / "log.jsonl")
+    log.path.write_text('{"type": "round", "round": 0}\n' + line + "\n")
+    with pytest.raises(RunDirError, match="line 2"):
         log.read()
 
 

@@ -20,15 +20,26 @@ from smcbayes.forward.result import PHASE_NAMES, SimulationResult
 Array = NDArray[np.float64]
 
 
+def _not_utf8(path: Path, raw: bytes) -> str:
+    """Why a file is not UTF-8 text, and the fix: a UTF-16 press export (byte-order mark or
+    NUL bytes between ASCII characters) wants ``data.format = 'press'``; other text (an
+    8-bit code page such as Latin-1 or Windows-1252) wants saving as UTF-8."""
+    head = raw[:4096]
+    if head.startswith((b"\xff\xfe", b"\xfe\xff")) or head.count(b"\x00") > len(head) // 4:
+        return f"{path}: UTF-16 text, as the press exports it; set data.format = 'press'"
+    return (f"{path}: not UTF-8 text (an 8-bit code page such as Latin-1 or Windows-1252?); "
+            "save it as UTF-8")
+
+
 def _open_rows(path: Path) -> list[tuple[int, list[str]]]:
     """Non-empty, non-comment rows with their 1-based line numbers."""
     if not path.is_file():
         raise DataError(f"{path}: file not found; check the path, data_dir or --data-dir")
+    raw = path.read_bytes()
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
-        raise DataError(f"{path}: not UTF-8 text; a press export (UTF-16) needs "
-                        "data.format = 'press'") from None
+        raise DataError(_not_utf8(path, raw)) from None
     lines = [(i + 1, line) for i, line in enumerate(text.splitlines())
              if line.strip() and not line.lstrip().startswith("#")]
     if not lines:
