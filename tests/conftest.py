@@ -68,18 +68,26 @@ def make_project() -> Callable[..., ProjectConfig]:
     return build
 
 
+_LOGGER = logging.getLogger("smcbayes")
+_PRISTINE = (list(_LOGGER.handlers), _LOGGER.level, _LOGGER.propagate, warnings.showwarning)
+
+
+def _reset_application_output() -> None:
+    handlers, level, propagate, show = _PRISTINE
+    for h in _LOGGER.handlers[:]:
+        if h not in handlers:
+            _LOGGER.removeHandler(h)
+    _LOGGER.setLevel(level)
+    _LOGGER.propagate = propagate
+    warnings.showwarning = show
+    progress.enable(False)
+
+
 @pytest.fixture(autouse=True)
 def _application_output_reset() -> Any:
     """Undo what the command line sets up for an application (log handler, progress,
-    warning display), so that a test calling ``main`` does not change the next test."""
-    logger = logging.getLogger("smcbayes")
-    handlers, level, propagate = list(logger.handlers), logger.level, logger.propagate
-    show = warnings.showwarning
+    warning display), before and after each test, so that a test (or a module fixture)
+    calling ``main`` does not change the next test."""
+    _reset_application_output()
     yield
-    for h in logger.handlers[:]:
-        if h not in handlers:
-            logger.removeHandler(h)
-    logger.setLevel(level)
-    logger.propagate = propagate
-    warnings.showwarning = show
-    progress.enable(False)
+    _reset_application_output()

@@ -108,4 +108,4 @@ def test_existing_run_needs_resume_and_same_settings(full_run: Path, capsys: pyt
     assert "--resume" in capsys.readouterr().err
     assert main(["calibrate", str(CONFIG), "--out", str(full_run), "--budget", "10", "--init", "5",
                  "--seed", "4", "--resume"]) == 2
-    assert "'seed'" in capsys.readouterr().err
+    assert "--seed 4: the run" in capsys.readouterr().err
