@@ -68,5 +68,7 @@ def print_summary(info: dict[str, Any]) -> None:
     for cid, b in info["bands"].items():
         if b["coverage90"] == b["coverage90"]:
             print(f"coverage {cid}: 50 % band {b['coverage50']:.0%}, 90 % band {b['coverage90']:.0%}")
-    for w in info["warnings"]:
-        print(f"warning: {w}")
+    # the warnings themselves were shown as the library emitted them
+    rel = info.get("reliability") or {}
+    verdict = "yes" if rel.get("reliable") else "no: " + "; ".join(rel.get("reasons") or [])
+    print(f"reliable: {verdict}")

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -25,11 +26,13 @@ from numpy.typing import NDArray
 
 from smcbayes.config import PosteriorSpec
 from smcbayes.data.loss import force_pair
+from smcbayes.errors import UnreliablePosteriorWarning
 from smcbayes.forward.nodes import interp_rows
 from smcbayes.posterior.context import RunContext, exact_log_posterior, load_run, true_log_loss
 from smcbayes.posterior.correct import correct
 from smcbayes.posterior.likelihood import EmulatedPosterior, effective_points, sandwich_points
 from smcbayes.posterior.refine import check_values, round_design
+from smcbayes.posterior.reliability import assess
 from smcbayes.posterior.report import write_outputs
 from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
 from smcbayes.posterior.summary import stack_components
@@ -232,8 +235,17 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     cache.close()
     info["stage_seconds"] = {"setup_and_refine": t_sample - start, "emulator_sampling": t_correct - t_sample,
                              "correction": t_outputs - t_correct, "outputs": time.perf_counter() - t_outputs}
-    info["forward_evaluations"].update(refine=refined, residual_budget=2 * ctx.space.dim + 1)
-    info["forward_evaluations"]["total"] = sum(info["forward_evaluations"].values())
+    runs = info["forward_evaluations"]
+    runs.update(refine=refined, residual_budget=2 * ctx.space.dim + 1)
+    runs["total"] = sum(runs.values())
+    # what shaped the posterior, apart from what only checks it or draws its bands
+    runs["inference"] = runs["residual_budget"] + runs["refine"] + runs["correction"]
+    runs["checks_and_bands"] = runs["emulator_check"] + runs["bands"]
+    info["reliability"] = assess(info, ctx.space, ctx.summary.get("best_loss_kN2"))
+    info["reliable"] = info["reliability"]["reliable"]
+    if not info["reliable"]:
+        warnings.warn("the posterior is unreliable: " + "; ".join(info["reliability"]["reasons"]),
+                      UnreliablePosteriorWarning, stacklevel=2)
     # parameter sets x configurations: all that shaped the result, those found in the cache
     # (made by an earlier, interrupted or differently set, run) and those made now
     info["simulator_runs"] = ctx.runner.forward_runs

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import warnings
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -211,3 +212,28 @@ def test_sampler_warnings_are_recorded_and_emitted_once_by_class() -> None:
         warnings.simplefilter("always")
         assert warnings_for([bad], chains, warn=False)
     assert not seen
+
+
+def test_reliability_names_each_failed_diagnostic() -> None:
+    """A posterior is called reliable only when its diagnostics pass; each failure and each
+    degenerate case gets its own plain reason."""
+    from smcbayes.config import build_project
+    from smcbayes.forward.model import ForwardModel
+    from smcbayes.posterior.reliability import assess
+
+    raw = {"name": "t", "configuration": [{"id": "a", "charge": {"shape": "bar", "coverage_pct": 60.0},
+                                           "press": {"speed_mm_s": 0.5}}]}
+    space = ForwardModel(build_project(raw, "<t>", Path("."))).space
+    narrow = [{"name": p.name, "q05": p.lower + 0.4 * (p.upper - p.lower),
+               "q95": p.lower + 0.5 * (p.upper - p.lower), "r_hat": 1.01} for p in space.free]
+    wide = [{"name": p.name, "q05": p.lower, "q95": p.upper, "r_hat": 1.01} for p in space.free]
+    good = {"parameters": narrow, "correction": {"enabled": True, "k_hat": 0.2, "ess": 2500, "settled": True}}
+    assert assess(good, space, 10.0) == {"reliable": True, "reasons": []}
+    bad_k = {**good, "correction": {"enabled": True, "k_hat": 0.9, "ess": 20, "settled": False}}
+    assert "k-hat 0.90" in assess(bad_k, space, 10.0)["reasons"][0]
+    emulator_only = {"parameters": [{**r, "r_hat": 1.2} for r in narrow],
+                     "emulator_check": {"mean_abs_error": 3.0}}
+    reasons = assess(emulator_only, space, 10.0)["reasons"]
+    assert len(reasons) == 2 and "R-hat 1.20" in reasons[0] and "3 nats" in reasons[1]
+    assert "is the prior" in assess({**good, "parameters": wide}, space, 10.0)["reasons"][0]
+    assert "noise-free" in assess(good, space, 1e-12)["reasons"][0]

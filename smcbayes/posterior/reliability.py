@@ -1,0 +1,77 @@
+"""Whether a posterior can be trusted, in plain reasons (``posterior/summary.json``'s
+``reliable``).
+
+A posterior is reported unreliable when its own diagnostics fail: the importance weights
+(Pareto k-hat > 0.7, Vehtari et al. 2024, "Pareto smoothed importance sampling", JMLR 25)
+or, without a correction, the emulator chains (R-hat > 1.05, Vehtari et al. 2021,
+"Rank-normalization, folding, and localization", Bayesian Analysis 16) and the emulator's
+error at posterior draws (above 1 nat the emulated likelihood misplaces mass).  Two
+degenerate cases are named as well: a posterior that is the prior (the data do not inform
+the parameters) and a loss that vanishes at the best point (noise-free data: the
+likelihood -(N_eff/2) log L has a spike there, and no sampler or emulator can resolve it).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from smcbayes.forward.parameters import ParameterSpace
+from smcbayes.posterior.correct import K_HAT_WARN
+
+R_HAT_MAX = 1.05
+CHECK_MAX_NATS = 1.0
+PRIOR_SHARE = 0.8
+"""A 90 % interval wider than this share of its search range does not narrow the prior."""
+VANISHING_LOSS_KN2 = 1e-8
+"""A best loss below this (kN^2) is a curve reproduced to round-off: noise-free data."""
+
+
+def _interval_share(space: ParameterSpace, row: Mapping[str, Any]) -> float:
+    """Width of the 90 % interval as a share of the search range (log10 where searched so)."""
+    p = next(q for q in space.free if q.name == row["name"])
+    lo, hi, a, b = p.lower, p.upper, row["q05"], row["q95"]
+    if p.log:
+        if min(lo, a) <= 0:
+            return math.nan
+        lo, hi, a, b = (math.log10(v) for v in (lo, hi, a, b))
+    return (b - a) / (hi - lo) if hi > lo else math.nan
+
+
+def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
+    corr = info.get("correction") or {}
+    if corr.get("enabled"):
+        if not corr.get("k_hat", math.inf) <= K_HAT_WARN:
+            return [f"the importance weights are unreliable (Pareto k-hat {corr['k_hat']:.2f} > "
+                    f"{K_HAT_WARN}): the emulated posterior misses part of the exact one; raise "
+                    "--correct-draws or --refine"]
+        if not corr.get("settled", False):
+            return [f"the importance correction did not settle (ESS {corr.get('ess', 0):.0f}); raise "
+                    "--correct-draws"]
+        return []
+    out = []
+    r_hat = max((p.get("r_hat", math.nan) for p in info.get("parameters") or []), default=math.nan)
+    if not r_hat <= R_HAT_MAX:
+        out.append(f"the emulator chains did not converge (R-hat {r_hat:.2f} > {R_HAT_MAX}); run "
+                   "longer (--steps)")
+    check = (info.get("emulator_check") or {}).get("mean_abs_error", math.nan)
+    if not check <= CHECK_MAX_NATS:
+        out.append(f"the emulator is {check:.2g} nats off at posterior draws (> {CHECK_MAX_NATS}) and "
+                   "nothing corrects it; use the correction (--correct-draws) or --refine")
+    return out
+
+
+def assess(info: Mapping[str, Any], space: ParameterSpace, best_loss_kN2: float | None) -> dict[str, Any]:
+    """``{"reliable": bool, "reasons": [...]}`` for a posterior summary ``info``."""
+    reasons = _sampling_reasons(info)
+    shares = [_interval_share(space, row) for row in info.get("parameters") or []]
+    if shares and all(s > PRIOR_SHARE for s in shares):
+        reasons.append(f"the posterior is the prior: every 90 % interval spans more than "
+                       f"{PRIOR_SHARE:.0%} of its search range, so the data do not inform the "
+                       "parameters (fix some, or add data that do)")
+    if best_loss_kN2 is not None and 0 <= best_loss_kN2 < VANISHING_LOSS_KN2:
+        reasons.append(f"the loss vanishes at the best point ({best_loss_kN2:.2g} kN^2: noise-free "
+                       "data): the likelihood is degenerate there; calibrate against measured or "
+                       "noisy synthetic curves (smcbayes synth --noise-kN)")
+    return {"reliable": not reasons, "reasons": reasons}
