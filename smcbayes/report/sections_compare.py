@@ -74,6 +74,10 @@ def _fit_blocks(before: RunFiles, after: RunFiles) -> list:
                  f"{fmt(level, 2)} kN; the largest training RMSE after is {fmt(worst, 3)} kN"
                  + (", near the noise level: the model with the effect fits the data."
                     if near else ", well above the noise level: the fit is not complete."))
+    if (after.calibration.get("loss") or {}).get("clip") == "flow_stop":
+        text += (" Both losses compare the force up to the incompressible flow stop (the "
+                 "project's clipped loss), so the final rise to the force limit is not fitted; "
+                 "the figure shows the whole closing.")
     return [
         Heading("Fit"),
         Paragraph(text),
@@ -92,6 +96,12 @@ def _read_curve(path: Path) -> tuple[list[float], list[float]] | None:
         return [float(r["time_s"]) for r in rows], [float(r["force_kN"]) for r in rows]
     except (OSError, KeyError, ValueError):
         return None
+
+
+def _limit_time(time_s: list[float], force_kN: list[float]) -> float:
+    """Time (s) at which a curve first reaches 99 % of its largest force."""
+    top = 0.99 * max(force_kN)
+    return next(t for t, f in zip(time_s, force_kN, strict=True) if f >= top)
 
 
 def plot_fit(before: RunFiles, after: RunFiles, path: Path) -> Path | None:
@@ -113,17 +123,23 @@ def plot_fit(before: RunFiles, after: RunFiles, path: Path) -> Path | None:
     for k, cid in enumerate(ids):
         ax = axes[k // ncols][k % ncols]
         m = dataset.measurements.get(cid) if dataset is not None else None
+        ends: list[float] = []  # the closing only: the hold at the force limit says nothing
         if m is not None and m.force is not None:
             ax.plot(m.force.time_s, m.force.values, color=MEASURED, lw=1.1, label="measured")
+            ends.append(float(m.force.time_s[-1]))
         for key, run in (("before", before), ("after", after)):
             curve = _read_curve(run.run_dir / "best_curves" / f"{cid}.csv")
             if curve is not None:
                 ax.plot(*curve, color=COLOURS[key], lw=1.0, ls="--" if key == "before" else "-",
                         label=f"simulated {key} ({_effects(run)})")
+                ends.append(_limit_time(*curve))
+        if ends:
+            ax.set_xlim(0.0, 1.15 * max(ends))
         ax.set_title(cid, fontsize=9)
         ax.set_xlabel("time from contact (s)")
         ax.set_ylabel("force (kN)")
-        ax.legend(fontsize=6, loc="upper left")
+        if k == 0:
+            ax.legend(fontsize=6, loc="upper left")
     for k in range(len(ids), nrows * ncols):
         axes[k // ncols][k % ncols].set_visible(False)
     fig.suptitle("best simulated force before and after, measured force in black", fontsize=10)

@@ -43,7 +43,7 @@ def make_run(root: Path, name: str, effects: list[str], loss: float, params: lis
     write(run / "summary.json", {
         "best_loss_kN2": loss, "best_params": {}, "effects": effects, "search_box": box,
         "best_errors_kN2": {"bar-03": loss}, "settings": {"seed": 0},
-        "loss": {"w_force": 1.0, "w_displacement": 0.0},
+        "loss": {"w_force": 1.0, "w_displacement": 0.0, "clip": "flow_stop"},
         "validation_errors": {"bar-07": {"mse_kN2": 4 * loss, "rmse_kN": (4 * loss) ** 0.5}},
     })
     write(run / "posterior" / "summary.json", {
@@ -86,6 +86,7 @@ def test_before_and_after_states_fit_width_truth_and_bands(tmp_path: Path) -> No
         "Before, the posterior is essentially the prior",
         "the true value lies inside the 90 % interval after for 3 of 3 parameters",
         "not in the model",
+        "the final rise to the force limit is not fitted",
         "coverage of the 90 % band 40 % before, 90 % after",
         "mean width of the 90 % band - kN before, 20 kN after",
     ):
