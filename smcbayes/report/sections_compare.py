@@ -72,7 +72,7 @@ def _fit_blocks(before: RunFiles, after: RunFiles) -> list:
         near = worst == worst and worst <= 3.0 * level
         text += (f" The noise added to the synthetic curves alone gives a force RMSE of about "
                  f"{fmt(level, 2)} kN; the largest training RMSE after is {fmt(worst, 3)} kN"
-                 + (", near the noise level: the model with the effect fits the data."
+                 + (", near the noise level: the model with the effect fits the data the loss compares."
                     if near else ", well above the noise level: the fit is not complete."))
     if (after.calibration.get("loss") or {}).get("clip") == "flow_stop":
         text += (" Both losses compare the force up to the incompressible flow stop (the "
