@@ -2,8 +2,10 @@
 
 Each demo runs in a fresh interpreter (``python -m smcbayes.cli demo``) into a temporary
 folder, so start-up and imports count; the per-stage times come from the demo's own
-record (``run/demo.json``).  The load average of the machine is printed next to the times
-because other processes on a shared machine stretch wall time.
+record (``run-effect/demo.json``).  The load average of the machine is printed next to the
+times because other processes on a shared machine stretch wall time.  Next to the times it
+records whether the loop closed: the effect the diagnosis named and the training loss of
+the base run and of the run with that effect on.
 
 Targets on a 2-core machine: full demo <= 300 s, quick demo <= 60 s (a missed target is
 printed as MISSED).  Writes ``benchmarks/results/demo_time.json``.
@@ -42,8 +44,14 @@ def run_one(mode: str) -> dict:
         cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         if proc.returncode != 0:
             raise SystemExit(f"demo {mode} failed ({proc.returncode}):\n{proc.stderr}")
-        record = json.loads((out / "run" / "demo.json").read_text(encoding="utf-8"))
-        report_ok = (out / "run" / "report.html").is_file()
+        record = json.loads((out / "run-effect" / "demo.json").read_text(encoding="utf-8"))
+        report_ok = (out / "run-effect" / "report.html").is_file()
+        loss = {
+            name: json.loads((out / name / "summary.json").read_text(encoding="utf-8"))[
+                "best_loss_kN2"
+            ]
+            for name in ("run-base", "run-effect")
+        }
     return {
         "mode": mode,
         "wall_s": wall,
@@ -53,6 +61,8 @@ def run_one(mode: str) -> dict:
         "cpu_system_s": cpu1.ru_stime - cpu0.ru_stime,
         "stages_s": record.get("timings_s", {}),
         "report_written": report_ok,
+        "effect_named": record.get("effect_named"),
+        "best_loss_kN2": loss,
         "load_average_before": list(load_before),
         "load_average_after": list(os.getloadavg()),
         "stdout": proc.stdout.splitlines(),
@@ -67,14 +77,15 @@ def main() -> None:
     modes = [args.only] if args.only else ["quick", "full"]
     rows = [run_one(m) for m in modes]
     head = f"{'demo':<6}{'wall s':>9}{'target s':>10}{'CPU s':>8}"
-    print(f"{head}  load avg (1 min) before/after  stages")
+    print(f"{head}  load avg (1 min) before/after  loss base -> effect (kN^2)  stages")
     for r in rows:
         stages = ", ".join(f"{k} {v:.1f}" for k, v in r["stages_s"].items() if k != "total")
         flag = "" if r["met"] else "  MISSED"
         print(
             f"{r['mode']:<6}{r['wall_s']:>9.1f}{r['target_s']:>10.0f}{r['cpu_user_s']:>8.1f}  "
             f"{r['load_average_before'][0]:.2f} / {r['load_average_after'][0]:.2f}"
-            f"{'':>18}{stages}{flag}"
+            f"{'':>18}{r['best_loss_kN2']['run-base']:.4g} -> "
+            f"{r['best_loss_kN2']['run-effect']:.4g} ({r['effect_named']})  {stages}{flag}"
         )
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     info = {

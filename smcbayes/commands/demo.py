@@ -1,12 +1,18 @@
-"""``smcbayes demo``: the whole chain on an embedded synthetic case, ending with a report.
+"""``smcbayes demo``: the whole loop on an embedded synthetic case, ending with a report.
 
 The embedded project (``smcbayes/resources/demo.toml``) holds thesis-like press trials
 and a ``[demo]`` table: the true parameters, an effect that is on in the truth but
 withheld from the calibrated base model, the noise, and the budgets of the full and the
-quick demo.  Each stage runs in this process through the same command-line parser a user
-types, so the command lines recorded in the report reproduce the run exactly; each
-stage's own output goes to ``OUT/logs/<stage>.log`` and the terminal shows one line per
-stage with its time.
+quick demo.  The demo closes the loop a user would follow on a press: calibrate the base
+model (``OUT/run-base``), sample its posterior, diagnose the gap, calibrate again with the
+effect the diagnosis names switched on (``OUT/run-effect``; read from the diagnosis'
+summary, not from the ``[demo]`` table), sample that posterior, and write the reports,
+the second with a before-and-after comparison of the two runs.
+
+Each stage runs in this process through the same library calls as the command line, so
+the command lines recorded in the report reproduce the run exactly; each stage's own
+output goes to ``OUT/logs/<stage>.log`` and the terminal shows one line per stage with
+its time.
 """
 
 from __future__ import annotations
@@ -25,6 +31,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from smcbayes import api, progress
 from smcbayes.config import build_project, load_project
 from smcbayes.data.synth import NoiseSpec, to_toml, write_synthetic
@@ -34,7 +42,14 @@ from smcbayes.report.document import fmt, pct
 from smcbayes.run import read_json
 
 DEMO_FILE = "demo.toml"
-STAGES = ("synth", "calibrate", "posterior", "diagnose", "report")
+BASE_RUN, EFFECT_RUN = "run-base", "run-effect"
+"""Run directories (inside the demo's output) of the base model and of the model with the
+effect the diagnosis named."""
+BANDS_FILE = "demo_bands.json"
+"""Band widths the demo measures in each run directory (the posterior summary holds the
+coverage only)."""
+STAGES = ("synth", "calibrate", "posterior", "diagnose", "calibrate-effect", "posterior-effect",
+          "report")
 
 
 def embedded_text(name: str = DEMO_FILE) -> str:
@@ -48,12 +63,14 @@ class DemoPlan:
 
     Attributes:
         project: the project document (TOML as a dict, only the chosen configurations).
-        effect: the effect on in the synthetic truth, off in the calibrated model.
+        effect: the effect on in the synthetic truth, off in the base model.
         truth: true parameter values in their named units (base and effect parameters).
         noise: ``synth`` noise options (``white_kN``, ``correlated_kN``, ``correlation_s``).
         seed: seed of the synthetic noise.
         stage: budgets (``budget``, ``init``, ``walkers``, ``steps``, ``functions``,
-            ``draws``, ``population``, ``generations`` and optional ``candidates``).
+            ``draws``, ``population``, ``generations``, optional ``candidates`` and
+            ``correct_draws``, and ``effect_budget``, ``effect_init`` of the second
+            calibration).
     """
 
     project: dict[str, Any]
@@ -82,26 +99,52 @@ def load_plan(quick: bool) -> DemoPlan:
     )
 
 
-def command_lines(plan: DemoPlan, out: Path) -> dict[str, list[str]]:
-    """The argument lists of every stage (``smcbayes`` omitted)."""
+def named_effect(out: Path) -> str | None:
+    """The effect the base run's diagnosis names (``None``: none, or no diagnosis yet)."""
+    summary = read_json(out / BASE_RUN / "diagnose" / "summary.json")
+    best = ((summary or {}).get("decision") or {}).get("best")
+    return str(best) if best else None
+
+
+def command_lines(plan: DemoPlan, out: Path, effect: str | None) -> dict[str, list[str]]:
+    """The argument lists of every stage (``smcbayes`` omitted).
+
+    Args:
+        plan: the demo's plan.
+        out: the demo's output folder.
+        effect: the effect the diagnosis named; ``None`` leaves out the second calibration
+            and its posterior.
+    """
     s, n, q = plan.stage, plan.noise, shlex.quote
-    data, run = q(str(out / "data")), q(str(out / "run"))
+    data, base, eff = (q(str(out / name)) for name in ("data", BASE_RUN, EFFECT_RUN))
+    project = q(str(out / "data" / "project.toml"))
     truth = " ".join(f"--truth {k}={v:g}" for k, v in plan.truth.items())
+    posterior = (f"--walkers {s['walkers']} --steps {s['steps']} --functions {s['functions']} "
+                 f"--draws {s['draws']} --seed 0")
+    if s.get("correct_draws") is not None:
+        posterior += f" --correct-draws {s['correct_draws']}"
     lines = {
         "synth": f"synth {q(str(out / 'demo-project.toml'))} --effect {plan.effect} "
         f"--seed {plan.seed} --noise-kN {n.get('white_kN', 0.0)} "
         f"--correlated-kN {n.get('correlated_kN', 0.0)} "
         f"--correlation-s {n.get('correlation_s', 1.0)} {truth} --out {data}",
-        "calibrate": f"calibrate {q(str(out / 'data' / 'project.toml'))} --out {run} "
-        f"--budget {s['budget']} --init {s['init']} --seed 0",
-        "posterior": f"posterior {run} --walkers {s['walkers']} --steps {s['steps']} "
-        f"--functions {s['functions']} --draws {s['draws']} --seed 0",
-        "diagnose": f"diagnose {run} --seed 0 --population {s['population']} "
-        f"--generations {s['generations']} --out {q(str(out / 'run' / 'diagnose'))}",
-        "report": f"report {run}",
+        "calibrate": f"calibrate {project} --out {base} --budget {s['budget']} "
+        f"--init {s['init']} --seed 0",
+        "posterior": f"posterior {base} {posterior}",
+        "diagnose": f"diagnose {base} --seed 0 --population {s['population']} "
+        f"--generations {s['generations']} --out {q(str(out / BASE_RUN / 'diagnose'))}",
     }
     if s.get("candidates"):
         lines["diagnose"] += f" --effects {','.join(s['candidates'])}"
+    if effect is not None:
+        lines["calibrate-effect"] = (
+            f"calibrate {project} --out {eff} --effect {q(effect)} "
+            f"--budget {s['effect_budget']} --init {s['effect_init']} --seed 0"
+        )
+        lines["posterior-effect"] = f"posterior {eff} {posterior}"
+    lines["report"] = f"report {base}"
+    if effect is not None:
+        lines["report-effect"] = f"report {eff}"
     return {stage: shlex.split(line) for stage, line in lines.items()}
 
 
@@ -114,7 +157,12 @@ def stage_log(path: Path) -> Iterator[None]:
     quiet = [(h, h.level) for h in root.handlers]
     for h, _ in quiet:
         h.setLevel(logging.WARNING)
-    root.addHandler(handler)
+    # also on the top logger, so that libraries logging through the module-level functions
+    # (the corner plot's contour notes) write to the stage's log, not to the terminal; the
+    # package's logger once more only if it does not pass its records up (the CLI's)
+    loggers = [logging.getLogger()] + ([] if root.propagate else [root])
+    for lg in loggers:
+        lg.addHandler(handler)
     was_on = progress.enabled()
     progress.enable(True, interval_s=5.0)
     try:
@@ -125,32 +173,100 @@ def stage_log(path: Path) -> Iterator[None]:
             root.warning("warning: %s", w.message)
     finally:
         progress.enable(was_on)
-        root.removeHandler(handler)
+        for lg in loggers:
+            lg.removeHandler(handler)
         handler.close()
         for h, level in quiet:
             h.setLevel(level)
 
 
 def run_stage(plan: DemoPlan, stage: str, out: Path) -> None:
-    """Run one stage through the library, its log in ``out/logs/<stage>.log``."""
-    s, run = plan.stage, out / "run"
+    """Run one stage through the library, its log in ``out/logs/<stage>.log``.
+
+    ``calibrate-effect`` switches on the effect named by the diagnosis of the base run;
+    ``report`` writes the report of the base run and, if it exists, of the effect run.
+
+    Raises:
+        ConfigError: ``calibrate-effect`` without a named effect.
+        SmcBayesError: the stage failed (message names the stage and its log).
+    """
+    s, base, eff = plan.stage, out / BASE_RUN, out / EFFECT_RUN
     log = out / "logs" / f"{stage}.log"
+    posterior = {"walkers": s["walkers"], "steps": s["steps"], "functions": s["functions"],
+                 "draws": s["draws"], "seed": 0}
+    if s.get("correct_draws") is not None:
+        posterior["correct_draws"] = s["correct_draws"]
     try:
         with stage_log(log):
             if stage == "synth":
                 synthesise(plan, out)
             elif stage == "calibrate":
-                api.calibrate(out / "data" / "project.toml", run, budget=s["budget"], init=s["init"], seed=0)
+                api.calibrate(out / "data" / "project.toml", base, budget=s["budget"],
+                              init=s["init"], seed=0)
             elif stage == "posterior":
-                api.sample_posterior(run, walkers=s["walkers"], steps=s["steps"], functions=s["functions"],
-                              draws=s["draws"], seed=0)
+                api.sample_posterior(base, **posterior)
+                measure_bands(base, s["draws"])
             elif stage == "diagnose":
-                api.diagnose_gap(run, run / "diagnose", seed=0, population=s["population"],
-                             generations=s["generations"], effects=s.get("candidates") or None)
+                api.diagnose_gap(base, base / "diagnose", seed=0, population=s["population"],
+                                 generations=s["generations"],
+                                 effects=s.get("candidates") or None)
+            elif stage == "calibrate-effect":
+                effect = named_effect(out)
+                if effect is None:
+                    raise ConfigError("the diagnosis of the base run names no effect to switch on")
+                api.calibrate(out / "data" / "project.toml", eff, effects=[effect],
+                              budget=s["effect_budget"], init=s["effect_init"], seed=0)
+            elif stage == "posterior-effect":
+                api.sample_posterior(eff, **posterior)
+                measure_bands(eff, s["draws"])
             else:
-                api.write_report(run)
+                api.write_report(base)
+                if (eff / "summary.json").is_file():
+                    api.write_report(eff)
     except SmcBayesError as err:  # same class (exit code), with the stage and its log named
         raise type(err)(f"demo stage '{stage}': {err} (log: {log})") from err
+
+
+def measure_bands(run_dir: Path, draws: int, seed: int = 0) -> dict[str, Any]:
+    """Mean width and coverage of the 90 % predictive bands of a run's posterior.
+
+    The posterior stage records the coverage of its bands but not their width; this draws
+    ``draws`` points of the run's posterior (``posterior.nc``), pushes them through the
+    run's forward model on the configurations the stage banded, with the stage's noise
+    level, and writes ``run_dir/demo_bands.json``.
+
+    Args:
+        run_dir: a run directory with a finished posterior stage.
+        draws: posterior draws pushed through the forward model.
+        seed: seed of the draws and of the band noise.
+
+    Returns:
+        ``{"draws", "seed", "bands": {config_id: {"width90_kN", "coverage90"}}}``; widths
+        in kN, averaged over the measured closing (time grid up to the last measured point).
+    """
+    from smcbayes.posterior.predictive import predictive_bands
+
+    run = api.RunDir(run_dir)
+    summary = read_json(run_dir / "posterior" / "summary.json") or {}
+    noise = {cid: float(b["noise_kN"]) for cid, b in (summary.get("bands") or {}).items()}
+    problem = run.load_problem()
+    idata = api.PosteriorResult(run, summary).inference_data()
+    names = problem.space.free_names
+    theta = np.column_stack([np.asarray(idata.posterior[n].values, dtype=float).reshape(-1)
+                             for n in names])  # (R, d), user units
+    rng = np.random.default_rng(seed)
+    pick = theta[rng.choice(theta.shape[0], size=min(draws, theta.shape[0]), replace=False)]
+    measured = problem.measured_force(list(noise))
+    bands = predictive_bands(problem.model, pick, list(noise), measured, noise, rng)
+    rows: dict[str, dict[str, float]] = {}
+    for cid, b in bands.items():
+        end = measured[cid][0][-1] if cid in measured else b.time_s[-1]
+        inside = b.time_s <= end
+        width = b.force_pred_kN[4][inside] - b.force_pred_kN[0][inside]
+        rows[cid] = {"width90_kN": float(np.mean(width)), "coverage90": b.coverage90}
+    record = {"draws": int(pick.shape[0]), "seed": seed, "bands": rows}
+    (run_dir / BANDS_FILE).write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    return record
 
 
 def synthesise(plan: DemoPlan, out: Path) -> None:
@@ -168,13 +284,26 @@ def write_source(plan: DemoPlan, out: Path) -> None:
     """The demo's project file, so that ``synth`` can be re-run from the command line."""
     header = (
         "# Project of `smcbayes demo` (from the embedded demo.toml); the synthetic truth is\n"
-        "# given on the synth command line recorded in run/demo.json.\n"
+        f"# given on the synth command line recorded in {BASE_RUN}/demo.json.\n"
     )
     (out / "demo-project.toml").write_text(header + to_toml(plan.project), encoding="utf-8")
 
 
+def _write_records(out: Path, record: dict[str, Any]) -> None:
+    """``demo.json`` in each run directory; the effect run's also names the base run (the
+    report's before-and-after section reads it, by a path relative to the run)."""
+    for name in (BASE_RUN, EFFECT_RUN):
+        if (out / name).is_dir():
+            rec = dict(record, compare_with=f"../{BASE_RUN}") if name == EFFECT_RUN else record
+            (out / name / "demo.json").write_text(json.dumps(rec, indent=2) + "\n",
+                                                  encoding="utf-8")
+
+
 def run_demo(out: Path, quick: bool, echo: Callable[[str], None] = print) -> Path:
-    """Run every stage into ``out``; returns the path of the HTML report.
+    """Run every stage into ``out``; returns the path of the final HTML report.
+
+    The final report is that of the effect run (``OUT/run-effect/report.html``), or of the
+    base run when the diagnosis names no effect.
 
     Raises:
         ConfigError: ``out`` is not empty, or a stage fails (its log is named).
@@ -184,42 +313,51 @@ def run_demo(out: Path, quick: bool, echo: Callable[[str], None] = print) -> Pat
     plan = load_plan(quick)
     (out / "logs").mkdir(parents=True, exist_ok=True)
     write_source(plan, out)
-    commands = command_lines(plan, out)
     ids = [c["id"] for c in plan.project["configuration"]]
     echo(
         f"smcbayes demo ({'quick' if quick else 'full'}): {len(ids)} configurations, truth with "
-        f"{plan.effect} on, calibrated model without it; output in {out}"
+        f"{plan.effect} on, base model without it; output in {out}"
     )
     timings: dict[str, float] = {}
-    record = {
+    record: dict[str, Any] = {
         "mode": "quick" if quick else "full",
         "effect_withheld": plan.effect,
-        "commands": ["smcbayes " + shlex.join(c) for c in commands.values()],
+        "effect_named": None,
+        "runs": {"before": BASE_RUN, "after": None},
+        "commands": [],
         "timings_s": timings,
     }
     start = time.perf_counter()
     for k, stage in enumerate(STAGES, 1):
+        effect = named_effect(out)
+        if stage in ("calibrate-effect", "posterior-effect") and effect is None:
+            echo(f"[{k}/{len(STAGES)}] {stage:<16} skipped: the diagnosis names no effect")
+            continue
         if stage == "report":  # the report shows the commands and the times of the stages
-            (out / "run" / "demo.json").write_text(
-                json.dumps(record, indent=2) + "\n", encoding="utf-8"
-            )
+            record["effect_named"] = effect
+            record["runs"]["after"] = EFFECT_RUN if effect is not None else None
+            commands = command_lines(plan, out, effect)
+            record["commands"] = ["smcbayes " + shlex.join(c) for c in commands.values()]
+            _write_records(out, record)
         t0 = time.perf_counter()
-        echo(f"[{k}/{len(STAGES)}] {stage:<9} ...")
+        echo(f"[{k}/{len(STAGES)}] {stage:<16} ...")
         run_stage(plan, stage, out)
         timings[stage] = time.perf_counter() - t0
         note = _stage_note(stage, out)
-        echo(f"[{k}/{len(STAGES)}] {stage:<9} done in {timings[stage]:.1f} s{note}")
+        echo(f"[{k}/{len(STAGES)}] {stage:<16} done in {timings[stage]:.1f} s{note}")
     timings["total"] = time.perf_counter() - start
-    (out / "run" / "demo.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
-    return out / "run" / "report.html"
+    _write_records(out, record)
+    final = out / (EFFECT_RUN if (out / EFFECT_RUN / "report.html").is_file() else BASE_RUN)
+    return final / "report.html"
 
 
 def _stage_note(stage: str, out: Path) -> str:
     """A short result of the stage for the progress line."""
-    run = out / "run"
-    if stage == "calibrate" and (s := read_json(run / "summary.json")):
-        return f": best loss {fmt(s.get('best_loss_kN2'))} kN^2"
-    if stage == "posterior" and (s := read_json(run / "posterior" / "summary.json")):
+    run = out / (EFFECT_RUN if stage.endswith("-effect") else BASE_RUN)
+    if stage.startswith("calibrate") and (s := read_json(run / "summary.json")):
+        on = ", ".join(s.get("effects") or []) or "no effect"
+        return f": {on} on, best loss {fmt(s.get('best_loss_kN2'))} kN^2"
+    if stage.startswith("posterior") and (s := read_json(run / "posterior" / "summary.json")):
         cov = ", ".join(pct(b.get("coverage90")) for b in (s.get("bands") or {}).values())
         return f": {len(s.get('warnings') or [])} warning(s), 90 % band coverage {cov or '-'}"
     if stage == "diagnose" and (s := read_json(run / "diagnose" / "summary.json")):
@@ -232,12 +370,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the subcommand."""
     p = sub.add_parser(
         "demo",
-        help="run the whole chain on an embedded synthetic case and write a report",
+        help="run the whole loop on an embedded synthetic case and write a report",
         description="Write synthetic press data from the embedded demo project (thesis-like "
         "bar and centre charges at 0.3/0.7/1.1 mm/s, an effect on in the truth and "
-        "withheld from the calibrated model), then calibrate, sample the posterior "
-        "with predictive bands on the held-out configurations, diagnose the gap "
-        "and write the report (OUT/run/report.html). About 2 minutes; --quick "
+        "withheld from the base model), then calibrate the base model (OUT/run-base), "
+        "sample its posterior with predictive bands on the held-out configurations, "
+        "diagnose the gap, calibrate again with the effect the diagnosis names "
+        "(OUT/run-effect), sample that posterior and write the reports; "
+        "OUT/run-effect/report.html compares before and after. About 3 minutes; --quick "
         "under a minute.",
     )
     p.add_argument(
@@ -249,7 +389,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--quick",
         action="store_true",
-        help="4 configurations and small budgets (a smoke test of the chain)",
+        help="7 configurations and small budgets (a smoke test of the loop)",
     )
     p.set_defaults(run=run)
 

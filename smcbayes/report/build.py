@@ -17,6 +17,7 @@ from smcbayes.report.measured import (
     search_ranges,
 )
 from smcbayes.report.render import to_html, to_markdown
+from smcbayes.report.sections_compare import before_after_section
 from smcbayes.report.sections_diagnosis import diagnosis_section
 from smcbayes.report.sections_run import calibration_section, data_section, reproducibility_section
 from smcbayes.report.sections_stages import bands_section, posterior_section
@@ -52,6 +53,7 @@ def build_sections(run: RunFiles) -> list[Section]:
     ranges = search_ranges(run.calibration)
     sections = [
         data_section(run, dataset, measured_png),
+        before_after_section(run, run.run_dir / FIGURE_DIR),
         calibration_section(run, validation),
         posterior_section(run, ranges),
         bands_section(run),

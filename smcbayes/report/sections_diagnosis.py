@@ -78,7 +78,7 @@ def _shrink(shrink: dict[str, Any]) -> Table:
     )
 
 
-def _truth_check(run: RunFiles, best: str | None) -> Paragraph | None:
+def truth_check(run: RunFiles, best: str | None) -> Paragraph | None:
     if run.truth is None:
         return None
     base = set(run.calibration.get("effects") or [])
@@ -122,7 +122,7 @@ def diagnosis_section(run: RunFiles) -> Section | None:
         sec.add(Heading("Which effect explains it"), _ranking(diag["ranking"]))
     if decision.get("statement"):
         sec.add(Paragraph(str(decision["statement"])))
-    if (check := _truth_check(run, decision.get("best"))) is not None:
+    if (check := truth_check(run, decision.get("best"))) is not None:
         sec.add(check)
     if decision.get("best"):
         sec.add(

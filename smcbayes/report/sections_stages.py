@@ -15,18 +15,35 @@ from smcbayes.report.document import Bullets, Figure, Heading, Paragraph, Sectio
 
 R_HAT_LIMIT = 1.05
 """R-hat above which the walkers are said to disagree (the posterior stage's own limit)."""
+K_HAT_LIMIT = 0.7
+"""Pareto k-hat above which importance weights are unreliable."""
+PRIOR_SHARE = 0.8
+"""Share of the search range above which a 90 % interval says the data hardly moved the
+prior; when every parameter is above it, the posterior is essentially the prior."""
 
 
 def _num(x: Any) -> float:
     return float(x) if isinstance(x, (int, float)) and x == x else float("nan")
 
 
-def _correction_paragraph(corr: dict[str, Any]) -> Paragraph:
-    """Plain words on the importance correction of the emulated posterior."""
+def _correction_paragraph(corr: dict[str, Any], r_hat: float) -> Paragraph:
+    """Plain words on the importance correction of the emulated posterior.
+
+    Args:
+        corr: the ``correction`` block of the posterior summary.
+        r_hat: the largest R-hat of the emulator chains (the correction's proposal).
+    """
     k_hat = _num(corr.get("k_hat"))
-    if corr.get("reliable") and corr.get("settled"):
+    weights_ok = bool(corr.get("reliable") and corr.get("settled")) and k_hat <= K_HAT_LIMIT
+    if weights_ok and r_hat <= R_HAT_LIMIT:
         verdict = "the weights are reliable and the corrected posterior can be trusted"
-    elif k_hat > 0.7:
+    elif weights_ok:
+        # the proposal came from chains that disagree; only the weights vouch for the result
+        verdict = (f"the corrected posterior rests on the importance weights (k-hat "
+                   f"{fmt(k_hat, 2)}), the emulator chains did not converge (R-hat "
+                   f"{fmt(r_hat, 3)}), so a part of the posterior the proposal never reached "
+                   "would go unseen")
+    elif k_hat > K_HAT_LIMIT:
         verdict = ("the weights are unreliable (k-hat above 0.7): the proposal misses part of "
                    "the posterior, so treat the numbers as indicative")
     else:
@@ -36,7 +53,8 @@ def _correction_paragraph(corr: dict[str, Any]) -> Paragraph:
         f"The emulated posterior was corrected by importance sampling with the forward model: "
         f"{fmt(corr.get('evaluations'))} forward runs, Pareto k-hat {fmt(k_hat, 2)}, importance "
         f"effective sample size {fmt(corr.get('ess'), 3)}; {verdict}. The table and figures "
-        "show the corrected posterior."
+        "show the corrected posterior.",
+        tone="normal" if weights_ok else "warning",
     )
 
 
@@ -60,12 +78,14 @@ def _diagnostics(post: dict[str, Any]) -> list:
     corr = post.get("correction") or {}
     if corr.get("enabled"):
         # R-hat belongs to the emulator chains, the effective sample size to the weights
+        chains = ("the emulator chains agree" if r_hat <= R_HAT_LIMIT
+                  else "the emulator chains did not converge")
         blocks: list = [
             Paragraph(
                 f"{words} on the emulator (steps per chain: {steps}); the largest R-hat of its "
-                f"chains is {fmt(r_hat, 3)}: {quality}."
+                f"chains is {fmt(r_hat, 3)}: {chains}."
             ),
-            _correction_paragraph(corr),
+            _correction_paragraph(corr, r_hat),
         ]
     else:
         blocks = [
@@ -129,13 +149,22 @@ def _identification(
     params: list[dict[str, Any]], ranges: dict[str, tuple[float, float, bool]]
 ) -> Paragraph | None:
     shares = {str(p.get("name")): interval_share(p, ranges) for p in params}
-    loose = [k for k, v in shares.items() if v == v and v > 0.6]
-    if not any(v == v for v in shares.values()):
+    known = {k: v for k, v in shares.items() if v == v}
+    if not known:
         return None
+    loose = [k for k, v in known.items() if v > 0.6]
     if not loose:
         return Paragraph(
             "Every parameter's 90 % interval is narrower than 60 % of its search range: "
             "the data identify the parameters."
+        )
+    if len(known) == len(shares) and all(v > PRIOR_SHARE for v in known.values()):
+        return Paragraph(
+            f"The posterior is essentially the prior: every parameter's 90 % interval spans "
+            f"more than {pct(PRIOR_SHARE)} of its search range, so the data constrain none of "
+            "them in this model. A misfit that no parameter value can remove, such as an "
+            "unmodelled effect, has this signature; see the diagnosis.",
+            tone="warning",
         )
     return Paragraph(
         f"The 90 % interval of {', '.join(loose)} spans more than 60 % of the search range: "
