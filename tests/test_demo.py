@@ -76,8 +76,7 @@ def test_quick_demo_writes_every_stage(demo_out: Path) -> None:
         (base, ("posterior/summary.json", "diagnose/summary.json", "diagnose/ranking.csv")),
         (after, ("posterior/posterior.nc", "posterior/summary.json")),
     ):
-        for rel in ("summary.json", "gp.pt", "report.html", "report.md", "demo.json",
-                    "demo_bands.json", *files):
+        for rel in ("summary.json", "gp.pt", "report.html", "report.md", "demo.json", *files):
             assert (run / rel).is_file(), run / rel
     assert not (demo_out / "run").exists()
     truth = json.loads((demo_out / "data" / "truth.json").read_text(encoding="utf-8"))
@@ -86,8 +85,7 @@ def test_quick_demo_writes_every_stage(demo_out: Path) -> None:
     assert summary["effects"] == []  # the base model lacks the withheld effect
     bands = json.loads((after / "posterior" / "summary.json").read_text(encoding="utf-8"))["bands"]
     assert bands and all(b["role"] == "validation" for b in bands.values())
-    widths = json.loads((after / "demo_bands.json").read_text(encoding="utf-8"))["bands"]
-    assert set(widths) == set(bands) and all(w["width90_kN"] > 0 for w in widths.values())
+    assert all(b["width90_kN"] > 0 for b in bands.values())  # sharpness beside coverage
     for png in demo_out.rglob("*.png"):
         assert png.with_suffix(".svg").is_file(), png
 

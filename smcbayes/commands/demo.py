@@ -31,8 +31,6 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from smcbayes import api, progress
 from smcbayes.config import build_project, load_project
 from smcbayes.data.synth import NoiseSpec, to_toml, write_synthetic
@@ -45,9 +43,6 @@ DEMO_FILE = "demo.toml"
 BASE_RUN, EFFECT_RUN = "run-base", "run-effect"
 """Run directories (inside the demo's output) of the base model and of the model with the
 effect the diagnosis named."""
-BANDS_FILE = "demo_bands.json"
-"""Band widths the demo measures in each run directory (the posterior summary holds the
-coverage only)."""
 STAGES = ("synth", "calibrate", "posterior", "diagnose", "calibrate-effect", "posterior-effect",
           "report")
 
@@ -205,7 +200,6 @@ def run_stage(plan: DemoPlan, stage: str, out: Path) -> None:
                               init=s["init"], seed=0)
             elif stage == "posterior":
                 api.sample_posterior(base, **posterior)
-                measure_bands(base, s["draws"])
             elif stage == "diagnose":
                 api.diagnose_gap(base, base / "diagnose", seed=0, population=s["population"],
                                  generations=s["generations"],
@@ -218,55 +212,12 @@ def run_stage(plan: DemoPlan, stage: str, out: Path) -> None:
                               budget=s["effect_budget"], init=s["effect_init"], seed=0)
             elif stage == "posterior-effect":
                 api.sample_posterior(eff, **posterior)
-                measure_bands(eff, s["draws"])
             else:
                 api.write_report(base)
                 if (eff / "summary.json").is_file():
                     api.write_report(eff)
     except SmcBayesError as err:  # same class (exit code), with the stage and its log named
         raise type(err)(f"demo stage '{stage}': {err} (log: {log})") from err
-
-
-def measure_bands(run_dir: Path, draws: int, seed: int = 0) -> dict[str, Any]:
-    """Mean width and coverage of the 90 % predictive bands of a run's posterior.
-
-    The posterior stage records the coverage of its bands but not their width; this draws
-    ``draws`` points of the run's posterior (``posterior.nc``), pushes them through the
-    run's forward model on the configurations the stage banded, with the stage's noise
-    level, and writes ``run_dir/demo_bands.json``.
-
-    Args:
-        run_dir: a run directory with a finished posterior stage.
-        draws: posterior draws pushed through the forward model.
-        seed: seed of the draws and of the band noise.
-
-    Returns:
-        ``{"draws", "seed", "bands": {config_id: {"width90_kN", "coverage90"}}}``; widths
-        in kN, averaged over the measured closing (time grid up to the last measured point).
-    """
-    from smcbayes.posterior.predictive import predictive_bands
-
-    run = api.RunDir(run_dir)
-    summary = read_json(run_dir / "posterior" / "summary.json") or {}
-    noise = {cid: float(b["noise_kN"]) for cid, b in (summary.get("bands") or {}).items()}
-    problem = run.load_problem()
-    idata = api.PosteriorResult(run, summary).inference_data()
-    names = problem.space.free_names
-    theta = np.column_stack([np.asarray(idata.posterior[n].values, dtype=float).reshape(-1)
-                             for n in names])  # (R, d), user units
-    rng = np.random.default_rng(seed)
-    pick = theta[rng.choice(theta.shape[0], size=min(draws, theta.shape[0]), replace=False)]
-    measured = problem.measured_force(list(noise))
-    bands = predictive_bands(problem.model, pick, list(noise), measured, noise, rng)
-    rows: dict[str, dict[str, float]] = {}
-    for cid, b in bands.items():
-        end = measured[cid][0][-1] if cid in measured else b.time_s[-1]
-        inside = b.time_s <= end
-        width = b.force_pred_kN[4][inside] - b.force_pred_kN[0][inside]
-        rows[cid] = {"width90_kN": float(np.mean(width)), "coverage90": b.coverage90}
-    record = {"draws": int(pick.shape[0]), "seed": seed, "bands": rows}
-    (run_dir / BANDS_FILE).write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
-    return record
 
 
 def synthesise(plan: DemoPlan, out: Path) -> None:

@@ -13,7 +13,7 @@ from smcbayes.posterior.context import RunContext, true_log_loss
 from smcbayes.posterior.correct import K_HAT_WARN
 from smcbayes.posterior.likelihood import EmulatedPosterior
 from smcbayes.posterior.plots import bands_plot, corner_plot, correlation_plot
-from smcbayes.posterior.predictive import predictive_bands
+from smcbayes.posterior.predictive import Band, predictive_bands
 from smcbayes.posterior.refine import check_emulator
 from smcbayes.posterior.summary import (
     correlations,
@@ -23,6 +23,14 @@ from smcbayes.posterior.summary import (
     to_inference_data,
     warnings_for,
 )
+
+
+def band_width90(band: Band) -> float:
+    """Mean width (kN) of the 90 % predictive band over the measured closing (the whole
+    band grid without a measurement): its sharpness, to be read beside its coverage."""
+    end = band.measured[0][-1] if band.measured is not None else band.time_s[-1]
+    inside = band.time_s <= end
+    return float(np.mean(band.force_pred_kN[4][inside] - band.force_pred_kN[0][inside]))
 
 
 def write_table(path: Path, rows: list) -> None:
@@ -150,7 +158,8 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
                      "tau_max": float(np.max(c.tau)), "acceptance_median": float(np.median(c.acceptance))}
                     for c in chains],
         "bands": {cid: {"coverage50": b.coverage50, "coverage90": b.coverage90, "noise_kN": b.noise_kN,
-                        "draws": b.draws, "role": "validation" if val_ids else "train"}
+                        "width90_kN": band_width90(b), "draws": b.draws,
+                        "role": "validation" if val_ids else "train"}
                   for cid, b in bands.items()},
         "truth": ctx.problem.truth,
     }

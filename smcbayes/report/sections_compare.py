@@ -21,9 +21,7 @@ from smcbayes.report.document import Figure, Heading, Paragraph, Section, Table,
 from smcbayes.report.measured import load_measured, project_of, search_ranges
 from smcbayes.report.sections_diagnosis import truth_check
 from smcbayes.report.sections_stages import PRIOR_SHARE, interval_share
-from smcbayes.run import read_json
 
-BANDS_FILE = "demo_bands.json"
 """Band widths measured by ``smcbayes demo`` in a run directory (read if present)."""
 COLOURS = {"before": "tab:orange", "after": "tab:blue"}
 
@@ -216,8 +214,7 @@ def _band_blocks(before: RunFiles, after: RunFiles) -> list:
     ba = (after.posterior or {}).get("bands") or {}
     if not (bb or ba):
         return []
-    wb = ((read_json(before.run_dir / BANDS_FILE) or {}).get("bands")) or {}
-    wa = ((read_json(after.run_dir / BANDS_FILE) or {}).get("bands")) or {}
+    wb, wa = bb, ba  # the posterior stage records coverage and width of each band
     rows = []
     for cid in dict.fromkeys([*bb, *ba]):
         rows.append((
@@ -233,9 +230,7 @@ def _band_blocks(before: RunFiles, after: RunFiles) -> list:
     text = (f"Mean over these configurations: coverage of the 90 % band {pct(mean(bb, 'coverage90'))} "
             f"before, {pct(mean(ba, 'coverage90'))} after (about 90 % for a calibrated model); "
             f"mean width of the 90 % band {fmt(mean(wb, 'width90_kN'), 3)} kN before, "
-            f"{fmt(mean(wa, 'width90_kN'), 3)} kN after. The coverage is the posterior stage's; "
-            "the width is averaged over the measured closing from posterior draws through the "
-            "forward model with the stage's noise level (measured by the demo).")
+            f"{fmt(mean(wa, 'width90_kN'), 3)} kN after (averaged over the measured closing).")
     return [
         Heading("Predictive bands"),
         Paragraph(text),

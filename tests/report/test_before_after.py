@@ -46,13 +46,9 @@ def make_run(root: Path, name: str, effects: list[str], loss: float, params: lis
         "loss": {"w_force": 1.0, "w_displacement": 0.0, "clip": "flow_stop"},
         "validation_errors": {"bar-07": {"mse_kN2": 4 * loss, "rmse_kN": (4 * loss) ** 0.5}},
     })
-    write(run / "posterior" / "summary.json", {
-        "parameters": params,
-        "bands": {"bar-07": {"coverage50": 0.5, "coverage90": 0.9 if widths else 0.4,
-                             "noise_kN": 4.0, "draws": 10, "role": "validation"}},
-    })
-    if widths is not None:
-        write(run / "demo_bands.json", {"draws": 10, "seed": 0, "bands": widths})
+    band = {"coverage50": 0.5, "coverage90": 0.9 if widths else 0.4, "noise_kN": 4.0, "draws": 10,
+            "role": "validation", **((widths or {}).get("bar-07") or {})}
+    write(run / "posterior" / "summary.json", {"parameters": params, "bands": {"bar-07": band}})
     return run
 
 
