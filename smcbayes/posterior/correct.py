@@ -71,6 +71,12 @@ proposal misses part of the posterior (more draws or refinement needed).  The im
 effective sample size is ESS = 1 / sum_i w~_i^2 with w~ the normalised smoothed weights.
 Iterations stop once ESS and k-hat meet their targets (after at least two) or when the
 draws are spent.
+
+This module holds the adaptive loop and the weighted sample; the proposals and their fit
+are in :mod:`smcbayes.posterior.proposal`, the chains in
+:mod:`smcbayes.posterior.centre_chains`, and the weight arithmetic (ESS, tempering, PSIS,
+weighted quantiles and moments) in :mod:`smcbayes.posterior.weights`; the names used
+elsewhere are re-exported here.
 """
 
 from __future__ import annotations
@@ -106,10 +112,6 @@ logger = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 K_HAT_WARN = 0.7
 """Pareto k-hat above which the corrected estimates are unreliable."""
-
-#: Former private name of :class:`CentreChains`.
-_Chains = CentreChains
-
 
 @dataclass
 class ImportanceSample:

@@ -11,11 +11,11 @@ from scipy.stats import multivariate_t
 
 from smcbayes import progress
 from smcbayes.errors import ConvergenceWarning, SmcBayesWarning, UnreliablePosteriorWarning
+from smcbayes.posterior.centre_chains import CentreChains
 from smcbayes.posterior.correct import (
     K_HAT_WARN,
     CorrectionSettings,
     Proposal,
-    _Chains,
     correct,
     correction_warnings,
     ess_of,
@@ -120,7 +120,7 @@ def _run_chains(chol_at, steps: int, seed: int) -> np.ndarray:
     """Positions of 50 chains (started far off) moved by their own kernels' draws for
     ``steps`` iterations, the first 100 dropped, ``(50 (steps - 100), 3)``."""
     rng = np.random.default_rng(seed)
-    chains = _Chains(np.tile([0.9, 0.9, 0.1], (50, 1)))
+    chains = CentreChains(np.tile([0.9, 0.9, 0.1], (50, 1)))
     kept = []
     for step in range(steps):
         q = Proposal(chains.position.copy(), chol_at(chains.position), nu=5.0, defensive=0.1, chol_at=chol_at)
