@@ -119,3 +119,13 @@ def test_the_grid_extends_past_the_last_measured_point() -> None:
     assert b.coverage90 == 1.0 and b.coverage50 == 1.0
     b = predictive_bands(LinearModel(), theta, ["c"], {"c": (tm, tm)}, {"c": 0.0}, rng)["c"]
     assert b.coverage90 == pytest.approx(3 / 5)  # 15.25 and 20 kN lie above the held 5.5-14.5 kN
+
+
+@pytest.mark.xfail(strict=True, reason="predictive_bands: a configuration where every draw failed raises "
+                   "ValueError 'need at least one array to stack' (np.stack of no curves in "
+                   "_curves_on_grid), although t_end handles the no-success case")
+def test_a_configuration_where_every_draw_failed_gives_an_empty_band() -> None:
+    rng = np.random.default_rng(7)
+    theta = np.column_stack([np.linspace(1.0, 2.0, 3), np.ones(3)])
+    bands = predictive_bands(LinearModel(failed=(0, 1, 2)), theta, ["c"], {}, {"c": 1.0}, rng)
+    assert bands["c"].draws == 0
