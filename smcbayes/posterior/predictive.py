@@ -69,9 +69,14 @@ def predictive_bands(model: Simulator, theta: Array, config_ids: Sequence[str],
         if cid in measured:
             t_end = max(t_end, measured[cid][0][-1] * 1.02)
         grid = np.linspace(0.0, t_end, grid_points)
+        sigma = float(noise_kN.get(cid, fallback))
+        if not np.any(ok):  # every draw failed on this configuration: an empty band, said by draws = 0
+            nan = np.full((len(QUANTILES), grid_points), np.nan)
+            bands[cid] = Band(cid, grid, nan, nan.copy(), nan.copy(), sigma, measured.get(cid),
+                              float("nan"), float("nan"), 0)
+            continue
         force = _curves_on_grid(res.time_s[ok], res.force_kN[ok], grid)
         disp = _curves_on_grid(res.time_s[ok], res.displacement_mm[ok], grid)
-        sigma = float(noise_kN.get(cid, fallback))
         noisy = force + sigma * rng.standard_normal(force.shape)
         pred = np.quantile(noisy, QUANTILES, axis=0)
         cov50 = cov90 = float("nan")

@@ -2,9 +2,11 @@
 
 The mixture over GP sample functions is stored with one arviz chain per (component,
 walker).  R-hat and ESS are computed within each component (its walkers as chains, the
-usual treatment of an emcee ensemble) and the worst component is reported: components
-differ on purpose (they are different plausible emulators), so R-hat across them would
-measure emulator uncertainty, not sampler convergence.
+usual treatment of an emcee ensemble); the worst component's R-hat is reported, and the
+ESS summed over components (they are independent samplers of the pooled draws that the
+quantiles come from).  Components differ on purpose (they are different plausible
+emulators), so R-hat across them would measure emulator uncertainty, not sampler
+convergence.
 """
 
 from __future__ import annotations
@@ -125,7 +127,8 @@ def _rows_of(unit: Array, picked: Array) -> Array:
 
 
 def summarise(space: ParameterSpace, chains: Sequence[Chains]) -> list[ParameterSummary]:
-    """Mean, sd, 5/50/95 % quantiles (pooled) and the worst per-component R-hat and ESS."""
+    """Mean, sd, 5/50/95 % quantiles (pooled), the worst per-component R-hat and the ESS
+    summed over components."""
     # arviz takes seconds to import; only the posterior stage needs it
     import arviz as az
 

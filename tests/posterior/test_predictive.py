@@ -121,9 +121,6 @@ def test_the_grid_extends_past_the_last_measured_point() -> None:
     assert b.coverage90 == pytest.approx(3 / 5)  # 15.25 and 20 kN lie above the held 5.5-14.5 kN
 
 
-@pytest.mark.xfail(strict=True, reason="predictive_bands: a configuration where every draw failed raises "
-                   "ValueError 'need at least one array to stack' (np.stack of no curves in "
-                   "_curves_on_grid), although t_end handles the no-success case")
 def test_a_configuration_where_every_draw_failed_gives_an_empty_band() -> None:
     rng = np.random.default_rng(7)
     theta = np.column_stack([np.linspace(1.0, 2.0, 3), np.ones(3)])
