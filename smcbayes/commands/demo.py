@@ -151,7 +151,8 @@ def stage_log(path: Path) -> Iterator[None]:
     root = logging.getLogger("smcbayes")
     quiet = [(h, h.level) for h in root.handlers]
     for h, _ in quiet:
-        h.setLevel(logging.WARNING)
+        # one line per stage on the terminal (it counts the warnings); they are in the log
+        h.setLevel(logging.ERROR)
     # also on the top logger, so that libraries logging through the module-level functions
     # (the corner plot's contour notes) write to the stage's log, not to the terminal; the
     # package's logger once more only if it does not pass its records up (the CLI's)
