@@ -7,7 +7,7 @@ started in a notebook can be continued, reported or inspected from the shell and
     project = smcbayes.load_project("configs/verify-slip-2d.toml")
     cal = smcbayes.calibrate(project, "runs/slip", budget=12, init=6)
     post = smcbayes.sample_posterior(cal.run_dir, walkers=16, steps=300, correct_draws=0)
-    print(cal.best_params, post.table())
+    cal.best_params, post.table()  # dicts of values and of quantiles
 
 Torch and the other heavy modules load when a stage runs, not on ``import smcbayes``.
 The names differ from the subpackages (``smcbayes.posterior`` is the package of the
