@@ -126,17 +126,21 @@ def calibrate(project: ProjectConfig | PathLike, out: PathLike, *, effects: Sequ
         fidelity: ``"1d"`` or ``"2d"`` (default: the project's solver).
         external: an external simulator instead of the native model.
         workers, scheduler: where evaluations run (process pool, Dask address).
-        resume: continue the run in ``out``.
+        resume: continue the run in ``out`` with its own settings: only ``budget`` and
+            ``tolerance`` may change them, any other setting given must agree with the run.
         figures: write the figures.
         **settings: fields of the ``[calibration]`` table, e.g. ``budget=60, init=20``.
     """
     from smcbayes.surrogate.calibration import calibrate as run_calibration
 
     project = _project(project)
-    spec = override(project.calibration, settings, source="calibrate()")
+    run = RunDir(out)
+    if resume and run.is_run():
+        spec = run.resumed_settings(project.calibration, settings, option="")
+    else:
+        spec = override(project.calibration, settings, source="calibrate()")
     spec.check()
     project = project.model_copy(update={"calibration": spec})  # truth= included
-    run = RunDir(out)
     fixed = dict(overrides or {})
     run.prepare(RunIdentity(project.model_dump(mode="json"), None if effects is None else list(effects),
                             fixed, fidelity, None if external is None else vars(external).copy(),

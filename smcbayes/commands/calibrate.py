@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import re
 from collections import Counter
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
 
 from smcbayes.commands.common import add_executor_options, add_model_options
 from smcbayes.config import CalibrationSpec, ProjectConfig, help_of, load_project, override, parse_assignments
@@ -22,8 +26,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "candidates until the budget or the tolerance rule stops. Every "
                     "evaluation is logged as it finishes; --resume continues a killed run. "
                     "Settings come from the config's [calibration] table; the options below override it "
-                    "(the defaults shown apply when the table does not set them).")
-    p.add_argument("config", help="project TOML file (e.g. configs/thesis.toml)")
+                    "(the defaults shown apply when the table does not set them). On --resume the "
+                    "settings are the run's own (config.json in RUN_DIR): only --budget and "
+                    "--tolerance change them, e.g. `smcbayes calibrate --out RUN --resume --budget 120`.")
+    p.add_argument("config", nargs="?", default=None,
+                   help="project TOML file (e.g. configs/thesis.toml); with --resume it may be left "
+                        "out: the run's recorded project and data directory are used")
     p.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory")
     p.add_argument("--budget", type=int, default=None, help=help_of(CalibrationSpec, "budget"))
     p.add_argument("--init", type=int, default=None, help=help_of(CalibrationSpec, "init"))
@@ -36,7 +44,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_executor_options(p)
     p.add_argument("--resume", action="store_true",
                    help="continue the run in RUN_DIR with its own settings (only --budget and "
-                        "--tolerance may change them)")
+                        "--tolerance may change them; any other option given must agree with the "
+                        "run); CONFIG may then be left out")
     p.add_argument("--external", metavar="COMMAND", default=None,
                    help="external simulator command template with {params} {output} {config} "
                         "{workdir}, e.g. \"python sim.py {params} {output}\"")
@@ -50,8 +59,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 FIELDS = ("budget", "init", "batch", "kernel", "tolerance", "patience", "seed")
-RESUME_FIELDS = ("budget", "tolerance")
-"""What ``--resume`` may change: the run's other settings are its own."""
 
 
 def settings_from(project: ProjectConfig, args: argparse.Namespace, run_dir: RunDir) -> CalibrationSpec:
@@ -60,18 +67,48 @@ def settings_from(project: ProjectConfig, args: argparse.Namespace, run_dir: Run
     and ``--tolerance`` changed (any other option given must agree with the run)."""
     given = {k: getattr(args, k) for k in FIELDS}
     if args.resume and run_dir.is_run():
-        recorded = {k: v for k, v in run_dir.identity().settings.items() if k in CalibrationSpec.model_fields}
-        base = override(project.calibration, recorded, source=str(run_dir.root / "config.json"))
-        for key in FIELDS:
-            if key not in RESUME_FIELDS and given[key] is not None and given[key] != getattr(base, key):
-                raise ConfigError(f"--{key} {given[key]}: the run in {run_dir.root} was started with "
-                                  f"{key} = {getattr(base, key)}; --resume changes only --budget and "
-                                  "--tolerance (drop the option, or start a new run with another --out)")
-        settings = override(base, {k: given[k] for k in RESUME_FIELDS})
+        settings = run_dir.resumed_settings(project.calibration, given)
     else:
         settings = override(project.calibration, given)
     settings.check()
     return settings
+
+
+def _model_of_run(args: argparse.Namespace, run_dir: RunDir) -> tuple[
+        ProjectConfig, list[str] | None, dict[str, float], str | None, ExternalSpec | None]:
+    """Project, effects, fixed values, fidelity and external simulator of a bare ``--resume``
+    (no CONFIG): the run's recorded ones, with what the command line gives instead (which
+    :meth:`RunDir.prepare` then checks against the run)."""
+    if not args.resume:
+        raise ConfigError("calibrate: the project TOML file (CONFIG) is missing, e.g. smcbayes "
+                          "calibrate configs/thesis.toml --out RUN; only --resume may leave it out")
+    recorded = run_dir.require_resumable()
+    project = recorded.project_config()
+    if args.data_dir is not None:
+        project = project.model_copy(update={"data_dir": str(Path(args.data_dir).resolve())})
+    external = (ExternalSpec(args.external, args.external_timeout, args.external_format) if args.external
+                else ExternalSpec(**recorded.external) if recorded.external else None)
+    return (project, recorded.effects if args.effect is None else args.effect,
+            parse_assignments(args.set) if args.set else dict(recorded.overrides),
+            recorded.fidelity if args.fidelity is None else args.fidelity, external)
+
+
+def most_frequent_failure(info: Mapping[str, Any]) -> str:
+    """`` (most often, N of M configuration runs: REASON)`` from a calibration summary, or ``""``.
+
+    An evaluation's reason joins one ``"<config id>: <reason>"`` per failed configuration
+    with ``"; "``; the reasons are counted without the ids, so that the same failure on
+    several configurations counts as one kind."""
+    ids = sorted(map(str, info.get("config_ids") or []), key=len, reverse=True)
+    # split before "<id>: " only, since a reason itself may hold "; " (an external stderr)
+    split = re.compile("; (?=(?:" + "|".join(map(re.escape, ids)) + "): )") if ids else re.compile("; ")
+    strip = re.compile("^(?:" + "|".join(map(re.escape, ids)) + "): ") if ids else re.compile("^$")
+    parts = [strip.sub("", part) for r in info.get("failure_reasons") or [] if r.get("reason")
+             for part in split.split(str(r["reason"]))]
+    if not parts:
+        return ""
+    reason, count = Counter(parts).most_common(1)[0]
+    return f" (most often, {count} of {len(parts)} configuration runs: {reason})"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -79,19 +116,22 @@ def run(args: argparse.Namespace) -> int:
     # torch loads here, not at start-up: `smcbayes --help` and `simulate` stay quick
     from smcbayes.surrogate.calibration import calibrate
 
-    project = load_project(args.config, args.data_dir)
-    overrides = parse_assignments(args.set)
     run_dir = RunDir(args.out)
+    if args.config is None:
+        project, effects, overrides, fidelity, external = _model_of_run(args, run_dir)
+    else:
+        project = load_project(args.config, args.data_dir)
+        effects, overrides, fidelity = args.effect, parse_assignments(args.set), args.fidelity
+        external = None
+        if args.external:
+            external = ExternalSpec(args.external, args.external_timeout, args.external_format)
     settings = settings_from(project, args, run_dir)
-    external = None
-    if args.external:
-        external = ExternalSpec(args.external, args.external_timeout, args.external_format)
-    identity = RunIdentity(project.model_dump(mode="json"), args.effect, overrides, args.fidelity,
+    identity = RunIdentity(project.model_dump(mode="json"), effects, overrides, fidelity,
                            None if external is None else vars(external).copy(),
                            settings.model_dump(mode="json", exclude={"truth"}))
     run_dir.prepare(identity, args.resume)
     run_dir.record_command("calibrate", args.argv)
-    problem = build_problem(project, run_dir.root, args.effect, overrides, args.fidelity, external,
+    problem = build_problem(project, run_dir.root, effects, overrides, fidelity, external,
                             reuse_truth=args.resume)
     executor = make_executor(args.workers, args.scheduler)
     space = problem.space
@@ -102,10 +142,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"stopped: {info['stop_reason']}; {info['evaluations']} evaluations, "
           f"{info['failures']} failed, {info['seconds_wall']:.1f} s")
     if not info["best_params"]:
-        reasons = Counter(r["reason"] for r in info.get("failure_reasons") or [])
-        common = f" (most often: {reasons.most_common(1)[0][0]})" if reasons else ""
-        raise SolverError(f"every evaluation failed{common}; reasons per evaluation in "
-                          f"{run_dir.log_path}")
+        raise SolverError(f"every evaluation failed{most_frequent_failure(info)}; the reason of each "
+                          f"is in {run_dir.log_path}")
     if info["best_params"]:
         print(f"best loss {info['best_loss_kN2']:.6g} kN^2 at evaluation {info['best_index']}:")
         for name, v in info["best_params"].items():

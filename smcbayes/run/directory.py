@@ -34,7 +34,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from smcbayes.config import ProjectConfig
+from smcbayes.config import CalibrationSpec, ProjectConfig, override
 from smcbayes.errors import ConfigError, RunDirError
 from smcbayes.run.cache import ForwardCache, cache_tag
 from smcbayes.run.runlog import LOG_NAME, RunLog, write_json
@@ -46,6 +46,9 @@ IDENTITY_KEYS = ("project", "effects", "overrides", "fidelity", "external", "see
                  "batch", "kernel", "failed", "restarts", "raw_samples", "noise",
                  "local_evaluations", "local_radius", "patience", "retries")
 """Settings that must match for ``--resume`` (the budget and tolerance may change)."""
+
+RESUME_CHANGES = ("budget", "tolerance")
+"""The calibration settings a resumed run may change; the others are the run's own."""
 
 _MODEL_KEYS = ("project", "effects", "overrides", "fidelity", "external")
 
@@ -171,11 +174,22 @@ class RunDir:
         self.root.mkdir(parents=True, exist_ok=True)
         write_json(cfg, identity.to_json())
 
-    def _check_resumable(self, identity: RunIdentity) -> None:
-        """A resumed run must exist, hold its log, and be the same calibration."""
+    def require_resumable(self) -> RunIdentity:
+        """The identity of a run that ``--resume`` can continue.
+
+        Raises:
+            ConfigError: the folder does not exist, is a file, or holds no calibration run.
+        """
+        if self.root.exists() and not self.root.is_dir():
+            raise ConfigError(f"{self.root}: is a file, not a run directory; choose another --out")
         if not self.is_run():
             where = "does not exist" if not self.root.exists() else "holds no calibration run (no config.json)"
             raise ConfigError(f"{self.root}: {where}; --resume continues a run started with the same --out")
+        return self.identity()
+
+    def _check_resumable(self, identity: RunIdentity) -> None:
+        """A resumed run must exist, hold its log, and be the same calibration."""
+        self.require_resumable()
         done = (self.calibration_summary() or {}).get("evaluations") or 0
         if done and (not self.log_path.is_file() or self.log_path.stat().st_size == 0):
             raise RunDirError(f"{self.log_path}: missing or empty, but {self.root / 'summary.json'} counts "
@@ -186,6 +200,34 @@ class RunDir:
             if key in old and old.get(key) != new.get(key):
                 raise ConfigError(f"{self.root}: --resume with a different '{key}' than the run "
                                   "was started with; use the same config and options")
+
+    def resumed_settings(self, base: CalibrationSpec, given: Mapping[str, Any],
+                         option: str = "--") -> CalibrationSpec:
+        """The settings of a resumed run: the run's own (``config.json``) over ``base``, with
+        only :data:`RESUME_CHANGES` taken from ``given``.
+
+        Args:
+            base: defaults for settings an older run did not record (the project's table).
+            given: settings asked for explicitly (``None``: not given).
+            option: how a setting is named in a message: ``"--"`` gives ``--init``, ``""``
+                gives ``init`` (keyword arguments of the API).
+
+        Raises:
+            ConfigError: a setting other than the budget or the tolerance is given and
+                differs from the run's (one line naming it and the run's value).
+        """
+        recorded = {k: v for k, v in self.identity().settings.items() if k in CalibrationSpec.model_fields}
+        own = override(base, recorded, source=str(self.root / "config.json"))
+        resume = "--resume" if option else "resume=True"
+        for key, value in given.items():
+            if key in RESUME_CHANGES or value is None or key == "truth":
+                continue  # the truth belongs to the project, compared by prepare()
+            if key not in CalibrationSpec.model_fields or value == getattr(own, key):
+                continue  # unknown names are reported by override() below
+            raise ConfigError(f"{option}{key} {value}: the run in {self.root} was started with "
+                              f"{key} = {getattr(own, key)}; {resume} changes only {option}budget and "
+                              f"{option}tolerance (drop the option, or start a new run with another --out)")
+        return override(own, given, source=str(self.root))
 
     def load_problem(self) -> Problem:
         """The calibration problem of the run, as calibrated (no curve is simulated again:
