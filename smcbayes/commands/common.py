@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+from smcbayes.errors import ConfigError
 
 
 def add_model_options(p: argparse.ArgumentParser) -> None:
@@ -25,3 +28,16 @@ def add_executor_options(p: argparse.ArgumentParser) -> None:
                    help="local worker processes for the forward runs (default 1: in process)")
     p.add_argument("--scheduler", metavar="ADDR", default=None,
                    help="Dask scheduler address (tcp://host:8786): run the forward batches on a cluster")
+
+
+def output_folder(path: str | Path, option: str = "--out") -> Path:
+    """The output folder named by ``option``; it may exist, but not as a file.
+
+    Raises:
+        ConfigError: ``path`` is an existing file (one line naming it and the fix).
+    """
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"{out}: is a file; {option} names the output folder: choose another path "
+                          "or move the file")
+    return out

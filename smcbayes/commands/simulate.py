@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from smcbayes.commands.common import add_model_options
+from smcbayes.commands.common import add_model_options, output_folder
 from smcbayes.config import load_project, parse_assignments
 from smcbayes.data.dataset import measured_force
 from smcbayes.data.readers.csv import write_curves
@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     model = ForwardModel(project, effects=args.effect, overrides=parse_assignments(args.set),
                          fidelity=args.fidelity)
     ids = args.only or model.config_ids
-    return simulate_and_write(model, ids, Path(args.out))
+    return simulate_and_write(model, ids, output_folder(args.out))
 
 
 def simulate_and_write(model: ForwardModel, ids: list[str], out: Path) -> int:

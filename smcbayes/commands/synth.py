@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
+from smcbayes.commands.common import output_folder
 from smcbayes.config import load_project, parse_assignments
 from smcbayes.data.synth import TRUTH_FILE, NoiseSpec, write_synthetic
 from smcbayes.forward.model import ForwardModel
@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
                       correlation_s=args.correlation_s, resolution_s=args.resolution_s,
                       resolution_kN=args.resolution_kN, white_mm=args.noise_mm,
                       sample_s=args.sample_s, hold_sample_s=args.hold_sample_s)
-    out = Path(args.out)
+    out = output_folder(args.out)
     path = write_synthetic(model, ids, noise, args.seed, out, truth, source=str(args.config))
     values = ", ".join(f"{k}={v:.4g}" for k, v in model.space.defaults().items())
     print(f"synthetic data for {len(ids)} configuration(s) at {values}")
