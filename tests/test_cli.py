@@ -165,3 +165,20 @@ def test_every_option_with_a_default_shows_it_in_help() -> None:
                 missing.append(f"{name} {action.option_strings[0]}")
             assert helptext in text
     assert not missing, missing
+
+
+@pytest.mark.parametrize("command", ["posterior", "diagnose"])
+def test_interrupted_later_stage_says_rerun_the_same_command(command: str, tmp_path: Path,
+                                                             monkeypatch: pytest.MonkeyPatch,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    import importlib
+
+    def interrupted(args: object) -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(importlib.import_module(f"smcbayes.commands.{command}"), "run", interrupted)
+    extra = ["--out", str(tmp_path / "d")] if command == "diagnose" else []
+    assert main([command, str(tmp_path), *extra]) == 130
+    line = capsys.readouterr().err.strip()
+    assert line == (f"smcbayes {command}: interrupted; rerun the same command to continue "
+                    "(its finished forward runs are reused)")

@@ -160,3 +160,16 @@ def test_reading_good_data_modifies_nothing(tmp_path: Path, dh) -> None:
     load_dataset(proj)
     assert (f.stat().st_mtime_ns, f.read_bytes()) == (stamp, content)
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["c1.csv", "force"]
+
+
+@pytest.mark.parametrize(("encoding", "expected"), [
+    ("latin-1", "not UTF-8 text (an 8-bit code page such as Latin-1 or Windows-1252?); save it as UTF-8"),
+    ("utf-16", "UTF-16 text, as the press exports it; set data.format = 'press'"),
+])
+def test_cli_tells_a_latin1_file_from_a_press_export(tmp_path: Path, encoding: str, expected: str,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    data = tmp_path / "force.csv"
+    data.write_bytes("# Prüfung\ntime_s,force_kN\n0,1\n1,2\n".encode(encoding))
+    assert main(["evaluate", str(_toml(tmp_path, "force.csv"))]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.endswith(f"{data}: {expected}"), err
