@@ -80,8 +80,8 @@ def _model_of_run(args: argparse.Namespace, run_dir: RunDir) -> tuple[
     (no CONFIG): the run's recorded ones, with what the command line gives instead (which
     :meth:`RunDir.prepare` then checks against the run)."""
     if not args.resume:
-        raise ConfigError("calibrate: the project TOML file (CONFIG) is missing, e.g. smcbayes "
-                          "calibrate configs/thesis.toml --out RUN; only --resume may leave it out")
+        raise ConfigError("CONFIG (the project TOML file) is missing, e.g. smcbayes calibrate "
+                          "configs/thesis.toml --out RUN; only --resume may leave it out")
     recorded = run_dir.require_resumable()
     project = recorded.project_config()
     if args.data_dir is not None:
