@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import warnings
 from typing import Any
 
 from smcbayes.commands.common import add_executor_options
 from smcbayes.config import PosteriorSpec, help_of, override
+from smcbayes.errors import UnreliablePosteriorWarning
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import make_executor
 
@@ -42,7 +44,10 @@ def run(args: argparse.Namespace) -> int:
     fields = ("walkers", "steps", "functions", "refine", "draws", "correct_draws", "seed")
     settings = override(project.posterior, {k: getattr(args, k) for k in fields})
     run_dir.record_command("posterior", args.argv)
-    info = run_posterior(run_dir, settings, make_executor(args.workers, args.scheduler))
+    with warnings.catch_warnings():
+        # the verdict is printed once, with its reasons, at the end of the summary
+        warnings.simplefilter("ignore", UnreliablePosteriorWarning)
+        info = run_posterior(run_dir, settings, make_executor(args.workers, args.scheduler))
     print_summary(info)
     print(f"posterior: {run_dir.root / 'posterior'} (posterior.nc, summary.csv, figures/)")
     return 0
@@ -72,3 +77,5 @@ def print_summary(info: dict[str, Any]) -> None:
     rel = info.get("reliability") or {}
     verdict = "yes" if rel.get("reliable") else "no: " + "; ".join(rel.get("reasons") or [])
     print(f"reliable: {verdict}")
+    for note in rel.get("notes") or []:
+        print(f"note: {note}")

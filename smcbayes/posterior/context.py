@@ -48,6 +48,22 @@ class RunContext:
     runner: Runner
 
     @property
+    def noise_free(self) -> bool:
+        """Whether the training curves are simulator output without noise: a truth check
+        (``[calibration] truth``, whose curves are written noiseless) or an
+        ``smcbayes synth`` dataset whose truth.json records every noise term as 0."""
+        project = self.problem.project
+        if project.calibration.truth is not None:
+            return True
+        root = project.data_path()
+        path = None if root is None else root / "truth.json"
+        if path is None or not path.is_file():
+            return False
+        noise = json.loads(path.read_text(encoding="utf-8")).get("noise")
+        force_noise = ("white_kN", "correlated_kN", "resolution_kN")
+        return bool(noise) and all(float(noise.get(k, 0.0)) == 0.0 for k in force_noise)
+
+    @property
     def run_dir(self) -> Path:
         """The run directory's path."""
         return self.run.root

@@ -26,6 +26,10 @@ PRIOR_SHARE = 0.8
 """A 90 % interval wider than this share of its search range does not narrow the prior."""
 VANISHING_LOSS_KN2 = 1e-8
 """A best loss below this (kN^2) is a curve reproduced to round-off: noise-free data."""
+NOISE_FREE_REASON = ("the training curves are noise-free simulator output: the loss vanishes at the "
+                     "truth, so the likelihood is a spike there and the posterior is degenerate "
+                     "(only the calibrated point means something); calibrate against measured or "
+                     "noisy synthetic curves (smcbayes synth --noise-kN 5)")
 
 
 def _interval_share(space: ParameterSpace, row: Mapping[str, Any]) -> float:
@@ -62,16 +66,21 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
     return out
 
 
-def assess(info: Mapping[str, Any], space: ParameterSpace, best_loss_kN2: float | None) -> dict[str, Any]:
-    """``{"reliable": bool, "reasons": [...]}`` for a posterior summary ``info``."""
+def assess(info: Mapping[str, Any], space: ParameterSpace, best_loss_kN2: float | None,
+           noise_free: bool = False) -> dict[str, Any]:
+    """``{"reliable": bool, "reasons": [...], "notes": [...]}`` for a posterior summary ``info``.
+
+    ``reasons`` make the posterior unreliable; ``notes`` (``info["shape"]``, from
+    :func:`smcbayes.posterior.shape.shape_notes`) say how to read one that may be right.
+    ``noise_free`` says the training curves are simulator output without noise (a truth
+    check, or ``smcbayes synth`` with every noise term 0).
+    """
     reasons = _sampling_reasons(info)
     shares = [_interval_share(space, row) for row in info.get("parameters") or []]
     if shares and all(s > PRIOR_SHARE for s in shares):
         reasons.append(f"the posterior is the prior: every 90 % interval spans more than "
                        f"{PRIOR_SHARE:.0%} of its search range, so the data do not inform the "
                        "parameters (fix some, or add data that do)")
-    if best_loss_kN2 is not None and 0 <= best_loss_kN2 < VANISHING_LOSS_KN2:
-        reasons.append(f"the loss vanishes at the best point ({best_loss_kN2:.2g} kN^2: noise-free "
-                       "data): the likelihood is degenerate there; calibrate against measured or "
-                       "noisy synthetic curves (smcbayes synth --noise-kN)")
-    return {"reliable": not reasons, "reasons": reasons}
+    if noise_free or (best_loss_kN2 is not None and 0 <= best_loss_kN2 < VANISHING_LOSS_KN2):
+        reasons.append(NOISE_FREE_REASON)
+    return {"reliable": not reasons, "reasons": reasons, "notes": list(info.get("shape") or [])}

@@ -15,6 +15,7 @@ from smcbayes.posterior.likelihood import EmulatedPosterior
 from smcbayes.posterior.plots import bands_plot, corner_plot, correlation_plot
 from smcbayes.posterior.predictive import Band, predictive_bands
 from smcbayes.posterior.refine import check_emulator
+from smcbayes.posterior.shape import shape_notes
 from smcbayes.posterior.summary import (
     correlations,
     stack_components,
@@ -162,4 +163,5 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
                         "role": "validation" if val_ids else "train"}
                   for cid, b in bands.items()},
         "truth": ctx.problem.truth,
+        "shape": shape_notes(space, t["unit"]),
     }

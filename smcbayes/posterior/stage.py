@@ -216,6 +216,8 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
                        "on each of %d configuration(s); --correct-draws 0 reports the emulated "
                        "posterior without it", settings.correct_draws, len(ctx.problem.train_ids))
     out_dir = ctx.run.begin_stage("posterior", settings.model_dump(mode="json"))
+    if ctx.noise_free:
+        logger.info("noise-free training curves: the posterior will be reported unreliable")
     # every step is seeded: a rerun after a kill asks for the same rows and finds them here
     ctx.runner.cache = cache = ctx.run.forward_cache("posterior")
     rng = np.random.default_rng(settings.seed)
@@ -241,7 +243,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     # what shaped the posterior, apart from what only checks it or draws its bands
     runs["inference"] = runs["residual_budget"] + runs["refine"] + runs["correction"]
     runs["checks_and_bands"] = runs["emulator_check"] + runs["bands"]
-    info["reliability"] = assess(info, ctx.space, ctx.summary.get("best_loss_kN2"))
+    info["reliability"] = assess(info, ctx.space, ctx.summary.get("best_loss_kN2"), ctx.noise_free)
     info["reliable"] = info["reliability"]["reliable"]
     if not info["reliable"]:
         warnings.warn("the posterior is unreliable: " + "; ".join(info["reliability"]["reasons"]),

@@ -120,6 +120,26 @@ def _diagnostics(post: dict[str, Any]) -> list:
     return blocks
 
 
+def _verdict(post: dict[str, Any]) -> list:
+    """The stage's own verdict (``reliability``) first: unreliable with its reasons, and the
+    notes on the posterior's shape (a bound, separate modes, a ridge) with what to do."""
+    rel = post.get("reliability") or {}
+    if not rel:
+        return []
+    reasons = [str(r) for r in rel.get("reasons") or []]
+    if rel.get("reliable"):
+        blocks: list = [Paragraph("Verdict: the posterior's own diagnostics pass; its numbers can "
+                                  "be used.")]
+    else:
+        blocks = [Paragraph("Verdict: the posterior is unreliable; treat its numbers as "
+                            "indicative. Reasons:", tone="warning"),
+                  Bullets(tuple(reasons), tone="warning")]
+    notes = [str(n) for n in rel.get("notes") or []]
+    if notes:
+        blocks += [Paragraph("How to read it:"), Bullets(tuple(notes), tone="warning")]
+    return blocks
+
+
 def _pair_words(pair: dict[str, Any]) -> str:
     r = _num(pair.get("r"))
     strength = "strongly" if abs(r) >= 0.7 else "moderately" if abs(r) >= 0.4 else "weakly"
@@ -263,6 +283,7 @@ def posterior_section(
         ),
         _posterior_table(params, truth, ranges),
         Heading("Diagnostics"),
+        *_verdict(post),
     )
     if (ident := _identification(params, ranges)) is not None:
         sec.add(ident)

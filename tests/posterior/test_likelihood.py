@@ -228,7 +228,7 @@ def test_reliability_names_each_failed_diagnostic() -> None:
                "q95": p.lower + 0.5 * (p.upper - p.lower), "r_hat": 1.01} for p in space.free]
     wide = [{"name": p.name, "q05": p.lower, "q95": p.upper, "r_hat": 1.01} for p in space.free]
     good = {"parameters": narrow, "correction": {"enabled": True, "k_hat": 0.2, "ess": 2500, "settled": True}}
-    assert assess(good, space, 10.0) == {"reliable": True, "reasons": []}
+    assert assess(good, space, 10.0) == {"reliable": True, "reasons": [], "notes": []}
     bad_k = {**good, "correction": {"enabled": True, "k_hat": 0.9, "ess": 20, "settled": False}}
     assert "k-hat 0.90" in assess(bad_k, space, 10.0)["reasons"][0]
     emulator_only = {"parameters": [{**r, "r_hat": 1.2} for r in narrow],

@@ -1,0 +1,97 @@
+"""Notes on the shape of a posterior sample and the verdict of noise-free training data."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from smcbayes.config import build_project
+from smcbayes.forward.model import ForwardModel
+from smcbayes.posterior.context import RunContext
+from smcbayes.posterior.reliability import assess
+from smcbayes.posterior.shape import bimodal_split, shape_notes
+
+RAW = {"name": "t", "configuration": [{"id": "a", "charge": {"shape": "bar", "coverage_pct": 60.0},
+                                       "press": {"speed_mm_s": 0.5}}]}
+
+
+def _space():
+    return ForwardModel(build_project(RAW, "<t>", Path("."))).space
+
+
+def test_a_unimodal_sample_gets_no_note() -> None:
+    space = _space()
+    unit = np.random.default_rng(0).uniform(0.3, 0.5, size=(4000, space.dim))
+    assert shape_notes(space, unit) == []
+
+
+def test_mass_at_a_bound_is_named_with_what_to_do() -> None:
+    space = _space()
+    rng = np.random.default_rng(1)
+    unit = rng.uniform(0.3, 0.5, size=(4000, space.dim))
+    unit[:, 0] = 1.0 - rng.uniform(0.0, 0.2, 4000) ** 2  # piled against the upper bound
+    notes = shape_notes(space, unit)
+    name = space.free_names[0]
+    assert len(notes) == 1 and f"posterior of {name} piles up at its upper bound" in notes[0]
+    assert "widen the bound" in notes[0]
+
+
+def test_a_wide_posterior_is_not_said_to_pile_at_a_bound() -> None:
+    space = _space()
+    unit = np.random.default_rng(2).uniform(0.0, 1.0, size=(4000, space.dim))
+    assert not any("bound" in n for n in shape_notes(space, unit))
+
+
+def test_two_separated_modes_are_found_and_one_is_not() -> None:
+    rng = np.random.default_rng(3)
+    two = np.concatenate([rng.normal(0.25, 0.04, 3000), rng.normal(0.7, 0.04, 1500)])
+    split = bimodal_split(two)
+    assert split is not None and 0.35 < split < 0.6
+    assert bimodal_split(rng.normal(0.5, 0.1, 4000)) is None
+    # a small bump (5 % of the mass) is not a mode
+    bump = np.concatenate([rng.normal(0.3, 0.05, 3800), rng.normal(0.8, 0.02, 200)])
+    assert bimodal_split(bump) is None
+
+
+def test_a_ridge_is_named() -> None:
+    space = _space()
+    rng = np.random.default_rng(4)
+    unit = rng.uniform(0.3, 0.5, size=(4000, space.dim))
+    unit[:, 1] = unit[:, 0] + rng.normal(0.0, 0.005, 4000)
+    notes = shape_notes(space, unit)
+    names = space.free_names
+    assert len(notes) == 1 and f"{names[0]} and {names[1]} lie on a ridge" in notes[0]
+
+
+def test_notes_are_kept_beside_the_verdict() -> None:
+    space = _space()
+    narrow = [{"name": p.name, "q05": p.lower + 0.4 * (p.upper - p.lower),
+               "q95": p.lower + 0.5 * (p.upper - p.lower), "r_hat": 1.01} for p in space.free]
+    info = {"parameters": narrow, "shape": ["a note"],
+            "correction": {"enabled": True, "k_hat": 0.2, "ess": 2500, "settled": True}}
+    assert assess(info, space, 10.0) == {"reliable": True, "reasons": [], "notes": ["a note"]}
+    noise_free = assess(info, space, 10.0, noise_free=True)
+    assert not noise_free["reliable"] and "noise-free" in noise_free["reasons"][0]
+
+
+def _context(project_raw: dict, folder: Path) -> RunContext:
+    project = build_project(project_raw, "<t>", folder)
+    problem = SimpleNamespace(project=project)
+    return RunContext(None, problem, {}, np.zeros((1, 1)), None)  # type: ignore[arg-type]
+
+
+def test_noise_free_data_are_recognised(tmp_path: Path) -> None:
+    truth_check = {**RAW, "calibration": {"truth": {"m": 1.5}}}
+    assert _context(truth_check, tmp_path).noise_free
+    data = tmp_path / "data"
+    data.mkdir()
+    raw = {**RAW, "data_dir": "data"}
+    assert not _context(raw, tmp_path).noise_free  # measured: no truth.json
+    (data / "truth.json").write_text(json.dumps({"noise": {"white_kN": 0.0, "correlated_kN": 0.0,
+                                                           "resolution_kN": 0.0, "white_mm": 0.01}}))
+    assert _context(raw, tmp_path).noise_free
+    (data / "truth.json").write_text(json.dumps({"noise": {"white_kN": 5.0, "correlated_kN": 0.0}}))
+    assert not _context(raw, tmp_path).noise_free
