@@ -82,5 +82,6 @@ def assess(info: Mapping[str, Any], space: ParameterSpace, best_loss_kN2: float 
                        f"{PRIOR_SHARE:.0%} of its search range, so the data do not inform the "
                        "parameters (fix some, or add data that do)")
     if noise_free or (best_loss_kN2 is not None and 0 <= best_loss_kN2 < VANISHING_LOSS_KN2):
-        reasons.append(NOISE_FREE_REASON)
+        # the failed sampling diagnostics follow from the spike: their remedies would mislead
+        reasons = [NOISE_FREE_REASON]
     return {"reliable": not reasons, "reasons": reasons, "notes": list(info.get("shape") or [])}

@@ -95,3 +95,14 @@ def test_noise_free_data_are_recognised(tmp_path: Path) -> None:
     assert _context(raw, tmp_path).noise_free
     (data / "truth.json").write_text(json.dumps({"noise": {"white_kN": 5.0, "correlated_kN": 0.0}}))
     assert not _context(raw, tmp_path).noise_free
+
+
+def test_noise_free_data_is_the_one_reason_given() -> None:
+    """Failed sampling diagnostics follow from the spike; their remedies are not repeated."""
+    space = _space()
+    info = {"parameters": [{"name": p.name, "q05": p.lower, "q95": p.lower, "r_hat": 1.6}
+                           for p in space.free],
+            "correction": {"enabled": True, "k_hat": 1.9, "ess": 7, "settled": False}}
+    assert len(assess(info, space, 3.0)["reasons"]) == 1  # k-hat
+    verdict = assess(info, space, 3.0, noise_free=True)
+    assert verdict["reasons"] == [verdict["reasons"][0]] and "noise-free" in verdict["reasons"][0]
