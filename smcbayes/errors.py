@@ -61,6 +61,16 @@ class UnreliablePosteriorWarning(SmcBayesWarning):
 class ParameterOnBoundWarning(SmcBayesWarning):
     """A calibrated parameter lies at a search bound: the data want it beyond the box."""
 
+    @staticmethod
+    def advice(name: str, side: str, limit: float, value: float) -> str:
+        """What to do about a parameter ``name`` calibrated to ``value`` on its ``side``
+        (``lower``/``upper``) search bound ``limit`` (user units), in one sentence."""
+        where = "above" if side == "upper" else "below"
+        return (f"{name} = {value:.4g} lies on its {side} search bound: the data want {name} "
+                f"{where} {limit:.4g}; widen the bound in [parameters.{name}] if that is "
+                "physical, or add the missing physics (smcbayes diagnose lists candidate "
+                "effects)")
+
 
 class FixedOutsideBoxWarning(SmcBayesWarning):
     """A parameter was fixed (``--set``, ``[parameters]``) outside its search bounds."""

@@ -63,8 +63,10 @@ def on_bounds(problem: Problem, params: dict[str, float]) -> list[dict[str, Any]
     for p, u in zip(space.free, unit, strict=True):
         if u <= BOUND_SHARE or u >= 1.0 - BOUND_SHARE:
             side = "lower" if u <= BOUND_SHARE else "upper"
-            out.append({"name": p.name, "bound": side, "value": params[p.name],
-                        "limit": p.lower if side == "lower" else p.upper})
+            limit = p.lower if side == "lower" else p.upper
+            out.append({"name": p.name, "bound": side, "value": params[p.name], "limit": limit,
+                        "unit": p.unit,
+                        "advice": ParameterOnBoundWarning.advice(p.name, side, limit, params[p.name])})
     return out
 
 
@@ -152,11 +154,9 @@ def _best_outputs(bo: BayesOpt, problem: Problem, run: RunDir, executor: Executo
 def warn_on_bounds(info: dict[str, Any]) -> None:
     """One :class:`ParameterOnBoundWarning` per calibrated parameter on a search bound."""
     for b in info.get("on_bounds") or []:
-        side = "above" if b["bound"] == "upper" else "below"
-        warnings.warn(f"{b['name']} = {b['value']:.4g} lies on its {b['bound']} search bound "
-                      f"({b['limit']:.4g}): the data want it {side} the box; widen the bound in "
-                      "[parameters] or add the missing physics (smcbayes diagnose)",
-                      ParameterOnBoundWarning, stacklevel=3)
+        text = b.get("advice") or ParameterOnBoundWarning.advice(b["name"], b["bound"], b["limit"],
+                                                                  b["value"])
+        warnings.warn(text, ParameterOnBoundWarning, stacklevel=3)
 
 
 def finish(bo: BayesOpt, problem: Problem, run: RunDir, wall_s: float, figures: bool = True,
