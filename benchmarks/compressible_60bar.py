@@ -42,7 +42,7 @@ CONFIG_ID = "60-bar-03"
 PARAMETERS = {
     "n": 0.45, "tau_star_Pa": 1e5, "B_Pa_s": 1e5, "tau_c_MPa": 0.5, "m": 1.2,
     "rho_solid_g_cm3": 1.8, "compaction_modulus_MPa": 0.2, "compaction_exponent": 2.0,
-    "bulk_viscosity_MPa_s": 0.0, "pore_closure": 1.0,
+    "bulk_viscosity_MPa_s": 0.0,
 }
 GAP_TARGET_MM = 4.0
 

@@ -69,7 +69,6 @@ DISPATCHERS = (_compaction_pressure, _relax_temperature, _arrhenius, _cure_shift
 # row parameters
 R_SOLID0, R_INV_K = ROW["solid0"], ROW["inv_k"]
 R_K_C, R_B, R_ZETA = ROW["compaction_modulus"], ROW["compaction_exponent"], ROW["bulk_viscosity"]
-R_CLOSURE = ROW["pore_closure"]
 R_RAMP_ON, R_T_RAMP, R_BETA = ROW["on:speed_ramp"], ROW["ramp_time"], ROW["load_slowdown"]
 R_HEAT_ON, R_KAPPA, R_T_B, R_T0 = ROW["on:heating"], ROW["diffusivity"], ROW["T_b"], ROW["temperature0"]
 R_CURE_ON, R_K1, R_K2 = ROW["on:curing"], ROW["k1"], ROW["k2"]
@@ -255,13 +254,13 @@ def _compaction(gap: float, area: float, dt: float, rp: Array, geo: Array) -> tu
     s0 = rp[R_SOLID0]
     if s0 >= 1.0:
         return _INF, 0.0, 0.0
-    k_c, b, q = rp[R_K_C], rp[R_B], rp[R_CLOSURE]
+    k_c, b = rp[R_K_C], rp[R_B]
     solid = min(s0 * geo[G_GAP0] * geo[G_AREA0] / (gap * area), 1.0)
-    pc = _compaction_pressure(solid, s0, k_c, b, q)
+    pc = _compaction_pressure(solid, s0, k_c, b)
     if solid >= 1.0 - 1e-9:
         pc = _INF
     ds = 1e-6 * (1.0 - solid)
-    pc_up = _compaction_pressure(solid + ds, s0, k_c, b, q)
+    pc_up = _compaction_pressure(solid + ds, s0, k_c, b)
     stiff = solid * (pc_up - pc) / ds if math.isfinite(pc) and math.isfinite(pc_up) else _INF
     return pc, rp[R_ZETA], rp[R_ZETA] + dt * stiff
 

@@ -45,16 +45,14 @@ def select(condition: bool | NDArray[np.bool_], a: X | float, b: X | float) -> X
     return np.where(condition, a, b)
 
 
-def compaction_pressure(solid: X, solid0: X, modulus: X, exponent: X, closure: X | float = 1.0) -> X:
-    """P_c(s) = k_c ((s/s0)^b - 1) ((1 - s0)/(1 - s))^q (Pa), zero below s0.
+def compaction_pressure(solid: X, solid0: X, modulus: X, exponent: X) -> X:
+    """P_c(s) = k_c ((s/s0)^b - 1)(1 - s0)/(1 - s) (Pa), zero below s0.
 
     Infinite where s0 >= 1 (no pores) or s >= 1 (pores closed).  Arguments: solid
-    fraction s (-), initial solid fraction s0 (-), modulus k_c (Pa), exponent b (-) and
-    pore-closure exponent q (-): q = 1 is the hyperbolic divergence of the original law,
-    q = 0 the pure Toll-Manson power law of the fibre network, finite up to s = 1.
+    fraction s (-), initial solid fraction s0 (-), modulus k_c (Pa), exponent b (-).
     """
     grow = np.maximum(solid / solid0, 1.0) ** exponent - 1.0
-    out = modulus * grow * ((1.0 - solid0) / (1.0 - solid)) ** closure
+    out = modulus * grow * (1.0 - solid0) / (1.0 - solid)
     return select((solid0 >= 1.0) | (solid >= 1.0), np.inf, np.maximum(out, 0.0))
 
 

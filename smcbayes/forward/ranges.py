@@ -107,10 +107,6 @@ _RANGES: tuple[PhysicalRange, ...] = (
     PhysicalRange("bulk_viscosity_MPa_s", 0.0, 500.0,
                   "bulk viscosity of compaction: 0 is rate-independent compaction; at 1 mm/s in a "
                   "3 mm gap 500 MPa s would alone exceed the 15 MPa of the force limit"),
-    PhysicalRange("pore_closure", 0.0, 1.0,
-                  "pore-closure exponent q: 0 is the fibre-network power law alone (pores open, "
-                  "air escapes; Toll 1998), 1 the hyperbolic divergence of trapped pores closing "
-                  "(Gutowski et al. 1987 diverge at the packing limit)"),
     # -- press
     PhysicalRange("k_press_kN_mm", 50.0, 20000.0,
                   "press frame stiffness: 28 mm to 0.07 mm of deflection at 1400 kN, from a soft "

@@ -200,7 +200,7 @@ def test_compressible_60_bar_closes_below_4_mm_with_a_late_steep_rise(thesis_con
     """Hand-chosen parameters inside the thesis's bounds (benchmarks/compressible_60bar.py)."""
     values = {"n": 0.45, "tau_star_Pa": 1e5, "B_Pa_s": 1e5, "tau_c_MPa": 0.5, "m": 1.2,
               "rho_solid_g_cm3": 1.8, "compaction_modulus_MPa": 0.2, "compaction_exponent": 2.0,
-              "bulk_viscosity_MPa_s": 0.0, "pore_closure": 1.0}
+              "bulk_viscosity_MPa_s": 0.0}
     model = ForwardModel(load_project(thesis_config), effects=["compressibility"])
     for p in model.space.parameters:
         assert p.lower <= values[p.name] <= p.upper, p.name

@@ -47,10 +47,6 @@ def test_compiled_nodes_equal_the_numpy_march(project: ProjectConfig, subset: tu
     names = [q.name for q in model.space.parameters]
     if "bulk_viscosity_MPa_s" in names:  # rate-independent compaction (the default) too
         u[::2, names.index("bulk_viscosity_MPa_s")] = 0.0
-    if "pore_closure" in names:  # the hyperbolic pore closure (the default) and the power law
-        u[::2, names.index("pore_closure")] = 1.0
-        u[1::4, names.index("pore_closure")] = 0.0
-        u[3::4, names.index("pore_closure")] = 0.5
     theta = model.space.from_unit(u)
     p = to_si(model.space.batch(theta), model.space.parameters)
     options = model.solver.options

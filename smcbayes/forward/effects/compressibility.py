@@ -38,13 +38,11 @@ from smcbayes.forward.parameters import Parameter
 from smcbayes.units import G_CM3, MPA
 
 
-def compaction_pressure(solid: Array, solid0: Array, modulus: Array, exponent: Array,
-                        closure: Array | float = 1.0) -> Array:
+def compaction_pressure(solid: Array, solid0: Array, modulus: Array, exponent: Array) -> Array:
     """P_c(s) (Pa) of :func:`smcbayes.forward.laws.compaction_pressure`, arrays of one
-    shape: zero at s0, diverging as s -> 1 if ``closure`` > 0; infinite where s0 >= 1 or
-    s >= 1."""
+    shape: zero at s0, diverging as s -> 1; infinite where s0 >= 1 or s >= 1."""
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        return laws.compaction_pressure(solid, solid0, modulus, exponent, closure)
+        return laws.compaction_pressure(solid, solid0, modulus, exponent)
 
 
 @register
@@ -63,11 +61,9 @@ class Compressibility(Effect):
                   (0.0, 100.0), "Toll-Manson exponent b"),
         Parameter("bulk_viscosity_MPa_s", "bulk_viscosity", "MPa s", MPA, 0.0, 500.0, False, 0.0,
                   (-1e-300, np.inf), "bulk viscosity of compaction (0: rate-independent)"),
-        Parameter("pore_closure", "pore_closure", "-", 1.0, 0.0, 1.0, False, 1.0, (-1e-300, 3.0),
-                  "pore-closure exponent q (1: hyperbolic divergence, 0: pure power law)"),
     )
     # the initial solid fraction reaches the kernel through solid_fraction0
-    kernel_slots = ("compaction_modulus", "compaction_exponent", "bulk_viscosity", "pore_closure")
+    kernel_slots = ("compaction_modulus", "compaction_exponent", "bulk_viscosity")
 
     def solid_fraction0(self, case: Case, p: Params, rows: int) -> Array:
         if case.mass is None:
@@ -78,6 +74,5 @@ class Compressibility(Effect):
 
     def compaction(self, case: Case, p: Params, solid: Array) -> tuple[Array, Array]:
         s0 = self.solid_fraction0(case, p, solid.size)
-        pc = compaction_pressure(solid, s0, p["compaction_modulus"], p["compaction_exponent"],
-                                 p["pore_closure"])
+        pc = compaction_pressure(solid, s0, p["compaction_modulus"], p["compaction_exponent"])
         return pc, np.broadcast_to(p["bulk_viscosity"], solid.shape).astype(float)
