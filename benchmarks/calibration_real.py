@@ -80,7 +80,8 @@ def contact_scan(problem, effects: list[str], fixed: dict, best: dict, ids: list
             confs = [c.model_copy(update={"charge": c.charge.model_copy(update={"stack_height_mm": float(h)})})
                      if c.id == cid else c for c in problem.project.configuration]
             model = ForwardModel(problem.project.model_copy(update={"configuration": confs}), effects, fixed)
-            obj = SimulatorObjective(model, problem.objective.dataset, [cid], problem.project.loss)
+            obj = SimulatorObjective(model, problem.objective.dataset, [cid],
+                                     problem.project.loss.model_copy(update={"clip": "none"}))
             theta = np.array([[best[n] for n in model.space.free_names]])
             rows.append((float(h), float(np.sqrt(obj.evaluate(Task((0,), theta, cid)).force_mse_kN2[0]))))
         nominal = dict(rows)[8.0]
