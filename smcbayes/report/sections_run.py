@@ -161,7 +161,7 @@ def bound_advice(cal: dict[str, Any]) -> list[str]:
     for b in cal.get("on_bounds") or []:
         text = b.get("advice") or ParameterOnBoundWarning.advice(
             str(b.get("name")), str(b.get("bound")), float(b.get("limit", float("nan"))),
-            float(b.get("value", float("nan"))))
+            float(b.get("value", float("nan"))), b.get("physical_limit"))
         out.append(text)
     return out
 

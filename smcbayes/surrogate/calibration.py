@@ -22,6 +22,7 @@ from smcbayes.config import CalibrationSpec
 from smcbayes.data.loss import evaluate_loss
 from smcbayes.data.readers.csv import write_curves
 from smcbayes.errors import ParameterOnBoundWarning
+from smcbayes.forward.ranges import PHYSICAL_RANGES
 from smcbayes.forward.result import SimulationResult
 from smcbayes.plotting import plot_simulation
 from smcbayes.progress import Progress as ProgressBar
@@ -64,9 +65,12 @@ def on_bounds(problem: Problem, params: dict[str, float]) -> list[dict[str, Any]
         if u <= BOUND_SHARE or u >= 1.0 - BOUND_SHARE:
             side = "lower" if u <= BOUND_SHARE else "upper"
             limit = p.lower if side == "lower" else p.upper
+            known = PHYSICAL_RANGES.get(p.name)
+            physical = None if known is None else (known.lower if side == "lower" else known.upper)
             out.append({"name": p.name, "bound": side, "value": params[p.name], "limit": limit,
-                        "unit": p.unit,
-                        "advice": ParameterOnBoundWarning.advice(p.name, side, limit, params[p.name])})
+                        "unit": p.unit, "physical_limit": physical,
+                        "advice": ParameterOnBoundWarning.advice(p.name, side, limit, params[p.name],
+                                                                 physical)})
     return out
 
 
