@@ -61,6 +61,28 @@ class UnreliablePosteriorWarning(SmcBayesWarning):
 class ParameterOnBoundWarning(SmcBayesWarning):
     """A calibrated parameter lies at a search bound: the data want it beyond the box."""
 
+    @staticmethod
+    def advice(name: str, side: str, limit: float, value: float,
+               physical: float | None = None) -> str:
+        """What to do about a parameter ``name`` calibrated to ``value`` on its ``side``
+        (``lower``/``upper``) search bound ``limit`` (user units), in one sentence.
+
+        ``physical``: the parameter's physical limit on that side, if known: a bound at
+        it cannot be widened, only physics added; one inside it can be widened up to it.
+        """
+        where = "above" if side == "upper" else "below"
+        head = (f"{name} = {value:.4g} lies on its {side} search bound: the data want {name} "
+                f"{where} {limit:.4g}; ")
+        missing = "add the missing physics (smcbayes diagnose lists candidate effects)"
+        if physical is None:
+            return head + f"widen the bound in [parameters.{name}] if that is physical, or {missing}"
+        beyond = limit >= physical if side == "upper" else limit <= physical
+        if beyond:
+            return head + (f"that is the end of its physical range ({physical:.4g}), so do not "
+                           f"widen the bound: {missing}")
+        return head + (f"widen the bound in [parameters.{name}] (its physical range ends at "
+                       f"{physical:.4g}), or {missing}")
+
 
 class FixedOutsideBoxWarning(SmcBayesWarning):
     """A parameter was fixed (``--set``, ``[parameters]``) outside its search bounds."""

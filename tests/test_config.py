@@ -23,7 +23,7 @@ def test_thesis_config(thesis_config: Path) -> None:
         assert c.charge.stack_height_mm == 8.0 and c.press.force_limit_kN == 1400.0
         assert c.press.speed_mm_s in (0.3, 0.7, 1.1)
         assert c.charge.mass_g is not None
-    assert project.parameters["tau_c_MPa"].bounds == (0.005, 1.0)
+    assert project.parameters["tau_c_MPa"].bounds == (0.001, 5.0)
     assert project.data_path() == (thesis_config.parent / "../../shared/data/thesis-press").resolve()
 
 

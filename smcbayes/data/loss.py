@@ -81,9 +81,13 @@ def _safe(res: SimulationResult) -> tuple[Array, Array, Array, NDArray[np.bool_]
 
 
 def _switch(res: SimulationResult, t: Array, ok: NDArray[np.bool_]) -> Array:
-    """Switch time per row (s); the end of the simulation where the limit was never reached."""
-    ts = np.where(ok, np.nan_to_num(res.switch_time_s, nan=0.0), 0.0)
-    return np.where(ts > 0, ts, t[:, -1])
+    """Switch time per row (s); the end of the simulation where it is unknown (NaN).
+
+    A switch at t = 0 (a charge too stiff to move: the limit at first contact) is a switch:
+    taken as 'never reached', it would compare the whole hold at the limit against the
+    measured curve held at its limit and score such a row as a near-perfect fit."""
+    ts = res.switch_time_s
+    return np.where(ok & np.isfinite(ts), ts, t[:, -1])
 
 
 @dataclass(frozen=True)

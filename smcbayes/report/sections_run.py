@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from smcbayes import __version__
+from smcbayes.errors import ParameterOnBoundWarning
 from smcbayes.report.collect import RunFiles, data_dir_of, sha256
 from smcbayes.report.document import Bullets, Code, Figure, Heading, Paragraph, Section, Table, fmt
 
@@ -153,6 +154,18 @@ def _best_table(cal: dict[str, Any], truth: dict[str, Any] | None) -> Table:
     )
 
 
+def bound_advice(cal: dict[str, Any]) -> list[str]:
+    """One sentence per calibrated parameter on a search bound (``on_bounds`` of the
+    calibration summary): which way the data push it and what to do."""
+    out = []
+    for b in cal.get("on_bounds") or []:
+        text = b.get("advice") or ParameterOnBoundWarning.advice(
+            str(b.get("name")), str(b.get("bound")), float(b.get("limit", float("nan"))),
+            float(b.get("value", float("nan"))), b.get("physical_limit"))
+        out.append(text)
+    return out
+
+
 def _error_table(cal: dict[str, Any], validation: dict[str, dict[str, float]]) -> Table:
     loss = cal.get("loss") or {}
     force_only = loss.get("w_force", 1.0) == 1.0 and not loss.get("w_displacement", 0.0)
@@ -192,6 +205,8 @@ def calibration_section(run: RunFiles, validation: dict[str, dict[str, float]]) 
         )
     if cal.get("best_params"):
         sec.add(_best_table(cal, run.truth))
+        for text in bound_advice(cal):
+            sec.add(Paragraph(text, tone="warning"))
     else:
         sec.add(Paragraph("No evaluation succeeded, so there is no best point.", tone="warning"))
     if (fig := run.figure("figures", "best_curves")) is not None:

@@ -22,6 +22,7 @@ from smcbayes.config import CalibrationSpec
 from smcbayes.data.loss import evaluate_loss
 from smcbayes.data.readers.csv import write_curves
 from smcbayes.errors import ParameterOnBoundWarning
+from smcbayes.forward.ranges import PHYSICAL_RANGES
 from smcbayes.forward.result import SimulationResult
 from smcbayes.plotting import plot_simulation
 from smcbayes.progress import Progress as ProgressBar
@@ -63,8 +64,13 @@ def on_bounds(problem: Problem, params: dict[str, float]) -> list[dict[str, Any]
     for p, u in zip(space.free, unit, strict=True):
         if u <= BOUND_SHARE or u >= 1.0 - BOUND_SHARE:
             side = "lower" if u <= BOUND_SHARE else "upper"
-            out.append({"name": p.name, "bound": side, "value": params[p.name],
-                        "limit": p.lower if side == "lower" else p.upper})
+            limit = p.lower if side == "lower" else p.upper
+            known = PHYSICAL_RANGES.get(p.name)
+            physical = None if known is None else (known.lower if side == "lower" else known.upper)
+            out.append({"name": p.name, "bound": side, "value": params[p.name], "limit": limit,
+                        "unit": p.unit, "physical_limit": physical,
+                        "advice": ParameterOnBoundWarning.advice(p.name, side, limit, params[p.name],
+                                                                 physical)})
     return out
 
 
@@ -152,11 +158,9 @@ def _best_outputs(bo: BayesOpt, problem: Problem, run: RunDir, executor: Executo
 def warn_on_bounds(info: dict[str, Any]) -> None:
     """One :class:`ParameterOnBoundWarning` per calibrated parameter on a search bound."""
     for b in info.get("on_bounds") or []:
-        side = "above" if b["bound"] == "upper" else "below"
-        warnings.warn(f"{b['name']} = {b['value']:.4g} lies on its {b['bound']} search bound "
-                      f"({b['limit']:.4g}): the data want it {side} the box; widen the bound in "
-                      "[parameters] or add the missing physics (smcbayes diagnose)",
-                      ParameterOnBoundWarning, stacklevel=3)
+        text = b.get("advice") or ParameterOnBoundWarning.advice(b["name"], b["bound"], b["limit"],
+                                                                  b["value"])
+        warnings.warn(text, ParameterOnBoundWarning, stacklevel=3)
 
 
 def finish(bo: BayesOpt, problem: Problem, run: RunDir, wall_s: float, figures: bool = True,

@@ -55,6 +55,15 @@ def test_force_limit_clip_removes_overshoot(dh, tmp_path: Path) -> None:
     assert evaluate_loss(sim, ds, LossSpec(clip="none")).total[0] > 1.0
 
 
+def test_a_limit_reached_at_first_contact_is_a_switch_not_a_perfect_fit(dh, tmp_path: Path) -> None:
+    ds = _dataset(dh, tmp_path)
+    stuck = {"c1": dh.sim_result("c1", [0, 100, 500], [300, 300, 300], [0.0])}
+    # the measured 0-100-300 ramp over 2 s against 300 throughout
+    expected = np.mean((300 - np.interp(np.linspace(0, 2, 5), [0, 1, 2], [0, 100, 300])) ** 2)
+    res = evaluate_loss(stuck, ds, LossSpec(grid_points=5))
+    assert res.force_mse_kN2[0, 0] == pytest.approx(expected)
+
+
 def test_curve_against_itself_is_zero(dh, tmp_path: Path) -> None:
     t = np.linspace(0, 5, 60)
     f = 300 * (t / 5) ** 3
