@@ -21,7 +21,8 @@ configurations at the calibrated point, at the measured times, are pooled into b
 ``d`` (quantile edges, split at ``d = 0``, merged until each bin holds enough points of
 enough configurations); each bin keeps the weighted quantiles of its residuals, every
 configuration weighing the same.  Prediction (:meth:`PhaseDiscrepancy.sample`): a draw
-of the error at any point is the inverse CDF of the point's bin at a uniform number,
+of the error at any point is the inverse CDF of the point's bin at a uniform number (mixed
+linearly with the neighbouring bin's between their centres),
 so the bands are wide where the training residuals are large and skewed where they are
 one-sided; predictive draws are then clipped to ``[0, F_limit]``.  Using the empirical
 quantiles, not a Gaussian with the bin's variance, is a split-conformal style choice
@@ -95,12 +96,14 @@ class PhaseDiscrepancy:
         quantiles_kN: residual quantiles ``(B, LEVELS)`` at levels ``linspace(0, 1, LEVELS)``.
         points: residual points per bin ``(B,)``.
         configs: configurations contributing to each bin ``(B,)``.
+        centres_mm: median remaining travel of each bin's points ``(B,)``.
     """
 
     edges_mm: Array
     quantiles_kN: Array
     points: NDArray[np.int64]
     configs: NDArray[np.int64]
+    centres_mm: Array
 
     @property
     def bins(self) -> int:
@@ -112,13 +115,31 @@ class PhaseDiscrepancy:
         return np.searchsorted(self.edges_mm, d_mm, side="right").astype(np.int64)
 
     def quantile(self, d_mm: Array, u: Array) -> Array:
-        """Error (kN) at level ``u`` in ``[0, 1]`` for remaining travel ``d_mm`` (broadcast)."""
-        b = self.bin_of(d_mm)
+        """Error (kN) at level ``u`` in ``[0, 1]`` for remaining travel ``d_mm`` (broadcast).
+
+        Between the centres of two neighbouring bins the quantile functions are mixed
+        linearly in ``d`` (no mixing across the switch, ``d = 0``, nor beyond the outer
+        centres), so the bands change smoothly along the closing.
+        """
+        d = np.asarray(d_mm, dtype=float)
+        b = self.bin_of(d)
+        c = self.centres_mm
+        nb = np.where(d > c[b], b + 1, b - 1)
+        inner = (nb >= 0) & (nb < self.bins)
+        nb = np.clip(nb, 0, self.bins - 1)
+        between = np.minimum(b, nb)
+        split = (self.edges_mm[np.minimum(between, max(self.bins - 2, 0))] == 0.0) if self.bins > 1 else inner
+        span = np.where(inner, np.abs(c[nb] - c[b]), 1.0)
+        w = np.where(inner & ~split, np.abs(d - c[b]) / np.maximum(span, 1e-12), 0.0)
         pos = np.clip(np.asarray(u, dtype=float), 0.0, 1.0) * (LEVELS - 1)
         lo = np.minimum(pos.astype(np.int64), LEVELS - 2)
         frac = pos - lo
         q = self.quantiles_kN
-        return q[b, lo] * (1.0 - frac) + q[b, lo + 1] * frac
+
+        def at(k: NDArray[np.int64]) -> Array:
+            return q[k, lo] * (1.0 - frac) + q[k, lo + 1] * frac
+
+        return (1.0 - w) * at(b) + w * at(nb)
 
     def sample(self, d_mm: Array, rng: np.random.Generator) -> Array:
         """Independent error draws (kN), one per element of ``d_mm``."""
@@ -138,10 +159,11 @@ class PhaseDiscrepancy:
                 "coordinate": "remaining ram travel to the simulated end of closing (mm)",
                 "bins": [{"from_mm": None if not np.isfinite(a) else float(a),
                           "to_mm": None if not np.isfinite(b) else float(b),
-                          "points": int(n), "configurations": int(c),
+                          "centre_mm": float(m), "points": int(n), "configurations": int(c),
                           "q05_kN": float(at[0.05][i]), "q50_kN": float(at[0.5][i]),
                           "q95_kN": float(at[0.95][i])}
-                         for i, (a, b, n, c) in enumerate(zip(lo, hi, self.points, self.configs, strict=True))]}
+                         for i, (a, b, m, n, c) in enumerate(zip(lo, hi, self.centres_mm, self.points,
+                                                                 self.configs, strict=True))]}
 
 
 def _edges(d: Array, owner: Array, n_configs: int) -> Array:
@@ -192,7 +214,8 @@ def fit_discrepancy(curves: Sequence[ResidualCurve]) -> PhaseDiscrepancy | None:
     q = np.stack([weighted_quantiles(r[b == i], w[b == i], levels) for i in range(edges.size + 1)])
     points = np.bincount(b, minlength=edges.size + 1).astype(np.int64)
     configs = np.array([np.unique(who[b == i]).size for i in range(edges.size + 1)], dtype=np.int64)
-    return PhaseDiscrepancy(edges, q, points, configs)
+    centres = np.array([np.median(d[b == i]) for i in range(edges.size + 1)])
+    return PhaseDiscrepancy(edges, q, points, configs, centres)
 
 
 def training_residuals(model: Simulator, theta: Array, config_ids: Sequence[str],
