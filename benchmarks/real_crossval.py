@@ -157,6 +157,16 @@ def rmse_at(project: Any, run_dir: Path, ids: list[str], theta_by_name: dict[str
     return rmse, clipped
 
 
+def small_copy(src: Path, dest: Path, width_px: int = 1100) -> None:
+    """Copy a PNG, scaled down to ``width_px`` wide when it is wider (kept small for docs)."""
+    from PIL import Image
+
+    with Image.open(src) as im:
+        if im.width > width_px:
+            im = im.resize((width_px, round(im.height * width_px / im.width)), Image.LANCZOS)
+        im.convert("RGB").quantize(colors=64).save(dest, optimize=True)
+
+
 def run_fold(k: int, args: argparse.Namespace) -> dict[str, Any]:
     """The whole workflow on fold ``k``; returns its record."""
     import smcbayes
@@ -222,7 +232,7 @@ def run_fold(k: int, args: argparse.Namespace) -> dict[str, Any]:
     if fig.exists():
         dest = RESULTS / "real_crossval" / f"fold-{k}.png"
         dest.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(fig, dest)
+        small_copy(fig, dest)
         figure = str(dest.relative_to(ROOT))
     return {"fold": k, "name": name, "held_out": list(held_out), "effects": effects, "fixed": fixed,
             "diagnosis": diagnosis, "best_params": best, "rows": rows,
