@@ -72,7 +72,10 @@ def print_summary(info: dict[str, Any]) -> None:
           f"mean |e| {ec['mean_abs_error']:.3g} nats, max {ec['max_abs_error']:.3g} nats")
     for cid, b in info["bands"].items():
         if b["coverage90"] == b["coverage90"]:
-            print(f"coverage {cid}: 50 % band {b['coverage50']:.0%}, 90 % band {b['coverage90']:.0%}")
+            sharp = "".join(f", {label} {b[key]:.3g} kN" for key, label in
+                            (("width90_kN", "90 % width"), ("crps_kN", "CRPS"))
+                            if isinstance(b.get(key), (int, float)) and b[key] == b[key])
+            print(f"coverage {cid}: 50 % band {b['coverage50']:.0%}, 90 % band {b['coverage90']:.0%}{sharp}")
     # the warnings themselves were shown as the library emitted them
     rel = info.get("reliability") or {}
     verdict = "yes" if rel.get("reliable") else "no: " + "; ".join(rel.get("reasons") or [])

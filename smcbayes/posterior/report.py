@@ -11,6 +11,7 @@ import numpy as np
 
 from smcbayes.posterior.context import RunContext, true_log_loss
 from smcbayes.posterior.correct import K_HAT_WARN
+from smcbayes.posterior.discrepancy import fit_discrepancy, training_residuals
 from smcbayes.posterior.likelihood import EmulatedPosterior
 from smcbayes.posterior.plots import bands_plot, corner_plot, correlation_plot
 from smcbayes.posterior.predictive import Band, predictive_bands
@@ -32,6 +33,14 @@ def band_width90(band: Band) -> float:
     end = band.measured[0][-1] if band.measured is not None else band.time_s[-1]
     inside = band.time_s <= end
     return float(np.mean(band.force_pred_kN[4][inside] - band.force_pred_kN[0][inside]))
+
+
+def band_record(band: Band, role: str) -> dict[str, Any]:
+    """The ``bands`` entry of one configuration in the summary: coverage beside sharpness."""
+    return {"coverage50": band.coverage50, "coverage90": band.coverage90, "noise_kN": band.noise_kN,
+            "width90_kN": band_width90(band), "rmse_median_kN": band.rmse_median_kN,
+            "crps_kN": band.crps_kN, "interval_score90_kN": band.interval_score90_kN,
+            "error_model": band.error_model, "draws": band.draws, "role": role}
 
 
 def write_table(path: Path, rows: list) -> None:
@@ -93,10 +102,14 @@ def _corr_block(corr: tuple) -> dict[str, Any]:
 
 
 def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any], settings: Any,
-                       rng: np.random.Generator, out_dir: Path) -> tuple[dict, int, list[str]]:
+                       rng: np.random.Generator, out_dir: Path) -> tuple[dict, int, list[str], Any]:
     """Predictive bands from the reported draws, corner, correlation and band figures.
 
-    Returns the bands, the forward runs they took and the validation ids.
+    The bands' error term is the discrepancy model learnt from the training residuals at
+    the best point (:mod:`smcbayes.posterior.discrepancy`; one forward run per training
+    configuration), or the per-configuration white noise when no residual is usable.
+
+    Returns the bands, the forward runs they took, the validation ids and the error model.
     """
     space, p, unit = ctx.space, ctx.problem, t["unit"]
     draw_unit = unit[rng.choice(unit.shape[0], size=min(settings.draws, unit.shape[0]), replace=False)]
@@ -104,7 +117,11 @@ def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any
     band_ids = val_ids or p.train_ids
     measured = p.measured_force(band_ids)
     noise = {cid: float(np.sqrt(v)) for cid, v in budget["mse_kN2"].items()}
-    bands = predictive_bands(ctx.runner, space.from_unit(draw_unit), band_ids, measured, noise, rng)
+    residuals = training_residuals(ctx.runner, ctx.best_theta, p.train_ids, p.measured_force(p.train_ids))
+    discrepancy = fit_discrepancy(residuals)
+    limits = {cid: float(p.project.get(cid).press.force_limit_kN) for cid in band_ids}
+    bands = predictive_bands(ctx.runner, space.from_unit(draw_unit), band_ids, measured, noise, rng,
+                             discrepancy=discrepancy, force_limit_kN=limits)
     fig = out_dir / "figures"
     corner_unit = unit[rng.choice(unit.shape[0], min(20000, unit.shape[0]), replace=False)]
     corner_plot(space, space.from_unit(corner_unit), fig / "corner", p.truth)
@@ -112,7 +129,8 @@ def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any
         correlation_plot(t["corr"][0], t["corr"][1], fig / "correlations")
     kind = "validation" if val_ids else "training (no validation configuration)"
     bands_plot(bands, fig / "bands", f"posterior predictive bands on {kind} configurations")
-    return bands, int(draw_unit.shape[0]) * len(band_ids), val_ids
+    runs = int(draw_unit.shape[0]) * len(band_ids) + len(p.train_ids)
+    return bands, runs, val_ids, discrepancy
 
 
 def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget: dict[str, Any],
@@ -144,7 +162,7 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     check_unit = emu[rng.choice(emu.shape[0], size=min(settings.draws, emu.shape[0]), replace=False)]
     check = check_emulator(check_unit, lambda u: emul.log_loss(u),
                            lambda u: true_log_loss(ctx, space.from_unit(u)), emul.n_eff)
-    bands, band_runs, val_ids = _bands_and_figures(ctx, t, budget, settings, rng, out_dir)
+    bands, band_runs, val_ids, discrepancy = _bands_and_figures(ctx, t, budget, settings, rng, out_dir)
     corr_info = correction_info(corrected, settings)
     return {
         "method": attrs["method"],
@@ -158,10 +176,8 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
         "sampler": [{"steps": c.steps, "burn": c.burn, "thin": c.thin, "converged": c.converged,
                      "tau_max": float(np.max(c.tau)), "acceptance_median": float(np.median(c.acceptance))}
                     for c in chains],
-        "bands": {cid: {"coverage50": b.coverage50, "coverage90": b.coverage90, "noise_kN": b.noise_kN,
-                        "width90_kN": band_width90(b), "draws": b.draws,
-                        "role": "validation" if val_ids else "train"}
-                  for cid, b in bands.items()},
+        "bands": {cid: band_record(b, "validation" if val_ids else "train") for cid, b in bands.items()},
+        "discrepancy": None if discrepancy is None else discrepancy.as_dict(),
         "truth": ctx.problem.truth,
         "shape": shape_notes(space, t["unit"]),
     }

@@ -297,7 +297,8 @@ def posterior_section(
 
 
 def bands_section(run: RunFiles) -> Section | None:
-    """Predictive bands and their coverage of the measured curves."""
+    """Predictive bands: their coverage of the measured curves beside their sharpness, and
+    the error model they add to the posterior draws."""
     post = run.posterior
     if post is None or not post.get("bands"):
         return None
@@ -309,42 +310,41 @@ def bands_section(run: RunFiles) -> Section | None:
         if roles == {"validation"}
         else "training configurations (the project has no validation configuration with data)"
     )
-    sec.add(
-        Paragraph(
-            f"Posterior draws pushed through the forward model on the {kind}. Coverage is the "
-            "share of measured points inside the band; a calibrated model covers about 50 % "
-            "and 90 % of the points with its 50 % and 90 % bands. Much lower coverage means "
-            "the model misses the measurements by more than its uncertainty; much higher "
-            "coverage, that the bands are wider than needed (for example a noise level "
-            "estimated from a large misfit)."
-        )
-    )
+    sec.add(Paragraph(_bands_text(kind, post.get("discrepancy"))))
     rows = tuple(
         (
             cid,
             str(b.get("role", "-")),
             pct(b.get("coverage50")),
             pct(b.get("coverage90")),
-            fmt(b.get("noise_kN"), 3),
+            fmt(b.get("width90_kN"), 3),
+            fmt(b.get("crps_kN"), 3),
+            fmt(b.get("interval_score90_kN"), 3),
+            fmt(b.get("rmse_median_kN"), 3),
             fmt(b.get("draws")),
         )
         for cid, b in bands.items()
     )
     sec.add(
         Table(
-            (
-                "configuration",
-                "role",
-                "inside 50 % band",
-                "inside 90 % band",
-                "noise sd (kN)",
-                "draws",
-            ),
+            ("configuration", "role", "inside 50 % band", "inside 90 % band", "90 % width (kN)",
+             "CRPS (kN)", "interval score 90 % (kN)", "median RMSE (kN)", "draws"),
             rows,
-            caption="coverage of the measured force",
-            numeric=(2, 3, 4, 5),
+            caption="coverage and sharpness of the predictive force bands",
+            numeric=(2, 3, 4, 5, 6, 7, 8),
         )
     )
+    disc = post.get("discrepancy")
+    if disc and disc.get("bins"):
+        sec.add(Table(
+            ("remaining travel (mm)", "points", "configurations", "error 5 % (kN)", "median (kN)",
+             "error 95 % (kN)"),
+            tuple((_travel_range(b), fmt(b.get("points")), fmt(b.get("configurations")),
+                   fmt(b.get("q05_kN"), 3), fmt(b.get("q50_kN"), 3), fmt(b.get("q95_kN"), 3))
+                  for b in disc["bins"]),
+            caption="error model: measured minus simulated force of the training configurations at the "
+                    "calibrated point, by remaining ram travel to the simulated end of closing",
+            numeric=(1, 2, 3, 4, 5)))
     if (fig := run.figure("posterior", "figures", "bands")) is not None:
         sec.add(
             Figure(
@@ -353,6 +353,39 @@ def bands_section(run: RunFiles) -> Section | None:
             )
         )
     return sec
+
+
+def _bands_text(kind: str, discrepancy: dict | None) -> str:
+    """The paragraph above the bands table."""
+    error = (
+        "plus an error drawn from the training residuals at the calibrated point at the same "
+        "stage of the closing (remaining ram travel to the simulated end of closing; table "
+        "below), so the bands widen where the model misses the press, such as the end of "
+        "closing"
+        if discrepancy
+        else "plus white noise with each configuration's residual standard deviation"
+    )
+    return (
+        f"Posterior draws pushed through the forward model on the {kind}, {error}; the bands "
+        "are clipped to 0 kN and the press's force limit. Coverage is the share of measured "
+        "points inside the band: a calibrated model covers about 50 % and 90 % of the points "
+        "with its 50 % and 90 % bands; much lower means the model misses the measurements by "
+        "more than its uncertainty, much higher that the bands are wider than needed. Read it "
+        "beside the sharpness: the mean width of the 90 % band, the CRPS (mean distance of "
+        "the predictive distribution from the measured points, in kN; smaller is better) and "
+        "the interval score (width plus 20 times the distance of the points outside the 90 % "
+        "band; smaller is better)."
+    )
+
+
+def _travel_range(b: dict) -> str:
+    """A bin of the error model as text, e.g. ``0.5 to 1.2`` or ``below 0``."""
+    lo, hi = b.get("from_mm"), b.get("to_mm")
+    if lo is None:
+        return f"below {fmt(hi, 3)}"
+    if hi is None:
+        return f"above {fmt(lo, 3)}"
+    return f"{fmt(lo, 3)} to {fmt(hi, 3)}"
 
 
 def _n_eff_source(eff: dict) -> str:

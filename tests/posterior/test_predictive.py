@@ -55,14 +55,16 @@ def test_model_bands_are_the_quantiles_of_the_draws_and_noise_free_prediction_eq
     assert np.isnan(b.coverage50) and np.isnan(b.coverage90)
 
 
-def test_predictive_bands_add_gaussian_noise_of_the_given_sd() -> None:
-    """A single draw of zero force: the predictive quantiles are sigma times the normal ones."""
+def test_predictive_bands_add_gaussian_noise_of_the_given_sd_clipped_at_zero() -> None:
+    """Zero force: the predictive quantiles are sigma times the normal ones, those below 0 kN
+    clipped to 0 (a press does not pull)."""
     rng = np.random.default_rng(1)
     theta = np.zeros((4000, 2))
     b = predictive_bands(LinearModel(), theta, ["c"], {}, {"c": 5.0}, rng, grid_points=50)["c"]
     z = np.array([-1.6449, -0.6745, 0.0, 0.6745, 1.6449])
-    np.testing.assert_allclose(np.median(b.force_pred_kN, axis=1), 5.0 * z, atol=0.15)
+    np.testing.assert_allclose(np.median(b.force_pred_kN, axis=1), 5.0 * np.maximum(z, 0.0), atol=0.15)
     np.testing.assert_allclose(b.force_kN, 0.0)
+    assert b.error_model == "white noise"
 
 
 def test_noise_of_a_configuration_without_its_own_is_the_mean_of_the_others() -> None:

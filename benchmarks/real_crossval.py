@@ -1,0 +1,352 @@
+"""Cross-validation of the whole workflow on the 9 real training trials of the thesis.
+
+Six folds: leave one closing speed out (all 0.3, all 0.7, all 1.1 mm/s trials) and leave one
+charge group out (60 % bar, 60 % centre, 80 % bar).  Per fold, a derived project file (the
+held-out trials with ``role = "validation"``, the three 80 % centre configurations without
+data left out) is written into the work directory and the documented workflow runs on it
+through the library's API (the same code as the commands):
+
+1. ``calibrate`` the base model (``smcbayes calibrate``);
+2. ``diagnose_gap`` on that run (``smcbayes diagnose RUN``), whose decision names the
+   effect(s) to add; a selected effect set in the diagnosis summary is preferred when the
+   diagnosis records one, else its decision, else its top-ranked effect;
+3. ``calibrate`` with those effects (``smcbayes calibrate --effect X``);
+4. ``sample_posterior`` (``smcbayes posterior RUN``), whose predictive bands are drawn on the
+   validation configurations, i.e. the held-out trials.
+
+Per held-out trial: force RMSE (kN) over the whole closing at the calibrated point and of
+the posterior median curve, coverage of the 50 % and 90 % predictive bands, mean width of the
+90 % band (kN), CRPS (kN) and the 90 % interval score (kN).  Per fold: the effects, the wall
+time of each step, and the thesis's clipped loss (force compared up to the incompressible
+flow-stop time, summed over the 9 configurations; the thesis's best is 18,384 kN^2) at the
+fold's calibrated point.
+
+    python benchmarks/real_crossval.py [--fold K] [--jobs N] [--effects a,b] [--workdir DIR]
+        [--budget 60 --init 20] [--population 64 --generations 50 --restarts 2]
+        [--walkers 32 --steps 4000 --correct-draws 14000 --draws 100]
+
+The budgets default to the workflow's defaults (``[calibration]``, ``[diagnose]``,
+``[posterior]`` of settings.py).  Writes ``benchmarks/results/real_crossval.json`` (merged
+with an existing file when ``--fold`` is given) and copies each fold's band figure to
+``benchmarks/results/real_crossval/fold-K.png``.  Needs ../shared/data/thesis-press next to
+the repository (``--data-dir``); without it, prints why and exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+import tomllib
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+DATA = ROOT / ".." / "shared" / "data" / "thesis-press"
+PROJECT = ROOT / "configs" / "thesis.toml"
+RESULTS = ROOT / "benchmarks" / "results"
+THESIS_BEST_CLIPPED_KN2 = 18384.70
+TRAIN = ("60-bar-03", "60-bar-07", "60-bar-11", "60-center-03", "60-center-07", "60-center-11",
+         "80-bar-03", "80-bar-07", "80-bar-11")
+FOLDS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("speed 0.3 mm/s", tuple(c for c in TRAIN if c.endswith("-03"))),
+    ("speed 0.7 mm/s", tuple(c for c in TRAIN if c.endswith("-07"))),
+    ("speed 1.1 mm/s", tuple(c for c in TRAIN if c.endswith("-11"))),
+    ("60 % bar", tuple(c for c in TRAIN if c.startswith("60-bar"))),
+    ("60 % centre", tuple(c for c in TRAIN if c.startswith("60-center"))),
+    ("80 % bar", tuple(c for c in TRAIN if c.startswith("80-bar"))),
+)
+# parameters fixed whenever their effect is on (as in calibration_real.py): the solid density
+# of consolidated CF-epoxy SMC (1.5 g/cm3, README of the data) and no bulk viscosity
+FIXED_IF_FREE = {"rho_solid_g_cm3": 1.5, "bulk_viscosity_MPa_s": 0.0}
+
+
+def toml_value(v: Any) -> str:
+    """One TOML value (the subset thesis.toml uses: strings, numbers, lists, inline tables)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, list):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {toml_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(f"no TOML form for {type(v).__name__}")
+
+
+def toml_dump(doc: dict[str, Any]) -> str:
+    """TOML text of a project document: top-level keys, nested tables, array of configurations."""
+    lines: list[str] = []
+
+    def table(prefix: str, body: dict[str, Any]) -> None:
+        plain = {k: v for k, v in body.items() if not isinstance(v, dict) or not v or prefix == "configuration"}
+        nested = {k: v for k, v in body.items() if k not in plain}
+        if prefix and plain:
+            lines.append(f"\n[{prefix}]")
+        lines.extend(f"{k} = {toml_value(v)}" for k, v in plain.items())
+        for k, v in nested.items():
+            table(f"{prefix}.{k}" if prefix else k, v)
+
+    top = {k: v for k, v in doc.items() if k != "configuration"}
+    table("", top)
+    for conf in doc.get("configuration", []):
+        lines.append("\n[[configuration]]")
+        lines.extend(f"{k} = {toml_value(v)}" for k, v in conf.items())
+    return "\n".join(lines) + "\n"
+
+
+def fold_project(held_out: tuple[str, ...], data_dir: Path, path: Path) -> Path:
+    """Write the fold's project: held-out trials as validation, configurations without data dropped."""
+    doc = tomllib.loads(PROJECT.read_text(encoding="utf-8"))
+    doc["data_dir"] = str(data_dir.resolve())
+    confs = []
+    for conf in doc["configuration"]:
+        if "data" not in conf:
+            continue
+        conf["role"] = "validation" if conf["id"] in held_out else "train"
+        confs.append(conf)
+    doc["configuration"] = confs
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(toml_dump(doc), encoding="utf-8")
+    return path
+
+
+def selected_effects(summary: dict[str, Any]) -> list[str]:
+    """The effects a diagnosis selects: its selected set if recorded, else its decision, else its
+    top-ranked single effect."""
+    for key in ("selected_effects", "selection", "selected"):
+        sel = summary.get(key)
+        if isinstance(sel, dict):
+            sel = sel.get("effects")
+        if isinstance(sel, list) and sel:
+            return [str(e) for e in sel]
+    best = (summary.get("decision") or {}).get("best")
+    if best:
+        return [e.strip() for e in str(best).split("+")]
+    singles = [r["effect"] for r in summary.get("ranking") or [] if "+" not in r["effect"]]
+    return singles[:1]
+
+
+def rmse_at(project: Any, run_dir: Path, ids: list[str], theta_by_name: dict[str, float],
+            effects: list[str], fixed: dict[str, float]) -> tuple[dict[str, float], dict[str, float]]:
+    """Force RMSE (kN, whole closing) and the thesis's clipped MSE (kN^2) of ``ids`` at one point."""
+    from smcbayes.data.loss import force_pair
+    from smcbayes.simulation.problem import build_problem
+
+    problem = build_problem(project, run_dir, effects, fixed)
+    space = problem.model.space
+    theta = np.array([[theta_by_name[n] for n in space.free_names]])
+    results = problem.model.simulate(theta, ids)
+    rmse, clipped = {}, {}
+    for cid in ids:
+        m = problem.dataset.measurements[cid]
+        full = force_pair(results[cid], m, project.loss.model_copy(update={"clip": "none"}))
+        rmse[cid] = float(np.sqrt(np.mean((full.sim_kN[0] - full.meas_kN[0]) ** 2)))
+        if m.flow_stop_s is not None:
+            cl = force_pair(results[cid], m, project.loss.model_copy(update={"clip": "flow_stop"}))
+            clipped[cid] = float(np.mean((cl.sim_kN[0] - cl.meas_kN[0]) ** 2))
+    return rmse, clipped
+
+
+def small_copy(src: Path, dest: Path, width_px: int = 1100) -> None:
+    """Copy a PNG, scaled down to ``width_px`` wide when it is wider (kept small for docs)."""
+    from PIL import Image
+
+    with Image.open(src) as im:
+        if im.width > width_px:
+            im = im.resize((width_px, round(im.height * width_px / im.width)), Image.LANCZOS)
+        im.convert("RGB").quantize(colors=64).save(dest, optimize=True)
+
+
+def run_fold(k: int, args: argparse.Namespace) -> dict[str, Any]:
+    """The whole workflow on fold ``k``; returns its record."""
+    import smcbayes
+    from smcbayes.config import load_project
+
+    name, held_out = FOLDS[k]
+    work = Path(args.workdir) / f"fold-{k}"
+    if work.exists():
+        shutil.rmtree(work)
+    path = fold_project(held_out, Path(args.data_dir), work / "project.toml")
+    project = load_project(path)
+    times: dict[str, float] = {}
+    t0 = time.perf_counter()
+    cal_settings = {"budget": args.budget, "init": args.init, "seed": args.seed}
+    base = smcbayes.calibrate(project, work / "base", figures=False, **cal_settings)
+    times["calibrate_base_s"] = time.perf_counter() - t0
+    diagnosis: dict[str, Any] | None = None
+    if args.effects is None:
+        t = time.perf_counter()
+        diag = smcbayes.diagnose_gap(base.run_dir, figures=False, population=args.population,
+                                     generations=args.generations, restarts=args.restarts, seed=args.seed,
+                                     effects=args.candidates)
+        times["diagnose_s"] = time.perf_counter() - t
+        effects = selected_effects(diag.summary)
+        diagnosis = {"statement": diag.statement, "holdout": diag.summary.get("holdout"),
+                     "ranking": [{k2: r.get(k2) for k2 in ("effect", "score", "holdout_shrink_pct", "significant")}
+                                 for r in diag.summary.get("ranking") or []]}
+    else:
+        effects = list(args.effects)
+    final_run = base
+    fixed: dict[str, float] = {}
+    if effects:
+        t = time.perf_counter()
+        from smcbayes.simulation.problem import build_problem
+
+        free = build_problem(project, work / "probe", effects, {}).model.space.free_names
+        shutil.rmtree(work / "probe", ignore_errors=True)
+        fixed = {p: v for p, v in FIXED_IF_FREE.items() if p in free}
+        final_run = smcbayes.calibrate(project, work / "final", effects=effects, overrides=fixed,
+                                       figures=False, **cal_settings)
+        times["calibrate_effects_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    post = smcbayes.sample_posterior(final_run.run_dir, walkers=args.walkers, steps=args.steps,
+                                     correct_draws=args.correct_draws, draws=args.draws, seed=args.seed,
+                                     functions=args.functions)
+    times["posterior_s"] = time.perf_counter() - t
+    times["workflow_s"] = time.perf_counter() - t0
+    best = final_run.best_params
+    # RMSE at the calibrated point on every trial, and the thesis's clipped loss over all 9
+    all_project = load_project(PROJECT, Path(args.data_dir))
+    rmse, clipped = rmse_at(all_project, work / "check", list(TRAIN), best, effects, fixed)
+    shutil.rmtree(work / "check", ignore_errors=True)
+    bands = post.summary.get("bands") or {}
+    rows = []
+    for cid in held_out:
+        b = bands.get(cid, {})
+        rows.append({"config_id": cid, "rmse_kN": rmse[cid], "rmse_median_kN": b.get("rmse_median_kN"),
+                     "coverage50": b.get("coverage50"), "coverage90": b.get("coverage90"),
+                     "band_width90_kN": b.get("width90_kN"), "crps_kN": b.get("crps_kN"),
+                     "interval_score90_kN": b.get("interval_score90_kN")})
+    fig = final_run.run_dir.root / "posterior" / "figures" / "bands.png"
+    figure = None
+    if fig.exists():
+        dest = RESULTS / "real_crossval" / f"fold-{k}.png"
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        small_copy(fig, dest)
+        figure = str(dest.relative_to(ROOT))
+    return {"fold": k, "name": name, "held_out": list(held_out), "effects": effects, "fixed": fixed,
+            "diagnosis": diagnosis, "best_params": best, "rows": rows,
+            "train_rmse_kN": {c: v for c, v in rmse.items() if c not in held_out},
+            "clipped_loss_sum_kN2": float(sum(clipped.values())), "clipped_errors_kN2": clipped,
+            "discrepancy": post.summary.get("discrepancy"), "posterior_warnings": post.warnings,
+            "wall_s": times, "figure": figure}
+
+
+def print_fold(f: dict[str, Any]) -> None:
+    """The fold's table."""
+    w = f["wall_s"]
+    print(f"\nfold {f['fold']} ({f['name']}): effects {', '.join(f['effects']) or 'none'}; workflow "
+          f"{w['workflow_s']:.0f} s (" + ", ".join(f"{k[:-2]} {v:.0f} s" for k, v in w.items()
+                                                  if k != "workflow_s") + ")")
+    print(f"  clipped loss at the calibrated point: {f['clipped_loss_sum_kN2']:.0f} kN^2 summed over 9 "
+          f"(thesis best {THESIS_BEST_CLIPPED_KN2:.0f})")
+    print(f"  {'held out':<14}{'RMSE kN':>9}{'median':>8}{'cov50':>7}{'cov90':>7}{'width90':>9}"
+          f"{'CRPS':>7}{'IS90':>8}")
+
+    def g(v: Any, spec: str) -> str:
+        width = int(spec.split(".")[0])
+        return format(v, spec) if isinstance(v, (int, float)) and v == v else "-".rjust(width)
+
+    for r in f["rows"]:
+        print(f"  {r['config_id']:<14}{g(r['rmse_kN'], '9.1f')}{g(r['rmse_median_kN'], '8.1f')}"
+              f"{g(r['coverage50'], '7.0%')}{g(r['coverage90'], '7.0%')}{g(r['band_width90_kN'], '9.0f')}"
+              f"{g(r['crps_kN'], '7.1f')}{g(r['interval_score90_kN'], '8.0f')}")
+
+
+def totals(folds: list[dict[str, Any]]) -> dict[str, Any]:
+    """Means over held-out trials and the targets met."""
+    rows = [r for f in folds for r in f["rows"]]
+
+    def mean(key: str) -> float:
+        vals = [r[key] for r in rows if isinstance(r.get(key), (int, float)) and r[key] == r[key]]
+        return float(np.mean(vals)) if vals else float("nan")
+
+    ok_rmse = all(r["rmse_kN"] <= 70.0 for r in rows)
+    ok_cov = all(r["coverage90"] is not None and 0.80 <= r["coverage90"] <= 0.97 for r in rows)
+    ok_width = all(r["band_width90_kN"] is not None and r["band_width90_kN"] <= 4 * r["rmse_kN"] for r in rows)
+    return {"trials": len(rows), "mean_rmse_kN": mean("rmse_kN"), "max_rmse_kN": max(r["rmse_kN"] for r in rows),
+            "mean_rmse_median_kN": mean("rmse_median_kN"), "mean_coverage50": mean("coverage50"),
+            "mean_coverage90": mean("coverage90"), "mean_band_width90_kN": mean("band_width90_kN"),
+            "mean_crps_kN": mean("crps_kN"), "wall_s_per_fold": [f["wall_s"]["workflow_s"] for f in folds],
+            "targets": {"rmse_le_70kN_every_trial": ok_rmse, "coverage90_80_97_every_trial": ok_cov,
+                        "width90_le_4rmse_every_trial": ok_width,
+                        "workflow_le_15min_every_fold": all(f["wall_s"]["workflow_s"] <= 900 for f in folds)}}
+
+
+def parse() -> argparse.Namespace:
+    from smcbayes.config.settings import CalibrationSpec, DiagnoseSpec, PosteriorSpec
+
+    def d(spec: Any, name: str) -> Any:
+        return spec.model_fields[name].default
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--fold", type=int, action="append", choices=range(len(FOLDS)),
+                    help="run this fold only (repeatable; default: all six)")
+    ap.add_argument("--jobs", type=int, default=1, help="folds run in parallel processes")
+    ap.add_argument("--effects", type=lambda s: [e for e in s.split(",") if e], default=None,
+                    help="skip the diagnosis and add these effects (comma separated; '' for none)")
+    ap.add_argument("--candidates", type=lambda s: s.split(","), default=None,
+                    help="candidate effects of the diagnosis (default: all)")
+    ap.add_argument("--workdir", default=str(RESULTS / "real_crossval" / "work"))
+    ap.add_argument("--data-dir", default=str(DATA))
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--budget", type=int, default=d(CalibrationSpec, "budget"))
+    ap.add_argument("--init", type=int, default=d(CalibrationSpec, "init"))
+    ap.add_argument("--population", type=int, default=d(DiagnoseSpec, "population"))
+    ap.add_argument("--generations", type=int, default=d(DiagnoseSpec, "generations"))
+    ap.add_argument("--restarts", type=int, default=d(DiagnoseSpec, "restarts"))
+    ap.add_argument("--walkers", type=int, default=d(PosteriorSpec, "walkers"))
+    ap.add_argument("--steps", type=int, default=d(PosteriorSpec, "steps"))
+    ap.add_argument("--functions", type=int, default=d(PosteriorSpec, "functions"))
+    ap.add_argument("--correct-draws", type=int, default=d(PosteriorSpec, "correct_draws"))
+    ap.add_argument("--draws", type=int, default=d(PosteriorSpec, "draws"))
+    return ap.parse_args()
+
+
+def main() -> int:
+    """Run the folds, print their tables and totals, write the JSON."""
+    args = parse()
+    if not Path(args.data_dir).is_dir():
+        print(f"skipped: no measured data at {args.data_dir} (pass --data-dir)")
+        return 0
+    ks = sorted(set(args.fold)) if args.fold else list(range(len(FOLDS)))
+    start = time.perf_counter()
+    if args.jobs > 1 and len(ks) > 1:
+        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+            folds = list(pool.map(run_fold, ks, [args] * len(ks)))
+    else:
+        folds = [run_fold(k, args) for k in ks]
+    for f in folds:
+        print_fold(f)
+    path = RESULTS / "real_crossval.json"
+    old = json.loads(path.read_text()) if args.fold and path.exists() else {}
+    merged = {f["fold"]: f for f in old.get("folds", [])}
+    merged.update({f["fold"]: f for f in folds})
+    all_folds = [merged[k] for k in sorted(merged)]
+    out = {"settings": {k: v for k, v in vars(args).items() if k not in ("fold",)},
+           "thesis_best_clipped_kN2": THESIS_BEST_CLIPPED_KN2, "folds": all_folds,
+           "totals": totals(all_folds), "wall_s_this_call": time.perf_counter() - start}
+    tot = out["totals"]
+    print(f"\n{tot['trials']} held-out trials: mean RMSE {tot['mean_rmse_kN']:.1f} kN (max "
+          f"{tot['max_rmse_kN']:.1f}), median-curve RMSE {tot['mean_rmse_median_kN']:.1f} kN, coverage "
+          f"50 % {tot['mean_coverage50']:.0%}, 90 % {tot['mean_coverage90']:.0%}, 90 % width "
+          f"{tot['mean_band_width90_kN']:.0f} kN, CRPS {tot['mean_crps_kN']:.1f} kN")
+    print("targets: " + ", ".join(f"{k} {'met' if v else 'MISSED'}" for k, v in tot["targets"].items()))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(out, indent=2, default=float) + "\n", encoding="utf-8")
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

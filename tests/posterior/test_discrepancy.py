@@ -1,0 +1,134 @@
+"""The error model of the predictive bands, learnt from training residuals by phase of the closing.
+
+Synthetic residual curves whose spread is known by construction (small early in the
+closing, large over its last millimetre) check that the model is wide where the residuals
+are, that bands stay within [0, F_limit], and that a well-specified case (measurements
+drawn as model + errors of the same law) keeps about nominal coverage.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from smcbayes.posterior.discrepancy import (
+    LEVELS,
+    MIN_POINTS,
+    ResidualCurve,
+    fit_discrepancy,
+    remaining_travel_mm,
+    training_residuals,
+)
+from smcbayes.posterior.predictive import predictive_bands
+
+T_END, TRAVEL = 10.0, 5.0  # s, mm: closing at 0.5 mm/s
+
+
+def spread_kN(d_mm: np.ndarray) -> np.ndarray:
+    """Error sd: 5 kN until the last millimetre of closing, 60 kN within it and after."""
+    return np.where(d_mm < 1.0, 60.0, 5.0)
+
+
+def curves(rng: np.random.Generator, n: int = 6, points: int = 400) -> list[ResidualCurve]:
+    out = []
+    for k in range(n):
+        t = np.sort(rng.uniform(0.0, 1.05 * T_END, points))
+        d = remaining_travel_mm(t, T_END, TRAVEL)
+        out.append(ResidualCurve(f"c{k}", t, spread_kN(d) * rng.standard_normal(points), T_END, TRAVEL))
+    return out
+
+
+class RampModel:
+    """Force ``a t`` up to the switch at ``T_END`` (then held), ram travel ``0.5 t`` mm."""
+
+    def simulate(self, theta: np.ndarray, ids: list[str]) -> dict[str, SimpleNamespace]:
+        t = np.linspace(0.0, 2 * T_END, 401)
+        a = theta[:, 0][:, None]
+        force = a * np.minimum(t, T_END)[None, :]
+        disp = np.tile(TRAVEL / T_END * t, (theta.shape[0], 1))
+        p = theta.shape[0]
+        return {cid: SimpleNamespace(ok=np.ones(p, bool), time_s=np.tile(t, (p, 1)), force_kN=force,
+                                     displacement_mm=disp, switch_time_s=np.full(p, T_END)) for cid in ids}
+
+
+def test_the_error_model_is_wide_where_the_residuals_are_large() -> None:
+    disc = fit_discrepancy(curves(np.random.default_rng(0)))
+    assert disc is not None and disc.bins >= 3
+    narrow = disc.scale_kN(np.array([4.0, 3.0, 2.5]))
+    wide = disc.scale_kN(np.array([0.5, 0.1, -0.2]))
+    # the central 90 % half-width of a normal law is 1.645 sd: 8 and 99 kN here
+    np.testing.assert_allclose(narrow, 1.645 * 5.0, rtol=0.35)
+    np.testing.assert_allclose(wide, 1.645 * 60.0, rtol=0.35)
+    assert np.min(wide) > 5 * np.max(narrow)
+
+
+def test_bins_hold_enough_points_of_more_than_one_configuration() -> None:
+    disc = fit_discrepancy(curves(np.random.default_rng(1), n=3, points=60))
+    assert disc is not None
+    assert np.all(disc.points >= MIN_POINTS) and np.all(disc.configs >= 2)
+    assert disc.quantiles_kN.shape == (disc.bins, LEVELS)
+    assert np.all(np.diff(disc.quantiles_kN, axis=1) >= 0)  # quantiles increase with the level
+    summary = disc.as_dict()
+    assert len(summary["bins"]) == disc.bins and summary["bins"][0]["from_mm"] is None
+
+
+def test_no_usable_residual_gives_no_error_model() -> None:
+    t = np.linspace(0.0, 1.0, 5)
+    assert fit_discrepancy([]) is None
+    assert fit_discrepancy([ResidualCurve("c", t, np.full(5, np.nan), 1.0, 1.0)]) is None
+
+
+def test_bands_stay_within_zero_and_the_force_limit() -> None:
+    """Large errors at zero force and at the limit: the predictive band is clipped, the model's is not."""
+    disc = fit_discrepancy(curves(np.random.default_rng(2)))
+    theta = np.column_stack([np.full(50, 140.0), np.ones(50)])  # force 0 -> 1400 kN at the switch
+    b = predictive_bands(RampModel(), theta, ["c"], {}, {}, np.random.default_rng(3), discrepancy=disc,
+                         force_limit_kN={"c": 1400.0})["c"]
+    assert b.error_model == "discrepancy"
+    assert np.min(b.force_pred_kN) >= 0.0 and np.max(b.force_pred_kN) <= 1400.0
+    assert b.force_pred_kN[0, -1] < 1400.0 - 50.0 and b.force_pred_kN[4, -1] == 1400.0
+    early, late = b.time_s < 6.0, (b.time_s > 9.0) & (b.time_s < T_END)
+    width = b.force_pred_kN[4] - b.force_pred_kN[0]
+    assert np.mean(width[late]) > 5 * np.mean(width[early & (b.time_s > 1.0)])
+
+
+def test_a_well_specified_case_keeps_about_nominal_coverage() -> None:
+    """Measured = model + errors of the law the training residuals came from."""
+    rng = np.random.default_rng(4)
+    disc = fit_discrepancy(curves(rng))
+    theta = np.column_stack([rng.normal(100.0, 0.5, 100), np.ones(100)])
+    cov50, cov90 = [], []
+    for _ in range(4):
+        tm = np.sort(rng.uniform(0.0, 1.05 * T_END, 500))
+        fm = 100.0 * np.minimum(tm, T_END) + spread_kN(remaining_travel_mm(tm, T_END, TRAVEL)) * rng.standard_normal(tm.size)
+        b = predictive_bands(RampModel(), theta, ["c"], {"c": (tm, fm)}, {}, rng, grid_points=600,
+                             discrepancy=disc, force_limit_kN={"c": 5000.0})["c"]
+        cov50.append(b.coverage50)
+        cov90.append(b.coverage90)
+        assert b.crps_kN > 0 and b.interval_score90_kN > 0 and b.rmse_median_kN > 0
+    assert 0.42 < np.mean(cov50) < 0.58
+    assert 0.85 < np.mean(cov90) < 0.95
+
+
+def test_sharper_bands_score_better_when_both_cover() -> None:
+    """CRPS and interval score of the right error law beat those of a 4x too wide white noise."""
+    rng = np.random.default_rng(5)
+    theta = np.column_stack([np.full(40, 100.0), np.ones(40)])
+    tm = np.linspace(0.5, 9.0, 300)
+    fm = 100.0 * tm + 10.0 * rng.standard_normal(tm.size)
+    right = predictive_bands(RampModel(), theta, ["c"], {"c": (tm, fm)}, {"c": 10.0}, rng)["c"]
+    wide = predictive_bands(RampModel(), theta, ["c"], {"c": (tm, fm)}, {"c": 40.0}, rng)["c"]
+    assert wide.coverage90 > 0.97 and right.coverage90 > 0.8
+    assert right.crps_kN < wide.crps_kN and right.interval_score90_kN < wide.interval_score90_kN
+    assert right.crps_kN == pytest.approx(10.0 * 0.5642, rel=0.2)  # CRPS of N(0, s) at its own draws: s / sqrt(pi)
+
+
+def test_training_residuals_are_measured_minus_simulated_at_the_measured_times() -> None:
+    tm = np.linspace(0.0, 12.0, 25)
+    res = training_residuals(RampModel(), np.array([[100.0, 1.0]]), ["a", "b"],
+                             {"a": (tm, 100.0 * np.minimum(tm, T_END) + 3.0)})
+    assert [r.config_id for r in res] == ["a"]
+    np.testing.assert_allclose(res[0].residual_kN, 3.0, atol=1e-9)
+    assert res[0].switch_s == T_END and res[0].travel_mm == pytest.approx(TRAVEL)
