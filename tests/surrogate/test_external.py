@@ -135,9 +135,11 @@ def test_posterior_of_an_external_run_uses_the_external_command(tmp_path: Path, 
     info = json.loads((out / "posterior" / "summary.json").read_text())
     made = len(calls.read_text().splitlines()) - before
     assert info["simulator"] == "external"
-    assert made == info["simulator_runs"] > 0
-    # sensitivities (2 d + 1 = 5), emulator check and bands (2 draws each) on the one configuration
+    assert made == info["forward_runs_made"] > 0
+    # sensitivities (2 d + 1 = 5), emulator check and bands (2 draws each) on the one
+    # configuration; the best point's run, read again for the bands' error model, is reused
     assert made == 5 + 2 + 2
+    assert info["simulator_runs"] == made + info["forward_runs_reused"] == made + 1
     assert json.loads((out / "posterior" / "status.json").read_text())["state"] == "complete"
 
 
@@ -165,6 +167,6 @@ def test_external_run_gives_the_native_posterior(tmp_path: Path, script: Path) -
     made = len(calls.read_text().splitlines()) - before
     ext = json.loads((runs["external"] / "posterior" / "summary.json").read_text())
     nat = json.loads((runs["native"] / "posterior" / "summary.json").read_text())
-    assert made == ext["simulator_runs"] == nat["simulator_runs"] > 0
+    assert made == ext["forward_runs_made"] == nat["forward_runs_made"] > 0
     assert ext["forward_evaluations"] == nat["forward_evaluations"]
     np.testing.assert_allclose(_quantiles(runs["external"]), _quantiles(runs["native"]), rtol=1e-6)
