@@ -63,8 +63,8 @@ class DemoPlan:
         noise: ``synth`` noise options (``white_kN``, ``correlated_kN``, ``correlation_s``).
         seed: seed of the synthetic noise.
         stage: budgets (``budget``, ``init``, ``walkers``, ``steps``, ``functions``,
-            ``draws``, ``population``, ``generations``, optional ``candidates`` and
-            ``correct_draws``, and ``effect_budget``, ``effect_init`` of the second
+            ``draws``, ``population``, ``generations``, optional ``candidates``, ``refine``
+            and ``correct_draws``, and ``effect_budget``, ``effect_init`` of the second
             calibration).
     """
 
@@ -116,8 +116,9 @@ def command_lines(plan: DemoPlan, out: Path, effect: str | None) -> dict[str, li
     truth = " ".join(f"--truth {k}={v:g}" for k, v in plan.truth.items())
     posterior = (f"--walkers {s['walkers']} --steps {s['steps']} --functions {s['functions']} "
                  f"--draws {s['draws']} --seed 0")
-    if s.get("correct_draws") is not None:
-        posterior += f" --correct-draws {s['correct_draws']}"
+    for key in ("refine", "correct_draws"):
+        if s.get(key) is not None:
+            posterior += f" --{key.replace('_', '-')} {s[key]}"
     lines = {
         "synth": f"synth {q(str(out / 'demo-project.toml'))} --effect {plan.effect} "
         f"--seed {plan.seed} --noise-kN {n.get('white_kN', 0.0)} "
@@ -190,8 +191,9 @@ def run_stage(plan: DemoPlan, stage: str, out: Path) -> None:
     log = out / "logs" / f"{stage}.log"
     posterior = {"walkers": s["walkers"], "steps": s["steps"], "functions": s["functions"],
                  "draws": s["draws"], "seed": 0}
-    if s.get("correct_draws") is not None:
-        posterior["correct_draws"] = s["correct_draws"]
+    for key in ("refine", "correct_draws"):
+        if s.get(key) is not None:
+            posterior[key] = s[key]
     try:
         with stage_log(log):
             if stage == "synth":

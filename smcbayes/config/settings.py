@@ -157,19 +157,22 @@ class PosteriorSpec(Strict):
     steps: int = Field(4000, ge=1, le=10_000_000, description="maximum steps per chain")
     functions: int = Field(8, ge=0, le=1000,
                            description="GP sample functions in the mixture (0: GP mean only)")
-    refine: int = Field(0, ge=0, le=1_000_000,
-                        description="forward evaluations added where the posterior is probable and the "
-                                    "GP unsure")
+    refine: int = Field(400, ge=0, le=1_000_000,
+                        description="most forward evaluations of the active learning of the emulator "
+                                    "(rounds of fresh posterior draws and points of largest expected "
+                                    "posterior variance; it stops earlier once validated)")
     draws: int = Field(100, ge=1, le=1_000_000,
                        description="posterior draws through the forward model for bands and checks")
     seed: int = Field(0, ge=0, description="random seed (same seed, same posterior)")
     refine_tolerance_nats: float = Field(
-        1.0, gt=0, description="refinement stops once the emulator's out-of-sample error at fresh "
-                               "posterior draws is below this (nats) twice in a row")
+        1.0, gt=0, description="active learning stops once the emulator's out-of-sample error at "
+                               "fresh posterior draws is below this (nats) twice in a row and the "
+                               "quantiles are stable")
     correct_draws: int = Field(
-        CorrectionSpec.model_fields["draws"].default, ge=0, le=10_000_000,
-        description="most proposal draws of the importance correction (each inside the prior box "
-                    "costs a forward run); 0 reports the emulated posterior uncorrected")
+        0, ge=0, le=10_000_000,
+        description="most proposal draws of an importance correction by the exact forward model "
+                    "(each inside the prior box costs a forward run; e.g. 14000 for a cheap "
+                    "simulator, as a check); 0: the actively learned emulator's posterior")
     correction: CorrectionSpec = Field(CorrectionSpec(), description="the importance correction's "
                                        "other settings ([posterior.correction])")
 

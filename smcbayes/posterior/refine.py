@@ -1,12 +1,15 @@
 """Refinement of the emulator where the posterior lives, and a check of the emulator.
 
-A refinement round evaluates the forward model at three kinds of points (:func:`round_design`):
+A refinement round (one round of the stage's active learning) evaluates the forward model
+at three kinds of points (:func:`round_design`):
 
 * random posterior draws of the current emulator: unbiased test points; the emulator's
   error there, *before* they join the training data, is the round's out-of-sample check
   (:func:`check_values`) and drives the stopping rule of the stage;
-* the posterior draws where the GP is most uncertain, greedily and at least
-  ``min_distance`` apart in the unit cube (:func:`refine_points`);
+* the points of largest expected posterior variance (:func:`acquisition_points`), among
+  the posterior draws and uniform draws over the whole prior box, greedily and at least
+  ``min_distance`` apart in the unit cube: where the GP is unsure *and* the posterior could
+  hold mass, including regions the current emulated posterior has not reached;
 * a Latin hypercube over the box of the bulk of the draws (:func:`local_box`), which
   fills the posterior's region evenly, tails included, where draws are sparse.
 
@@ -30,31 +33,56 @@ from smcbayes.surrogate.gp import Surrogate
 Array = NDArray[np.float64]
 
 
-def refine_points(draws_unit: Array, surrogate: Surrogate, count: int,
-                  rng: np.random.Generator, min_distance: float = 0.03,
-                  pool: int = 2000) -> Array:
-    """``count`` posterior draws with the largest GP standard deviation, spread out.
+def log_expected_variance(x_unit: Array, surrogate: Surrogate, n_eff: float) -> Array:
+    """log of the variance of the emulated (unnormalised) posterior density at ``x_unit`` ``(N, d)``.
 
-    Args:
-        draws_unit: posterior draws in the unit cube, ``(N, d)``.
-        count: number of points wanted.
+    With the log-likelihood l(x) = -(N_eff/2) log L(x) emulated by a GP of mean m(x) and
+    standard deviation s(x), exp(l) is log-normal and its variance is
+    exp(2 m + s^2) (exp(s^2) - 1): the "exponentiated variance" acquisition of Kandasamy,
+    Schneider & Poczos (2017, "Query efficient posterior estimation in scientific
+    experiments via Bayesian active learning", Artif. Intell. 243) and the prospective
+    uncertainty sampling of Acerbi (2018, "Variational Bayesian Monte Carlo", NeurIPS),
+    large where the GP is unsure and the posterior could be large.  Returns ``(N,)``.
+    """
+    mean, std = surrogate.predict(x_unit)
+    a = 0.5 * n_eff
+    m, s2 = -a * mean, (a * std) ** 2
+    # log(expm1(v)) without overflow for large v and without -inf for tiny v
+    log_em1 = np.where(s2 > 30.0, s2, np.log(np.expm1(np.maximum(s2, 1e-300))))
+    return 2.0 * m + s2 + log_em1
+
+
+def acquisition_points(draws_unit: Array, surrogate: Surrogate, n_eff: float, count: int,
+                       rng: np.random.Generator, min_distance: float = 0.03, pool: int = 2000) -> Array:
+    """``count`` points of largest :func:`log_expected_variance`, spread out.
+
+    Candidates: up to ``pool`` posterior draws and ``pool // 2`` uniform draws over the prior
+    box, so that a region the emulated posterior misses but the GP cannot rule out is found.
 
     Returns:
         Chosen points, ``(<= count, d)``.
     """
-    if count <= 0 or draws_unit.shape[0] == 0:
-        return np.empty((0, draws_unit.shape[1]))
+    d = draws_unit.shape[1]
+    if count <= 0:
+        return np.empty((0, d))
     idx = rng.choice(draws_unit.shape[0], size=min(pool, draws_unit.shape[0]), replace=False)
-    cand = draws_unit[idx]
-    _, std = surrogate.predict(cand)
+    cand = np.vstack([draws_unit[idx], rng.uniform(size=(pool // 2, d))])
+    score = log_expected_variance(cand, surrogate, n_eff)
     chosen: list[Array] = []
-    for i in np.argsort(-std):
+    for i in np.argsort(-score):
         x = cand[i]
         if all(np.linalg.norm(x - c) >= min_distance for c in chosen):
             chosen.append(x)
         if len(chosen) == count:
             break
-    return np.array(chosen)
+    return np.array(chosen) if chosen else np.empty((0, d))
+
+
+def quantile_shift(previous: Array | None, draws_unit: Array) -> tuple[Array, float]:
+    """5/50/95 % quantiles of ``draws_unit`` ``(N, d)`` and their largest change (unit-cube
+    coordinates, i.e. shares of the prior range) since ``previous`` ``(3, d)`` (inf without)."""
+    q = np.quantile(draws_unit, [0.05, 0.5, 0.95], axis=0)
+    return q, float("inf") if previous is None else float(np.max(np.abs(q - previous)))
 
 
 def local_box(draws_unit: Array, widen: float = 0.5, min_width: float = 0.02) -> tuple[Array, Array]:
@@ -65,19 +93,19 @@ def local_box(draws_unit: Array, widen: float = 0.5, min_width: float = 0.02) ->
 
 
 def round_design(draws_unit: Array, surrogate: Surrogate, count: int,
-                 rng: np.random.Generator) -> tuple[Array, int]:
-    """Points of one refinement round: a third random posterior draws (first), a third a
-    Latin hypercube over :func:`local_box`, the rest the most uncertain draws.
+                 rng: np.random.Generator, n_eff: float) -> tuple[Array, int]:
+    """Points of one refinement round: a third random posterior draws (first), a sixth a
+    Latin hypercube over :func:`local_box`, the rest by :func:`acquisition_points`.
 
     Returns:
         ``(points (<= count, d), number of leading random draws)``.
     """
     n_rand = count // 3
-    n_lhs = count // 3
+    n_lhs = count // 6
     rand = draws_unit[rng.choice(draws_unit.shape[0], size=min(n_rand, draws_unit.shape[0]), replace=False)]
     lo, hi = local_box(draws_unit)
     lhs = qmc.LatinHypercube(d=draws_unit.shape[1], seed=int(rng.integers(2**31 - 1))).random(n_lhs)
-    picks = refine_points(draws_unit, surrogate, count - rand.shape[0] - n_lhs, rng)
+    picks = acquisition_points(draws_unit, surrogate, n_eff, count - rand.shape[0] - n_lhs, rng)
     return np.vstack([rand, lo + lhs * (hi - lo), picks]), rand.shape[0]
 
 

@@ -55,6 +55,14 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
                     "--correct-draws"]
         return []
     out = []
+    active = info.get("active_learning") or {}
+    if active.get("enabled") and not active.get("converged"):
+        err = active.get("error_nats")
+        words = "not measured" if err is None else f"{err:.2g} nats"
+        out.append(f"the active learning spent its {active.get('evaluations')} forward runs before the "
+                   f"emulator was validated where the posterior lies (last out-of-sample error "
+                   f"{words}, quantiles still moving by {active.get('quantile_shift') or math.nan:.2g} "
+                   "of their range); raise --refine")
     r_hat = max((p.get("r_hat", math.nan) for p in info.get("parameters") or []), default=math.nan)
     if not r_hat <= R_HAT_MAX:
         out.append(f"the emulator chains did not converge (R-hat {r_hat:.2f} > {R_HAT_MAX}); run "

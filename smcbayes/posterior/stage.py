@@ -31,7 +31,7 @@ from smcbayes.forward.nodes import interp_rows
 from smcbayes.posterior.context import RunContext, exact_log_posterior, load_run, true_log_loss
 from smcbayes.posterior.correct import correct
 from smcbayes.posterior.likelihood import EmulatedPosterior, effective_points, sandwich_points
-from smcbayes.posterior.refine import check_values, round_design
+from smcbayes.posterior.refine import check_values, quantile_shift, round_design
 from smcbayes.posterior.reliability import assess
 from smcbayes.posterior.report import write_outputs
 from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
@@ -140,62 +140,87 @@ def correct_posterior(ctx: RunContext, chains: list, n_eff: float, settings: Pos
     return correct(exact_log_posterior(ctx, n_eff), unit.reshape(-1, ctx.space.dim), cs, rng, known)
 
 
+STABLE_QUANTILES = 0.05
+"""Active learning stops only when no 5/50/95 % quantile of the emulated posterior moved by
+more than this share of its prior range since the previous round."""
+
+
+def _log_round(out_dir: Path, rnd: int, theta: Array, vals: Array, n_rand: int, names: list[str],
+               stats: dict[str, Any]) -> None:
+    """Append one round's forward runs and its statistics to ``refine.jsonl``."""
+    with (out_dir / "refine.jsonl").open("a", encoding="utf-8") as fh:
+        for k, (row, val) in enumerate(zip(theta, vals, strict=True)):
+            rec = {"round": rnd, "kind": "draw" if k < n_rand else "design",
+                   "params": dict(zip(names, row.tolist(), strict=True)),
+                   "log_loss": None if not np.isfinite(val) else float(val)}
+            if k == len(vals) - 1:
+                rec["round_stats"] = stats
+            fh.write(json.dumps(rec) + "\n")
+
+
 def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
-           settings: PosteriorSettings, rng: np.random.Generator, out_dir: Path) -> tuple[Any, tuple[Array, Array]]:
-    """Rounds of: sample the emulated posterior of the GP mean (shorter chains), evaluate the
-    forward model (random, uncertain and space-filling points of its region), check the
-    emulator out of sample, refit.
+           settings: PosteriorSettings, rng: np.random.Generator,
+           out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any]]:
+    """Active learning of the log-likelihood emulator: rounds of sample the emulated
+    posterior of the GP mean (shorter chains), evaluate the forward model at fresh
+    posterior draws (the out-of-sample check) and at the points of largest expected
+    posterior variance (:func:`~smcbayes.posterior.refine.round_design`), refit.
 
     Stops when ``settings.refine`` evaluations are spent or, after at least two rounds,
     when the out-of-sample error at the round's random posterior draws is below
-    ``settings.refine_tolerance_nats`` in two consecutive rounds.
+    ``settings.refine_tolerance_nats`` in two consecutive rounds and no 5/50/95 % quantile
+    moved by more than :data:`STABLE_QUANTILES` of its range since the previous round.
 
-    Returns the refitted surrogate and the enlarged training data ``(x_unit, log_loss)``.
+    Returns the refitted surrogate, the enlarged training data ``(x_unit, log_loss)`` and
+    ``{"rounds", "converged", "error_nats", "quantile_shift"}``.
     """
     x, y = data
-    remaining, rounds, below = settings.refine, 0, 0
+    remaining, rounds, below, quantiles = settings.refine, 0, 0, None
     per_round = max(9, min(30, settings.refine // 4))
     quick = PosteriorSettings(walkers=settings.walkers, steps=min(settings.steps, 1000), functions=0,
                               seed=int(rng.integers(2**31 - 1)))
+    status: dict[str, Any] = {"rounds": 0, "converged": False, "error_nats": None, "quantile_shift": None}
     while remaining > 0:
         _, chains = sample(ctx, surrogate, n_eff, quick, rng)
         pooled = np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
-        pts, n_rand = round_design(pooled, surrogate, min(per_round, remaining), rng)
+        quantiles, shift = quantile_shift(quantiles, pooled)
+        pts, n_rand = round_design(pooled, surrogate, min(per_round, remaining), rng, n_eff)
         remaining -= max(len(pts), 1)
         theta = ctx.space.from_unit(pts)
         vals = true_log_loss(ctx, theta)
         cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
         err = check_values(surrogate.predict(pts[:n_rand])[0], np.minimum(vals[:n_rand], cap), n_eff)
-        with (out_dir / "refine.jsonl").open("a", encoding="utf-8") as fh:
-            for k, (row, val) in enumerate(zip(theta, vals, strict=True)):
-                rec = {"round": rounds, "kind": "draw" if k < n_rand else "design",
-                       "params": dict(zip(ctx.space.free_names, row.tolist(), strict=True)),
-                       "log_loss": None if not np.isfinite(val) else float(val)}
-                fh.write(json.dumps(rec) + "\n")
+        stats = {"training_points": int(x.shape[0]), "error_nats": err if np.isfinite(err) else None,
+                 "quantile_shift": shift if np.isfinite(shift) else None}
+        _log_round(out_dir, rounds, theta, vals, n_rand, ctx.space.free_names, stats)
         ok = np.isfinite(vals)
         x, y = np.vstack([x, pts[ok]]), np.concatenate([y, vals[ok]])
         surrogate = fit_local(x, y, n_eff, surrogate.kernel, int(rng.integers(2**31 - 1)))
         rounds += 1
         below = below + 1 if err < settings.refine_tolerance_nats else 0
-        logger.info("refined: %d training points, best log-loss %.4f, out-of-sample error %.2f nats",
-                    x.shape[0], np.min(y), err)
-        if rounds >= 2 and below >= 2:
+        logger.info("active learning round %d: %d training points, out-of-sample error %.2f nats, "
+                    "quantiles moved by %.3f of the range", rounds, x.shape[0], err, shift)
+        status.update(rounds=rounds, error_nats=stats["error_nats"], quantile_shift=stats["quantile_shift"])
+        if rounds >= 2 and below >= 2 and shift <= STABLE_QUANTILES:
+            status["converged"] = True
             break
-    return surrogate, (x, y)
+    return surrogate, (x, y), status
 
 
 def _refine_stage(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
                   settings: PosteriorSettings, rng: np.random.Generator,
-                  out_dir: Path) -> tuple[Any, tuple[Array, Array], int]:
-    """Refinement with its log and the refined GP saved; returns the forward runs it made."""
+                  out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any]]:
+    """Active learning with its log and the refined GP saved; returns its status with the
+    forward runs it made (``evaluations``)."""
     if settings.refine <= 0:
-        return surrogate, data, 0
+        return surrogate, data, {"enabled": False, "evaluations": 0}
     log = out_dir / "refine.jsonl"
     log.unlink(missing_ok=True)
-    surrogate, data = refine(ctx, data, surrogate, n_eff, settings, rng, out_dir)
+    surrogate, data, status = refine(ctx, data, surrogate, n_eff, settings, rng, out_dir)
     save_surrogate(out_dir / "gp_refined.pt", surrogate, {"training_points": int(data[0].shape[0])})
     with log.open(encoding="utf-8") as fh:
-        return surrogate, data, sum(1 for _ in fh)
+        return surrogate, data, {"enabled": True, "evaluations": sum(1 for _ in fh),
+                                 "budget": settings.refine, **status}
 
 
 def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = None,
@@ -227,7 +252,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         n_eff = budget["n_eff_total"]
         data = (calibration_gp.x_unit, calibration_gp.log_loss)
         surrogate = fit_local(*data, n_eff, calibration_gp.kernel, settings.seed)
-        surrogate, data, refined = _refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
+        surrogate, data, active = _refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
         t_sample = time.perf_counter()
         emul, chains = sample(ctx, surrogate, n_eff, settings, rng)
         t_correct = time.perf_counter()
@@ -238,7 +263,8 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     info["stage_seconds"] = {"setup_and_refine": t_sample - start, "emulator_sampling": t_correct - t_sample,
                              "correction": t_outputs - t_correct, "outputs": time.perf_counter() - t_outputs}
     runs = info["forward_evaluations"]
-    runs.update(refine=refined, residual_budget=2 * ctx.space.dim + 1)
+    info["active_learning"] = active
+    runs.update(refine=active["evaluations"], residual_budget=2 * ctx.space.dim + 1)
     runs["total"] = sum(runs.values())
     # what shaped the posterior, apart from what only checks it or draws its bands
     runs["inference"] = runs["residual_budget"] + runs["refine"] + runs["correction"]

@@ -5,7 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from smcbayes.posterior.refine import check_emulator, check_values, local_box, refine_points, round_design
+from smcbayes.posterior.refine import (
+    acquisition_points,
+    check_emulator,
+    check_values,
+    local_box,
+    log_expected_variance,
+    quantile_shift,
+    round_design,
+)
 
 
 class DistanceStd:
@@ -35,49 +43,79 @@ def test_local_box_is_the_widened_1_99_percent_range_clipped_to_the_cube() -> No
     np.testing.assert_allclose(hi - lo, 0.02)
 
 
-def test_refine_points_picks_the_most_uncertain_draws_at_least_min_distance_apart() -> None:
+class Bowl:
+    """Stand-in surrogate: log-loss mean (|x - c|^2) and standard deviation (|x - c'|) given."""
+
+    def __init__(self, centre: tuple[float, ...], unsure: tuple[float, ...], sd: float) -> None:
+        self.centre, self.unsure, self.sd = np.asarray(centre), np.asarray(unsure), sd
+
+    def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x = np.atleast_2d(x)
+        near = np.exp(-np.sum((x - self.unsure) ** 2, axis=1) / 0.01)
+        return np.sum((x - self.centre) ** 2, axis=1), self.sd * near + 1e-3
+
+
+def test_expected_variance_is_the_lognormal_variance_in_logs() -> None:
+    x = np.array([[0.3, 0.3], [0.5, 0.5]])
+    surrogate = DistanceStd()
+    mean, std = surrogate.predict(x[:1])
+    a = 0.5 * 4.0
+    want = np.log(np.exp(2 * (-a * mean) + (a * std) ** 2) * np.expm1((a * std) ** 2))
+    np.testing.assert_allclose(log_expected_variance(x[:1], surrogate, 4.0), want)
+    # no uncertainty, no variance (log -> very negative, finite)
+    assert log_expected_variance(x[1:], surrogate, 4.0)[0] < -600
+
+
+def test_acquisition_prefers_unsure_and_probable_points_spread_out() -> None:
     rng = np.random.default_rng(1)
     x = rng.random((400, 2))
-    pts = refine_points(x, DistanceStd(), 5, rng, min_distance=0.2)
-    assert pts.shape == (5, 2)
-    assert all(any(np.array_equal(p, r) for r in x) for p in pts)  # draws, not new points
+    # unsure where the posterior is large: picked there
+    pts = acquisition_points(x, Bowl((0.5, 0.5), (0.5, 0.5), 0.5), 40.0, 4, rng, min_distance=0.05)
+    assert pts.shape == (4, 2) and np.all(np.linalg.norm(pts - 0.5, axis=1) < 0.15)
     d = np.linalg.norm(pts[:, None] - pts[None, :], axis=2)
-    assert np.min(d[np.triu_indices(5, 1)]) >= 0.2
-    # the first is the draw farthest from the centre
-    far = np.max(np.linalg.norm(x - 0.5, axis=1))
-    assert np.linalg.norm(pts[0] - 0.5) == pytest.approx(far)
-    assert refine_points(x, DistanceStd(), 0, rng).shape == (0, 2)
+    assert np.min(d[np.triu_indices(4, 1)]) >= 0.05
+    # very unsure in a corner no posterior draw reached: the uniform candidates find it
+    near_centre = np.clip(rng.normal(0.5, 0.02, size=(400, 2)), 0, 1)
+    pts = acquisition_points(near_centre, Bowl((0.5, 0.5), (0.9, 0.1), 6.0), 4.0, 2, rng)
+    assert np.linalg.norm(pts[0] - [0.9, 0.1]) < 0.15
+    assert acquisition_points(x, DistanceStd(), 4.0, 0, rng).shape == (0, 2)
+
+
+def test_quantile_shift_is_the_largest_change_of_the_5_50_95_quantiles() -> None:
+    x = np.random.default_rng(2).random((5000, 2))
+    q, shift = quantile_shift(None, x)
+    assert q.shape == (3, 2) and shift == np.inf
+    _, shift = quantile_shift(q, x + [0.0, 0.1])
+    assert shift == pytest.approx(0.1)
 
 
 def test_round_design_orders_random_draws_lhs_then_uncertain_points() -> None:
     x = draws()
-    pts, n_rand = round_design(x, DistanceStd(), 9, np.random.default_rng(2))
+    pts, n_rand = round_design(x, DistanceStd(), 9, np.random.default_rng(2), 4.0)
     assert n_rand == 3 and pts.shape == (9, 2)
     # the leading random draws are posterior draws themselves
     for p in pts[:3]:
         assert np.any(np.all(x == p, axis=1))
-    # the Latin hypercube fills the local box, one point per third of each side
+    # a sixth: the Latin hypercube over the local box (one point of 9)
     lo, hi = local_box(x)
-    lhs = (pts[3:6] - lo) / (hi - lo)
-    assert np.all((lhs >= 0) & (lhs <= 1))
-    for j in range(2):
-        assert sorted(np.floor(3 * lhs[:, j]).astype(int)) == [0, 1, 2]
-    # the rest: draws, the most uncertain ones (farthest from the stand-in's centre)
-    dist = np.linalg.norm(x - 0.5, axis=1)
-    for p in pts[6:]:
-        assert np.any(np.all(x == p, axis=1))
-        assert np.linalg.norm(p - 0.5) >= np.quantile(dist, 0.95)
+    assert np.all((pts[3] >= lo) & (pts[3] <= hi))
+    # the rest: by expected variance; with a flat mean, the most uncertain candidates
+    # (farthest from the stand-in's centre: draws or uniform points over the box)
+    for p in pts[4:]:
+        assert np.linalg.norm(p - 0.5) > 0.4
 
 
 def test_round_design_is_reproducible_and_caps_random_draws() -> None:
     x = draws()
-    a, _ = round_design(x, DistanceStd(), 7, np.random.default_rng(3))
-    b, _ = round_design(x, DistanceStd(), 7, np.random.default_rng(3))
+    a, _ = round_design(x, DistanceStd(), 7, np.random.default_rng(3), 4.0)
+    b, _ = round_design(x, DistanceStd(), 7, np.random.default_rng(3), 4.0)
     np.testing.assert_array_equal(a, b)
-    c, _ = round_design(x, DistanceStd(), 7, np.random.default_rng(4))
+    c, _ = round_design(x, DistanceStd(), 7, np.random.default_rng(4), 4.0)
     assert not np.array_equal(a, c)
-    pts, n_rand = round_design(x[:1], DistanceStd(), 9, np.random.default_rng(5))
-    assert n_rand == 1 and pts.shape[0] == 1 + 3 + 1  # one draw only, picked once per kind
+    pts, n_rand = round_design(x[:1], DistanceStd(), 9, np.random.default_rng(5), 4.0)
+    # one posterior draw only: picked once at random; the acquisition still has the uniform
+    # candidates over the box
+    assert n_rand == 1 and pts.shape[0] == 9
 
 
 def test_check_values_removes_the_common_offset_and_scales_by_n_eff() -> None:

@@ -25,7 +25,8 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert main(["calibrate", str(base / "data" / "project.toml"), "--out", str(base / "run"),
                  "--budget", "20", "--init", "6", "--seed", "0", "--no-figures"]) == 0
     assert main(["posterior", str(base / "run"), "--walkers", "16", "--steps", "1500",
-                 "--functions", "4", "--refine", "16", "--draws", "30", "--seed", "1"]) == 0
+                 "--functions", "4", "--refine", "16", "--draws", "30", "--correct-draws", "14000",
+                 "--seed", "1"]) == 0
     return base / "run"
 
 
@@ -81,6 +82,32 @@ def test_correction_is_reported(run_dir: Path) -> None:
     assert info["forward_evaluations"]["correction"] == corr["evaluations"]
     assert info["forward_evaluations"]["total"] >= corr["evaluations"] + info["forward_evaluations"]["refine"]
     assert [p["name"] for p in info["emulator_parameters"]] == [p["name"] for p in info["parameters"]]
+
+
+def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path) -> None:
+    """The default path (no correction): the truth in the 90 % intervals, the slip pair's
+    correlation sign right, every round logged, and the stage's verdict consistent with its
+    stopping rule."""
+    from smcbayes.posterior.stage import PosteriorSettings, run_posterior
+
+    settings = PosteriorSettings(walkers=16, steps=1500, functions=4, refine=90, draws=20, seed=1)
+    info = run_posterior(_fresh_copy(run_dir, tmp_path / "active"), settings)
+    truth = {"tau_c_MPa": 0.01, "m": 1.5}
+    for p in info["parameters"]:
+        assert p["q05"] <= truth[p["name"]] <= p["q95"], p
+    labels, r = info["correlation"]["labels"], np.array(info["correlation"]["matrix"])
+    assert r[labels.index("log10 tau_c_MPa"), labels.index("m")] > 0.2
+    active = info["active_learning"]
+    assert not info["correction"]["enabled"] and active["enabled"]
+    assert info["forward_evaluations"]["refine"] == active["evaluations"] <= 90
+    assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5
+    log = [json.loads(line) for line in (tmp_path / "active" / "posterior" / "refine.jsonl").read_text().splitlines()]
+    assert len(log) == active["evaluations"]
+    assert sum("round_stats" in rec for rec in log) == active["rounds"]
+    if active["converged"]:
+        assert active["error_nats"] < 1.0 and active["quantile_shift"] <= 0.05
+    else:
+        assert not info["reliable"] and any("active learning" in r for r in info["reliability"]["reasons"])
 
 
 def test_missing_run_dir_is_input_error(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

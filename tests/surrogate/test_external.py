@@ -131,7 +131,7 @@ def test_posterior_of_an_external_run_uses_the_external_command(tmp_path: Path, 
     calls = Path(str(config) + ".calls")
     before = len(calls.read_text().splitlines())
     assert main(["posterior", str(out), "--walkers", "8", "--steps", "60", "--functions", "0",
-                 "--draws", "2", "--correct-draws", "0"]) == 0
+                 "--draws", "2", "--refine", "0"]) == 0
     info = json.loads((out / "posterior" / "summary.json").read_text())
     made = len(calls.read_text().splitlines()) - before
     assert info["simulator"] == "external"
