@@ -17,10 +17,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the subcommand."""
     p = sub.add_parser(
         "posterior", help="posterior of the parameters from a calibration run (GP emulator + emcee)",
-        description="Reuse the calibration's GP as an emulator of the likelihood, sample it with "
-                    "emcee (a mixture over GP sample functions, so the emulator's uncertainty "
-                    "widens the posterior), correct it by adaptive importance sampling with the "
-                    "run's simulator (Pareto-smoothed weights, k-hat reported), and write "
+        description="Start from the calibration's GP as an emulator of the likelihood, train it "
+                    "by active learning with the run's simulator (fresh posterior draws as the "
+                    "out-of-sample check, points of largest expected posterior variance; stops "
+                    "once validated), sample it with emcee (a mixture over GP sample functions, "
+                    "so the emulator's uncertainty widens the posterior), optionally correct it "
+                    "by adaptive importance sampling (--correct-draws; Pareto k-hat reported), "
+                    "and write "
                     "RUN_DIR/posterior/: posterior.nc (arviz), summary table, correlations, corner "
                     "plot, and predictive bands with coverage on the validation configurations. "
                     "Settings come from the project's [posterior] table; the options override it.")

@@ -120,6 +120,17 @@ def _diagnostics(post: dict[str, Any]) -> list:
     return blocks
 
 
+def _active_words(post: dict[str, Any]) -> str:
+    """How the emulator was trained further by active learning, in a clause."""
+    active = post.get("active_learning") or {}
+    if not active.get("enabled"):
+        return ""
+    done = ("validated: out-of-sample error below 1 nat and stable quantiles" if active.get("converged")
+            else "stopped by its budget before it was validated")
+    return (f", trained further by active learning with {fmt(active.get('evaluations'))} forward runs in "
+            f"{fmt(active.get('rounds'))} rounds ({done})")
+
+
 def _verdict(post: dict[str, Any]) -> list:
     """The stage's own verdict (``reliability``) first: unreliable with its reasons, and the
     notes on the posterior's shape (a bound, separate modes, a ridge) with what to do."""
@@ -276,8 +287,8 @@ def posterior_section(
     sec = Section("posterior", "Posterior")
     sec.add(
         Paragraph(
-            f"The calibration's Gaussian process emulates the likelihood; emcee samples it "
-            f"({fmt(s.get('walkers'))} walkers, up to {fmt(s.get('steps'))} steps, "
+            f"The calibration's Gaussian process emulates the likelihood{_active_words(post)}; "
+            f"emcee samples it ({fmt(s.get('walkers'))} walkers, up to {fmt(s.get('steps'))} steps, "
             f"{fmt(s.get('functions'))} GP sample functions, seed {fmt(s.get('seed'))}; "
             f"{fmt(post.get('seconds'), 3)} s)."
         ),
