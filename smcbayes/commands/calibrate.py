@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import re
 from collections import Counter
 from collections.abc import Mapping
@@ -53,9 +54,39 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="time limit of one external run (s)")
     p.add_argument("--external-format", choices=("csv", "moldflow"), default=ExternalSpec.output_format,
                    help="what the external command writes to {output}")
+    p.add_argument("--effects-from", metavar="DIAGNOSIS_DIR", default=None,
+                   help="switch on the effect set a diagnosis selected (the --out folder of "
+                        "`smcbayes diagnose`, or its summary.json); adds to any --effect")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     add_model_options(p)
     p.set_defaults(run=run)
+
+
+def selected_effects(path: str) -> list[str]:
+    """The effect set a diagnosis selected (``selected_effects`` of its summary.json).
+
+    Raises:
+        ConfigError: no diagnosis summary there, one written before effect sets were
+            selected, or a diagnosis that selected nothing.
+    """
+    summary_path = Path(path)
+    if summary_path.is_dir():
+        summary_path = summary_path / "summary.json"
+    if not summary_path.is_file():
+        raise ConfigError(f"--effects-from {path}: no diagnosis summary.json there; run "
+                          "`smcbayes diagnose RUN --out DIR` first and pass DIR")
+    try:
+        summary = json.loads(summary_path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ConfigError(f"--effects-from {path}: {summary_path} is not a diagnosis summary ({err})") from err
+    if not isinstance(summary, dict) or "selected_effects" not in summary:
+        raise ConfigError(f"--effects-from {path}: {summary_path} records no selected effect set; "
+                          "run the diagnosis again with this version")
+    chosen = [str(e) for e in summary["selected_effects"] or []]
+    if not chosen:
+        raise ConfigError(f"--effects-from {path}: the diagnosis selected no effect "
+                          f"({(summary.get('decision') or {}).get('statement', 'nothing significant')})")
+    return chosen
 
 
 FIELDS = ("budget", "init", "batch", "kernel", "tolerance", "patience", "seed")
@@ -122,6 +153,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         project = load_project(args.config, args.data_dir)
         effects, overrides, fidelity = args.effect, parse_assignments(args.set), args.fidelity
+        if args.effects_from is not None:
+            effects = list(dict.fromkeys([*(effects or []), *selected_effects(args.effects_from)]))
         external = None
         if args.external:
             external = ExternalSpec(args.external, args.external_timeout, args.external_format)

@@ -34,7 +34,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pair", action="store_true", default=None,
                    help="also re-calibrate the best two effects together (default: the [diagnose] table's pair)")
     for name, kind in (("seed", int), ("population", int), ("generations", int), ("restarts", int),
-                       ("min_score", float)):
+                       ("min_score", float), ("max_effects", int)):
         p.add_argument("--" + name.replace("_", "-"), type=kind, default=None, help=help_of(DiagnoseSpec, name))
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     add_executor_options(p)
@@ -50,7 +50,8 @@ def candidates(spec: str | None) -> tuple[str, ...] | None:
 
 def settings_from(spec: DiagnoseSpec, args: argparse.Namespace) -> DiagnoseSpec:
     """The project's ``[diagnose]`` table with the command line's overrides."""
-    values = {k: getattr(args, k) for k in ("seed", "population", "generations", "restarts", "min_score", "pair")}
+    values = {k: getattr(args, k) for k in ("seed", "population", "generations", "restarts", "min_score", "pair",
+                                            "max_effects")}
     if args.effects is not None:
         values["effects"] = list(candidates(args.effects) or ())
     if args.holdout is not None:
@@ -85,5 +86,13 @@ def run(args: argparse.Namespace) -> int:
               f"{r['holdout_shrink_pct']:>9.1f} {r['dm_z']:>7.2f} {r['score']:>9.3g}"
               f"{'  *' if r['significant'] else ''}")
     print(summary["decision"]["statement"])
+    for step in summary["selection"]["steps"]:
+        verdict = f"added {step['added']}" if step["added"] else f"stop ({step['best_candidate']} not significant)"
+        print(f"selection: {verdict}: held-out loss {step['holdout_loss_before_kN2']:.4g} -> "
+              f"{step['holdout_loss_after_kN2']:.4g} kN^2, score {step['score']:.3g}")
+    if summary["selected_effects"]:
+        effects = " ".join(f"--effect {e}" for e in summary["selected_effects"])
+        print(f"selected: {' + '.join(summary['selected_effects'])}; calibrate it with "
+              f"`smcbayes calibrate CONFIG --effects-from {args.out}` (or {effects})")
     print(f"outputs: {args.out}/summary.json, ranking.csv, figures/")
     return 0

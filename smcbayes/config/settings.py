@@ -192,6 +192,10 @@ class DiagnoseSpec(Strict):
                           description="independent evolutions per re-calibration, the best kept")
     min_score: float = Field(3.0, description="penalised held-out score (log Bayes factor) needed to "
                                               "name an effect")
+    max_effects: int = Field(3, ge=1, le=10,
+                             description="forward selection grows the named effect set up to this size, "
+                                         "adding an effect while it scores min_score against the set "
+                                         "(1: the best single effect only)")
 
 
 def override(spec: BaseModel, values: Mapping[str, Any], source: str = "command line") -> Any:

@@ -21,6 +21,7 @@ import numpy as np
 from smcbayes.config import DiagnoseSpec
 from smcbayes.diagnose.figures import before_after, heat_map, phase_bars
 from smcbayes.diagnose.fit import DiagnosisContext, Fit, FitSettings, refit
+from smcbayes.diagnose.select import forward_selection
 from smcbayes.diagnose.shrink import shrink_summary
 from smcbayes.diagnose.where import WhereReport, analyse
 from smcbayes.diagnose.which import HeldOutTest, Signature, held_out_test, n_eff_of, score_row, signature
@@ -58,6 +59,7 @@ class DiagnoseSettings:
     seed: int = _DEFAULTS.seed
     fit: FitSettings = field(default_factory=FitSettings)
     min_score: float = _DEFAULTS.min_score
+    max_effects: int = _DEFAULTS.max_effects
     figures: bool = True
 
 
@@ -89,7 +91,7 @@ def settings_for(spec: DiagnoseSpec, already_on: Sequence[str], figures: bool = 
     return DiagnoseSettings(candidates=candidate_effects(spec.effects, already_on),
                             holdout=None if spec.holdout is None else tuple(spec.holdout),
                             pair=spec.pair, seed=spec.seed, fit=fit, min_score=spec.min_score,
-                            figures=figures)
+                            max_effects=spec.max_effects, figures=figures)
 
 
 def default_holdout(ctx: DiagnosisContext) -> list[str]:
@@ -212,6 +214,24 @@ def decide(rows: list[dict[str, Any]], min_score: float) -> dict[str, Any]:
                           f"penalised score {top['score']:.3g})")}
 
 
+def _select(ctx: DiagnosisContext, settings: DiagnoseSettings, decision: dict[str, Any],
+            rows: list[dict[str, Any]], fits: dict[str, Fit], ids: tuple[list[str], list[str]],
+            evidence: dict[str, Any], rng: np.random.Generator,
+            log: Callable[[str], None]) -> tuple[list[str], list[dict[str, Any]], dict[str, Fit]]:
+    """The effect set: empty without a significant single effect, else grown from it by
+    :func:`~smcbayes.diagnose.select.forward_selection` up to ``settings.max_effects``."""
+    best = decision["best"]
+    if best is None:
+        return [], [], {}
+    others = [r["effect"] for r in rows if "+" not in r["effect"] and r["effect"] != best]
+    selected, steps, grown = forward_selection(
+        ctx, fits[best], others, ids[0], ids[1], settings.fit, rng,
+        (evidence["n_eff_fit"], evidence["n_eff_holdout"]), settings.min_score, settings.max_effects, log)
+    if len(selected) > 1:
+        log(f"selected effect set: {' + '.join(selected)}")
+    return selected, steps, grown
+
+
 def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None,
              log: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Run the diagnosis; write ``out`` (if given) and return the summary dictionary.
@@ -232,10 +252,13 @@ def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None
     base, fits, rows, evidence = which_effect(ctx, settings, fit_ids, holdout, rng, log)
     decision = decide(rows, settings.min_score)
     log(decision["statement"])
+    selected, steps, grown = _select(ctx, settings, decision, rows, fits, (fit_ids, holdout), evidence, rng, log)
     shown = {"base": base}
     pick = decision["best"] or (rows[0]["effect"] if rows else None)
     if pick is not None:
         shown[pick] = fits[pick]
+    if len(selected) > 1:
+        shown["+".join(selected)] = grown["+".join(selected)]
     pair = next((r["effect"] for r in rows if "+" in r["effect"]), None)
     if pair is not None:
         shown[pair] = fits[pair]
@@ -243,7 +266,8 @@ def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None
     summary = {"holdout": holdout, "fit_configurations": fit_ids, "seed": settings.seed,
                "candidates": list(settings.candidates), "fit_settings": asdict(settings.fit),
                "min_score": settings.min_score, "where": where.to_json(), "ranking": rows,
-               "decision": decision, "shrink": shrink, **evidence,
+               "decision": decision, "selected_effects": selected,
+               "selection": {"max_effects": settings.max_effects, "steps": steps}, "shrink": shrink, **evidence,
                "base_calibrated_params": ctx.base_params, "truth": ctx.truth,
                "simulator_runs": ctx.forward_runs, "forward_runs_reused": ctx.forward_runs_reused,
                "forward_runs_made": ctx.forward_runs - ctx.forward_runs_reused, "seconds": time.perf_counter() - t0}

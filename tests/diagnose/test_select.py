@@ -1,0 +1,114 @@
+"""Forward selection of an effect set: the loop's decisions on a scripted scorer, and
+``calibrate --effects-from`` reading a diagnosis."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from smcbayes.cli import main
+from smcbayes.diagnose import select
+from smcbayes.diagnose.fit import Fit, FitSettings
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _fit(effects: tuple[str, ...]) -> Fit:
+    return Fit(effects, {}, np.zeros((1, 1)), 1.0, 1)
+
+
+@pytest.fixture()
+def scripted(monkeypatch: pytest.MonkeyPatch):
+    """refit returns a fit of the asked effect set; step_row scores it from a table keyed by
+    the set's name (missing sets score -10)."""
+    scores: dict[str, float] = {}
+    calls: list[str] = []
+
+    class Ctx:
+        def start(self, extra: tuple[str, ...], known: Any = None) -> np.ndarray:
+            return np.zeros(1)
+
+    def refit(ctx: Any, extra: tuple[str, ...], *args: Any, **kwargs: Any) -> Fit:
+        calls.append("+".join(extra))
+        return _fit(tuple(extra))
+
+    def step_row(ctx: Any, current: Fit, cand: Fit, *args: Any) -> dict[str, Any]:
+        score = scores.get("+".join(cand.effects), -10.0)
+        return {"effect": "+".join(cand.effects), "score": score, "significant": score >= 3.0,
+                "holdout_loss_kN2": 1.0, "holdout_loss_base_kN2": 2.0, "holdout_shrink_pct": 50.0,
+                "dm_z": 2.0}
+
+    monkeypatch.setattr(select, "refit", refit)
+    monkeypatch.setattr(select, "step_row", step_row)
+
+    def run(candidates: list[str], max_effects: int = 3):
+        return select.forward_selection(Ctx(), _fit(("a",)), candidates, ["f"], ["h"], FitSettings(),
+                                        np.random.default_rng(0), (10.0, 10.0), 3.0, max_effects,
+                                        lambda line: None)
+
+    return scores, calls, run
+
+
+def test_nothing_significant_keeps_the_single_effect(scripted) -> None:
+    scores, calls, run = scripted
+    scores.update({"a+b": 1.0, "a+c": 2.5})
+    selected, steps, grown = run(["b", "c"])
+    assert selected == ["a"] and grown == {}
+    assert calls == ["a+b", "a+c"]  # every remaining candidate tried with the selected set
+    assert len(steps) == 1 and steps[0]["added"] is None and steps[0]["best_candidate"] == "c"
+
+
+def test_an_effect_that_helps_only_with_the_first_is_added(scripted) -> None:
+    scores, calls, run = scripted
+    # b is low alone (rank order b, c) but wins together with a; nothing helps a third time
+    scores.update({"a+b": 1.0, "a+c": 8.0, "a+c+b": 0.5})
+    selected, steps, grown = run(["b", "c"])
+    assert selected == ["a", "c"] and list(grown) == ["a+c"]
+    assert [s["added"] for s in steps] == ["c", None]
+    assert calls == ["a+b", "a+c", "a+c+b"]
+
+
+def test_the_set_stops_at_max_effects(scripted) -> None:
+    scores, calls, run = scripted
+    scores.update({"a+b": 5.0, "a+b+c": 5.0})
+    selected, _, _ = run(["b", "c"], max_effects=2)
+    assert selected == ["a", "b"] and calls == ["a+b", "a+c"]
+    selected, _, _ = run(["b", "c"], max_effects=1)
+    assert selected == ["a"]
+
+
+def _diagnosis(folder: Path, summary: dict[str, Any]) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "summary.json").write_text(json.dumps(summary), encoding="utf-8")
+    return folder
+
+
+@pytest.mark.parametrize("summary, words", [
+    (None, "no diagnosis summary.json"),
+    ({"decision": {}}, "records no selected effect set"),
+    ({"selected_effects": [], "decision": {"statement": "no effect explains the gap"}},
+     "selected no effect (no effect explains the gap)"),
+])
+def test_effects_from_says_what_is_missing(tmp_path: Path, capsys: pytest.CaptureFixture,
+                                           summary: dict[str, Any] | None, words: str) -> None:
+    folder = tmp_path / "diag"
+    if summary is not None:
+        _diagnosis(folder, summary)
+    code = main(["calibrate", str(ROOT / "configs" / "verify-slip-2d.toml"), "--out", str(tmp_path / "run"),
+                 "--effects-from", str(folder)])
+    assert code == 2 and words in capsys.readouterr().err
+    assert not (tmp_path / "run" / "evaluations.jsonl").exists()
+
+
+def test_effects_from_switches_on_the_selected_set(tmp_path: Path) -> None:
+    folder = _diagnosis(tmp_path / "diag", {"selected_effects": ["press_compliance", "speed_ramp"]})
+    out = tmp_path / "run"
+    assert main(["calibrate", str(ROOT / "configs" / "verify-slip-2d.toml"), "--out", str(out),
+                 "--effects-from", str(folder / "summary.json"), "--effect", "press_compliance",
+                 "--fidelity", "1d", "--budget", "3", "--init", "2", "--no-figures"]) == 0
+    config = json.loads((out / "config.json").read_text(encoding="utf-8"))
+    assert config["effects"] == ["press_compliance", "speed_ramp"]
