@@ -8,8 +8,11 @@ start from the selected best effect, re-calibrate every remaining candidate *tog
 the selected set, score each against the selected set on the held-out configurations
 (Diebold-Mariano comparison and the penalised score of
 :func:`smcbayes.diagnose.which.score_row`, the penalty counting only the parameters the step
-adds), add the best if its score reaches ``min_score``, and stop when none does or the set
-holds ``max_effects``.
+adds), add the best if its score reaches ``min_score`` and its Diebold-Mariano z reaches
+:data:`MIN_Z`, and stop when none does or the set holds ``max_effects``.  Before each step
+the selected set is re-calibrated once more from its own optimum, with the candidates' budget,
+so that a candidate is compared with an equally searched set (Diebold & Mariano 1995,
+"Comparing predictive accuracy", J. Bus. Econ. Stat. 13).
 """
 
 from __future__ import annotations
@@ -25,6 +28,10 @@ from smcbayes.diagnose.which import extra_parameters, held_out_test, score_row
 
 logger = logging.getLogger(__name__)
 
+MIN_Z = 2.0
+"""Diebold-Mariano z a step must reach besides the penalised score: once the set fits to the
+noise, a small loss ratio over many correlated held-out points can pass the score alone."""
+
 
 def step_row(ctx: DiagnosisContext, current: Fit, cand: Fit, holdout: Sequence[str], n_eff_fit: float,
              n_eff_ho: float, min_score: float) -> dict[str, Any]:
@@ -36,7 +43,7 @@ def step_row(ctx: DiagnosisContext, current: Fit, cand: Fit, holdout: Sequence[s
     ratio = test.loss_base_kN2 / test.loss_kN2 if test.loss_kN2 > 0 else np.inf
     score = 0.5 * n_eff_ho * np.log(ratio) - 0.5 * added * np.log(max(n_eff_fit, 1.0))
     row.update(extra_parameters=added, score=float(score),
-               significant=bool(np.isfinite(score) and score >= min_score))
+               significant=bool(np.isfinite(score) and score >= min_score and row["dm_z"] >= MIN_Z))
     return row
 
 
@@ -62,6 +69,11 @@ def forward_selection(ctx: DiagnosisContext, first: Fit, candidates: Sequence[st
     fits: dict[str, Fit] = {}
     remaining = [c for c in candidates if c not in selected]
     while len(selected) < max_effects and remaining:
+        # the selected set gets the same extra search from its own optimum as each candidate
+        # does, so that a candidate cannot win by the second search alone
+        again = refit(ctx, tuple(selected), fit_ids, ctx.start(tuple(selected), current.params), fit, rng,
+                      desc=f"selection: {'+'.join(selected)} again")
+        current = again if again.loss < current.loss else current
         tried = []
         for name in remaining:
             extra = (*selected, name)

@@ -30,5 +30,11 @@ def test_diagnosis_progress_names_each_effect_and_its_generations(synthetic_ctx,
         assert len(mine) >= TINY.generations + 1, (desc, lines)
         assert "generation 0/" in mine[0] and "restart 1/1" in mine[0] and "kN^2" in mine[0]
     steps = [r.getMessage() for r in caplog.records if r.name == "smcbayes.diagnose.run"]
-    assert steps[0].startswith("where: ") and steps[-1] == summary["decision"]["statement"]
+    assert steps[0].startswith("where: ") and summary["decision"]["statement"] in steps
+    # forward selection follows the decision: the selected set is searched again, then each
+    # remaining candidate is tried with it
+    after = steps[steps.index(summary["decision"]["statement"]) + 1:]
+    assert all(s.startswith(("selection: ", "selected effect set: ")) for s in after)
+    # the truth has the frame's compliance only: heating must not join it
+    assert summary["selected_effects"] == ["press_compliance"]
     assert any(s.startswith("heating: absorbable") for s in steps)

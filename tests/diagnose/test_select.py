@@ -58,7 +58,8 @@ def test_nothing_significant_keeps_the_single_effect(scripted) -> None:
     scores.update({"a+b": 1.0, "a+c": 2.5})
     selected, steps, grown = run(["b", "c"])
     assert selected == ["a"] and grown == {}
-    assert calls == ["a+b", "a+c"]  # every remaining candidate tried with the selected set
+    # the selected set searched again, then every remaining candidate tried with it
+    assert calls == ["a", "a+b", "a+c"]
     assert len(steps) == 1 and steps[0]["added"] is None and steps[0]["best_candidate"] == "c"
 
 
@@ -69,14 +70,14 @@ def test_an_effect_that_helps_only_with_the_first_is_added(scripted) -> None:
     selected, steps, grown = run(["b", "c"])
     assert selected == ["a", "c"] and list(grown) == ["a+c"]
     assert [s["added"] for s in steps] == ["c", None]
-    assert calls == ["a+b", "a+c", "a+c+b"]
+    assert calls == ["a", "a+b", "a+c", "a+c", "a+c+b"]
 
 
 def test_the_set_stops_at_max_effects(scripted) -> None:
     scores, calls, run = scripted
     scores.update({"a+b": 5.0, "a+b+c": 5.0})
     selected, _, _ = run(["b", "c"], max_effects=2)
-    assert selected == ["a", "b"] and calls == ["a+b", "a+c"]
+    assert selected == ["a", "b"] and calls == ["a", "a+b", "a+c"]
     selected, _, _ = run(["b", "c"], max_effects=1)
     assert selected == ["a"]
 
