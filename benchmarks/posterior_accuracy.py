@@ -453,7 +453,8 @@ def main() -> int:
     ap.add_argument("--emulator-steps", type=int, default=4000, help="maximum emcee steps per mixture component")
     ap.add_argument("--posterior-seeds", type=int, default=1,
                     help="run the posterior stage with this many seeds (k, k + 100, ...) and judge them all")
-    ap.add_argument("--functions", type=int, default=8, help="GP sample functions of the emulated posterior")
+    ap.add_argument("--functions", type=int, default=PosteriorSettings().functions,
+                    help="GP sample functions of the emulated posterior")
     ap.add_argument("--workdir", default=None,
                     help="keep datasets, calibrations and exact draws here and reuse them when rerun")
     args = ap.parse_args()

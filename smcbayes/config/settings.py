@@ -155,8 +155,10 @@ class PosteriorSpec(Strict):
 
     walkers: int = Field(32, ge=4, le=10000, description="emcee walkers")
     steps: int = Field(4000, ge=1, le=10_000_000, description="maximum steps per chain")
-    functions: int = Field(8, ge=0, le=1000,
-                           description="GP sample functions in the mixture (0: GP mean only)")
+    functions: int = Field(0, ge=0, le=1000,
+                           description="GP sample functions in the mixture (0: GP mean only; the active "
+                                       "learning validates the mean where the posterior lies, and sample "
+                                       "functions of a GP trained on few hundred points add spurious modes)")
     refine: int = Field(400, ge=0, le=1_000_000,
                         description="most forward evaluations of the active learning of the emulator "
                                     "(rounds of fresh posterior draws and points of largest expected "
