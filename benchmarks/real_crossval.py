@@ -23,7 +23,7 @@ fold's calibrated point.
 
     python benchmarks/real_crossval.py [--fold K] [--jobs N] [--effects a,b] [--workdir DIR]
         [--budget 60 --init 20] [--population 64 --generations 50 --restarts 2]
-        [--walkers 32 --steps 4000 --correct-draws 14000 --draws 100]
+        [--walkers 32 --steps 4000 --refine 400 --correct-draws 0 --draws 100]
 
 The budgets default to the workflow's defaults (``[calibration]``, ``[diagnose]``,
 ``[posterior]`` of settings.py).  Writes ``benchmarks/results/real_crossval.json`` (merged
@@ -211,7 +211,7 @@ def run_fold(k: int, args: argparse.Namespace) -> dict[str, Any]:
     t = time.perf_counter()
     post = smcbayes.sample_posterior(final_run.run_dir, walkers=args.walkers, steps=args.steps,
                                      correct_draws=args.correct_draws, draws=args.draws, seed=args.seed,
-                                     functions=args.functions)
+                                     functions=args.functions, refine=args.refine)
     times["posterior_s"] = time.perf_counter() - t
     times["workflow_s"] = time.perf_counter() - t0
     best = final_run.best_params
@@ -308,6 +308,7 @@ def parse() -> argparse.Namespace:
     ap.add_argument("--walkers", type=int, default=d(PosteriorSpec, "walkers"))
     ap.add_argument("--steps", type=int, default=d(PosteriorSpec, "steps"))
     ap.add_argument("--functions", type=int, default=d(PosteriorSpec, "functions"))
+    ap.add_argument("--refine", type=int, default=d(PosteriorSpec, "refine"))
     ap.add_argument("--correct-draws", type=int, default=d(PosteriorSpec, "correct_draws"))
     ap.add_argument("--draws", type=int, default=d(PosteriorSpec, "draws"))
     return ap.parse_args()
