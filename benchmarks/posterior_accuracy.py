@@ -335,9 +335,32 @@ def run_case(k: int, truth: dict[str, float], args: argparse.Namespace, tmp: Pat
     # the same differences against the MCMC reference
     out["vs_mcmc"] = {"raw": max_diffs(equal(exact), (samples["emulator"], None)),
                       "corrected": max_diffs(equal(exact), samples["weighted"]) if samples["weighted"] else None}
+    if args.peer == "pyvbmc":
+        out["peer"] = peer_rows(run_dir, n_eff, names, ref, truth_unit, args, k)
     out["seeds"] = [seed_row(k, out)] + [
         seed_row(seed, rerun_posterior(run_dir, args, seed, ref)) for seed in k + 100 * np.arange(1, args.posterior_seeds)]
     return out
+
+
+def peer_rows(run_dir: Path, n_eff: float, names: list[str], ref: tuple[np.ndarray, np.ndarray],
+              truth_unit: np.ndarray, args: argparse.Namespace, k: int) -> list[dict[str, Any]]:
+    """PyVBMC on the reference's target at each of ``--peer-budgets``, compared like the stage."""
+    from _peer_pyvbmc import run_pyvbmc
+
+    from smcbayes.posterior.stage import exact_log_posterior
+
+    ctx = load_run(run_dir)
+    x0 = ctx.space.to_unit(ctx.best_theta)[0]
+    rows = []
+    for budget in (int(b) for b in args.peer_budgets.split(",")):
+        draws, record = run_pyvbmc(exact_log_posterior(ctx, n_eff), x0, budget, seed=k)
+        c = compare(names, ref, draws, truth_unit)
+        rows.append({**record, **{m: c[m] for m in ("max_quantile_diff", "max_correlation_diff", "mmtv", "gskl")},
+                     "met": bool(c["quantiles_met"] and c["correlations_met"] and c["mmtv"] < 0.2)})
+        print(f"  PyVBMC, {record['evaluations']} evaluations: quantiles {c['max_quantile_diff']:.3f}, "
+              f"correlations {c['max_correlation_diff']:.2f}, MMTV {c['mmtv']:.3f}, gsKL {c['gskl']:.3f}; "
+              f"its own verdict: {'converged' if record['success_flag'] else 'not converged'}")
+    return rows
 
 
 def rerun_posterior(run_dir: Path, args: argparse.Namespace, seed: int,
@@ -445,6 +468,9 @@ def main() -> int:
     ap.add_argument("--correct-draws", type=int, default=0,
                     help="most proposal draws of the importance correction (0: the default path, none)")
     ap.add_argument("--tag", default="", help="suffix of the result file (e.g. the budget)")
+    ap.add_argument("--peer", choices=("none", "pyvbmc"), default="none",
+                    help="also run a peer on the same target (pyvbmc: pip install -e '.[bench]')")
+    ap.add_argument("--peer-budgets", default="350,700", help="forward evaluations of each peer run")
     ap.add_argument("--steps", type=int, default=10000, help="maximum emcee steps of the exact posterior")
     ap.add_argument("--is-reference-draws", type=int, default=30000,
                     help="proposal draws of each importance-sampling explorer")
