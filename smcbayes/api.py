@@ -103,6 +103,12 @@ class DiagnosisResult:
         return (self.summary.get("decision") or {}).get("best")
 
     @property
+    def selected_effects(self) -> list[str]:
+        """The effect set forward selection grew from the named effect (empty: none), the
+        ``effects=`` of the next :func:`calibrate`."""
+        return [str(e) for e in self.summary.get("selected_effects") or []]
+
+    @property
     def statement(self) -> str:
         """The decision in one sentence."""
         return str((self.summary.get("decision") or {}).get("statement", ""))

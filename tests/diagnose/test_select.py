@@ -113,3 +113,13 @@ def test_effects_from_switches_on_the_selected_set(tmp_path: Path) -> None:
                  "--fidelity", "1d", "--budget", "3", "--init", "2", "--no-figures"]) == 0
     config = json.loads((out / "config.json").read_text(encoding="utf-8"))
     assert config["effects"] == ["press_compliance", "speed_ramp"]
+
+
+def test_the_api_result_gives_the_selected_set() -> None:
+    from smcbayes.api import DiagnosisResult
+
+    result = DiagnosisResult(Path("d"), {"selected_effects": ["compressibility", "press_compliance"],
+                                         "decision": {"best": "compressibility"}})
+    assert result.selected_effects == ["compressibility", "press_compliance"]
+    assert result.best_effect == "compressibility"
+    assert DiagnosisResult(Path("d"), {"decision": {"best": None}}).selected_effects == []
