@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 from smcbayes.report.collect import RunFiles
-from smcbayes.report.document import Figure, Heading, Paragraph, Section, Table, fmt, pct
+from smcbayes.report.document import Bullets, Figure, Heading, Paragraph, Section, Table, fmt, pct
 
 
 def _ranking(rows: list[dict[str, Any]]) -> Table:
@@ -98,6 +98,33 @@ def truth_check(run: RunFiles, best: str | None) -> Paragraph | None:
     )
 
 
+def _selection(diag: dict[str, Any]) -> list:
+    """The forward selection's steps and the next command, or the single effect's next step
+    for a summary written before effect sets were selected."""
+    best = (diag.get("decision") or {}).get("best")
+    if not best:
+        return []
+    chosen = [str(e) for e in diag.get("selected_effects") or [best]]
+    steps = (diag.get("selection") or {}).get("steps") or []
+    lines = tuple(
+        (f"with {st.get('added')}: held-out loss {fmt(st.get('holdout_loss_before_kN2'))} -> "
+         f"{fmt(st.get('holdout_loss_after_kN2'))} kN^2, score {fmt(st.get('score'), 3)}: added")
+        if st.get("added") else
+        (f"best next candidate {st.get('best_candidate')}: held-out loss "
+         f"{fmt(st.get('holdout_loss_before_kN2'))} -> {fmt(st.get('holdout_loss_after_kN2'))} kN^2, "
+         f"score {fmt(st.get('score'), 3)}: not significant, the selection stops")
+        for st in steps)
+    blocks: list = []
+    if lines:
+        blocks += [Paragraph(f"Forward selection from {best}:"), Bullets(lines)]
+    flags = " ".join(f"--effect {e}" for e in chosen)
+    blocks.append(Paragraph(
+        f"Selected effect set: {' + '.join(chosen)}. Next step: calibrate again with it on, e.g. "
+        f"smcbayes calibrate CONFIG --effects-from DIAGNOSIS_DIR --out RUN2 (or {flags}), and "
+        "compare the posteriors and the coverage of the bands."))
+    return blocks
+
+
 def diagnosis_section(run: RunFiles) -> Section | None:
     """Where (verdict, heat map), which (ranking), how far it shrinks (tables, before/after)."""
     diag = run.diagnosis
@@ -124,14 +151,7 @@ def diagnosis_section(run: RunFiles) -> Section | None:
         sec.add(Paragraph(str(decision["statement"])))
     if (check := truth_check(run, decision.get("best"))) is not None:
         sec.add(check)
-    if decision.get("best"):
-        sec.add(
-            Paragraph(
-                f"Next step: calibrate again with the effect on, e.g. smcbayes calibrate "
-                f"CONFIG --effect {decision['best']} --out RUN2, and compare the posteriors "
-                "and the coverage of the bands."
-            )
-        )
+    sec.add(*_selection(diag))
     if diag.get("shrink"):
         sec.add(Heading("How far the gap shrinks"), _shrink(diag["shrink"]))
     if (fig := run.diagnosis_figure("phase_rmse")) is not None:

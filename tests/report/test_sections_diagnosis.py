@@ -63,7 +63,9 @@ def test_full_summary_gives_verdict_ranking_decision_next_step_and_shrink(tmp_pa
     paragraphs = texts(sec)
     assert paragraphs[0] == "The misfit is concentrated in the last 30 % of the closing"
     assert "press_compliance explains the gap." in paragraphs
-    assert any("--effect press_compliance" in p and p.startswith("Next step") for p in paragraphs)
+    # a summary written before effect sets were selected: the named effect is the set
+    assert any("--effect press_compliance" in p and p.startswith("Selected effect set: press_compliance. Next step")
+               for p in paragraphs)
     ranking, shrink = blocks(sec, Table)
     assert ranking.rows[0] == ("1", "press_compliance", "1", "42 %", "812.3", "95.5", "88.2", "4.12",
                                "31.3", "yes")
@@ -97,7 +99,7 @@ def test_truth_check_warns_when_the_withheld_effect_is_missed(tmp_path: Path) ->
     sec = diagnosis_section(run_files(tmp_path, diag, {"effects": ["speed_ramp"]}))
     check = [b for b in blocks(sec, Paragraph) if b.text.startswith("Check against")][0]
     assert "names no effect (not the withheld effect)" in check.text and check.tone == "warning"
-    assert not any(p.startswith("Next step") for p in texts(sec))
+    assert not any("Next step" in p for p in texts(sec))
 
 
 def test_truth_without_withheld_effect(tmp_path: Path) -> None:
@@ -110,3 +112,21 @@ def test_truth_without_withheld_effect(tmp_path: Path) -> None:
 def test_an_empty_summary_gives_only_the_where_heading(tmp_path: Path) -> None:
     sec = diagnosis_section(run_files(tmp_path, {}))
     assert sec is not None and sec.blocks == [Heading("Where the model misses")]
+
+
+def test_selection_steps_and_the_selected_set_are_named(tmp_path) -> None:
+    from smcbayes.report.sections_diagnosis import _selection
+
+    diag = {"decision": {"best": "compressibility"}, "selected_effects": ["compressibility", "press_compliance"],
+            "selection": {"steps": [
+                {"added": "press_compliance", "best_candidate": "press_compliance", "score": 40.0,
+                 "holdout_loss_before_kN2": 2e4, "holdout_loss_after_kN2": 9e3},
+                {"added": None, "best_candidate": "heating", "score": 1.0,
+                 "holdout_loss_before_kN2": 9e3, "holdout_loss_after_kN2": 8.9e3}]}}
+    blocks = _selection(diag)
+    bullets = [b for b in blocks if hasattr(b, "items")][0].items
+    assert "with press_compliance" in bullets[0] and "added" in bullets[0]
+    assert "heating" in bullets[1] and "not significant" in bullets[1]
+    last = blocks[-1].text
+    assert "compressibility + press_compliance" in last and "--effects-from" in last
+    assert _selection({"decision": {"best": None}}) == []
