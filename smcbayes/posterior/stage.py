@@ -223,6 +223,15 @@ def _refine_stage(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_
                                  "budget": settings.refine, **status}
 
 
+def _count_runs(runs: dict[str, int], refine: int, residual_budget: int) -> None:
+    """Complete ``forward_evaluations``: the totals of what shaped the posterior
+    (``inference``) and of what only checks it or draws its bands (``checks_and_bands``)."""
+    runs.update(refine=refine, residual_budget=residual_budget)
+    runs["total"] = sum(runs.values())
+    runs["inference"] = runs["residual_budget"] + runs["refine"] + runs["correction"]
+    runs["checks_and_bands"] = runs["emulator_check"] + runs["bands"]
+
+
 def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = None,
                   executor: Executor | None = None) -> dict[str, Any]:
     """The whole stage; returns the content of ``posterior/summary.json``.
@@ -262,13 +271,8 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     cache.close()
     info["stage_seconds"] = {"setup_and_refine": t_sample - start, "emulator_sampling": t_correct - t_sample,
                              "correction": t_outputs - t_correct, "outputs": time.perf_counter() - t_outputs}
-    runs = info["forward_evaluations"]
     info["active_learning"] = active
-    runs.update(refine=active["evaluations"], residual_budget=2 * ctx.space.dim + 1)
-    runs["total"] = sum(runs.values())
-    # what shaped the posterior, apart from what only checks it or draws its bands
-    runs["inference"] = runs["residual_budget"] + runs["refine"] + runs["correction"]
-    runs["checks_and_bands"] = runs["emulator_check"] + runs["bands"]
+    _count_runs(info["forward_evaluations"], active["evaluations"], 2 * ctx.space.dim + 1)
     info["reliability"] = assess(info, ctx.space, ctx.summary.get("best_loss_kN2"), ctx.noise_free)
     info["reliable"] = info["reliability"]["reliable"]
     if not info["reliable"]:
