@@ -250,8 +250,11 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
                        "on each of %d configuration(s); --correct-draws 0 reports the emulated "
                        "posterior without it", settings.correct_draws, len(ctx.problem.train_ids))
     out_dir = ctx.run.begin_stage("posterior", settings.model_dump(mode="json"))
-    if ctx.noise_free:
-        logger.info("noise-free training curves: the posterior will be reported unreliable")
+    if ctx.noise_free and settings.refine > 0:
+        # the likelihood is a spike at the truth: simulator runs cannot make it a posterior
+        logger.info("noise-free training curves: no active learning; the posterior will be "
+                    "reported unreliable")
+        settings = settings.model_copy(update={"refine": 0})
     # every step is seeded: a rerun after a kill asks for the same rows and finds them here
     ctx.runner.cache = cache = ctx.run.forward_cache("posterior")
     rng = np.random.default_rng(settings.seed)

@@ -197,3 +197,20 @@ def test_killed_and_rerun_posterior_equals_uninterrupted(run_dir: Path, tmp_path
     assert a[2] == b[2]  # the refinement log: no round lost or counted twice
     assert rerun["forward_runs_reused"] > 0
     assert rerun["forward_runs_reused"] + rerun["forward_runs_made"] == whole["forward_runs_made"] + 5
+
+
+def test_a_truth_check_is_named_degenerate_without_spending_runs(tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture) -> None:
+    """Noise-free curves of [calibration] truth: exit 0, no active learning, one verdict line."""
+    run = tmp_path / "truth-run"
+    cfg = ROOT / "configs" / "verify-slip-2d.toml"
+    assert main(["calibrate", str(cfg), "--out", str(run), "--fidelity", "1d", "--budget", "6", "--init", "4",
+                 "--no-figures"]) == 0
+    capsys.readouterr()
+    assert main(["posterior", str(run), "--walkers", "8", "--steps", "100", "--draws", "4"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    verdicts = [line for line in out if line.startswith("reliable:")]
+    assert len(verdicts) == 1 and "noise-free" in verdicts[0] and verdicts[0].startswith("reliable: no: ")
+    info = json.loads((run / "posterior" / "summary.json").read_text())
+    assert info["reliable"] is False and len(info["reliability"]["reasons"]) == 1
+    assert info["active_learning"] == {"enabled": False, "evaluations": 0}
