@@ -11,7 +11,13 @@ at three kinds of points (:func:`round_design`):
   ``min_distance`` apart in the unit cube: where the GP is unsure *and* the posterior could
   hold mass, including regions the current emulated posterior has not reached;
 * a Latin hypercube over the box of the bulk of the draws (:func:`local_box`), which
-  fills the posterior's region evenly, tails included, where draws are sparse.
+  fills the posterior's region evenly, tails included, where draws are sparse, and random
+  draws of the tempered emulated posterior (likelihood to the power 1/4), which reach along
+  ridges and into flat arms the posterior itself hardly visits.
+
+Every point of a round, before it joins the training data, also enters a second check
+(:func:`relevant_error`): the error where the true or the emulated log-likelihood is near
+the best, which catches mass the emulated posterior misses.
 
 The GP is then refitted on calibration + refinement data.
 
@@ -93,9 +99,11 @@ def local_box(draws_unit: Array, widen: float = 0.5, min_width: float = 0.02) ->
 
 
 def round_design(draws_unit: Array, surrogate: Surrogate, count: int,
-                 rng: np.random.Generator, n_eff: float) -> tuple[Array, int]:
-    """Points of one refinement round: a third random posterior draws (first), a sixth a
-    Latin hypercube over :func:`local_box`, the rest by :func:`acquisition_points`.
+                 rng: np.random.Generator, n_eff: float, wide_unit: Array | None = None) -> tuple[Array, int]:
+    """Points of one refinement round: a third random posterior draws (first), a sixth
+    random draws of the tempered posterior ``wide_unit`` (if given), a sixth a Latin
+    hypercube over :func:`local_box`, the rest by :func:`acquisition_points` among the
+    posterior draws, the tempered ones and uniform points.
 
     Returns:
         ``(points (<= count, d), number of leading random draws)``.
@@ -103,10 +111,35 @@ def round_design(draws_unit: Array, surrogate: Surrogate, count: int,
     n_rand = count // 3
     n_lhs = count // 6
     rand = draws_unit[rng.choice(draws_unit.shape[0], size=min(n_rand, draws_unit.shape[0]), replace=False)]
+    parts = [rand]
+    pool = draws_unit
+    if wide_unit is not None and wide_unit.shape[0]:
+        parts.append(wide_unit[rng.choice(wide_unit.shape[0], size=min(count // 6, wide_unit.shape[0]),
+                                          replace=False)])
+        pool = np.vstack([draws_unit, wide_unit])
     lo, hi = local_box(draws_unit)
     lhs = qmc.LatinHypercube(d=draws_unit.shape[1], seed=int(rng.integers(2**31 - 1))).random(n_lhs)
-    picks = acquisition_points(draws_unit, surrogate, n_eff, count - rand.shape[0] - n_lhs, rng)
-    return np.vstack([rand, lo + lhs * (hi - lo), picks]), rand.shape[0]
+    parts.append(lo + lhs * (hi - lo))
+    taken = sum(p.shape[0] for p in parts)
+    parts.append(acquisition_points(pool, surrogate, n_eff, count - taken, rng))
+    return np.vstack(parts), rand.shape[0]
+
+
+def relevant_error(emulated: Array, true: Array, n_eff: float, window_nats: float = 10.0) -> float:
+    """Mean absolute log-likelihood error (nats, no offset removed) of a round's points where
+    the true *or* the emulated log-likelihood is within ``window_nats`` of the best of either.
+
+    Unlike :func:`check_values`, whose points are draws of the emulated posterior, this sees
+    mass the emulator misses: a point the emulator rates low but the simulator rates high.
+    """
+    ok = np.isfinite(true) & np.isfinite(emulated)
+    if not np.any(ok):
+        return float("nan")
+    a = 0.5 * n_eff
+    ll_true, ll_em = -a * true[ok], -a * emulated[ok]
+    top = max(float(np.max(ll_true)), float(np.max(ll_em)))
+    near = (ll_true >= top - window_nats) | (ll_em >= top - window_nats)
+    return float(np.mean(np.abs(ll_em[near] - ll_true[near])))
 
 
 def check_values(emulated: Array, true: Array, n_eff: float) -> float:

@@ -31,7 +31,7 @@ from smcbayes.forward.nodes import interp_rows
 from smcbayes.posterior.context import RunContext, exact_log_posterior, load_run, true_log_loss
 from smcbayes.posterior.correct import correct
 from smcbayes.posterior.likelihood import EmulatedPosterior, effective_points, sandwich_points
-from smcbayes.posterior.refine import check_values, quantile_shift, round_design
+from smcbayes.posterior.refine import check_values, quantile_shift, relevant_error, round_design
 from smcbayes.posterior.reliability import assess
 from smcbayes.posterior.report import write_outputs
 from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
@@ -158,6 +158,21 @@ def _log_round(out_dir: Path, rnd: int, theta: Array, vals: Array, n_rand: int, 
             fh.write(json.dumps(rec) + "\n")
 
 
+TEMPER = 0.25
+"""Power of the likelihood of the tempered emulated posterior whose draws explore each round."""
+
+
+def _round_draws(ctx: RunContext, surrogate: Any, n_eff: float, quick: PosteriorSettings,
+                 rng: np.random.Generator) -> tuple[Array, Array]:
+    """Pooled draws ``(N, d)`` of the emulated posterior of the GP mean and of its tempered
+    version (likelihood^TEMPER), unit cube."""
+    out = []
+    for scale in (1.0, TEMPER):
+        _, chains = sample(ctx, surrogate, scale * n_eff, quick, rng)
+        out.append(np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains]))
+    return out[0], out[1]
+
+
 def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
            settings: PosteriorSettings, rng: np.random.Generator,
            out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any]]:
@@ -167,7 +182,8 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
     posterior variance (:func:`~smcbayes.posterior.refine.round_design`), refit.
 
     Stops when ``settings.refine`` evaluations are spent or, after at least two rounds,
-    when the out-of-sample error at the round's random posterior draws is below
+    when the out-of-sample error (the larger of that at the round's random posterior draws
+    and :func:`~smcbayes.posterior.refine.relevant_error` over all its points) is below
     ``settings.refine_tolerance_nats`` in two consecutive rounds and no 5/50/95 % quantile
     moved by more than :data:`STABLE_QUANTILES` of its range since the previous round.
 
@@ -181,15 +197,18 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
                               seed=int(rng.integers(2**31 - 1)))
     status: dict[str, Any] = {"rounds": 0, "converged": False, "error_nats": None, "quantile_shift": None}
     while remaining > 0:
-        _, chains = sample(ctx, surrogate, n_eff, quick, rng)
-        pooled = np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
+        pooled, wide = _round_draws(ctx, surrogate, n_eff, quick, rng)
         quantiles, shift = quantile_shift(quantiles, pooled)
-        pts, n_rand = round_design(pooled, surrogate, min(per_round, remaining), rng, n_eff)
+        pts, n_rand = round_design(pooled, surrogate, min(per_round, remaining), rng, n_eff, wide)
         remaining -= max(len(pts), 1)
         theta = ctx.space.from_unit(pts)
         vals = true_log_loss(ctx, theta)
         cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
-        err = check_values(surrogate.predict(pts[:n_rand])[0], np.minimum(vals[:n_rand], cap), n_eff)
+        predicted = surrogate.predict(pts)[0]
+        err = check_values(predicted[:n_rand], np.minimum(vals[:n_rand], cap), n_eff)
+        # judged on the uncapped values: a capped far point cannot hide a missed mode
+        missed = relevant_error(predicted, vals, n_eff)
+        err = max(err, missed) if np.isfinite(missed) else err
         stats = {"training_points": int(x.shape[0]), "error_nats": err if np.isfinite(err) else None,
                  "quantile_shift": shift if np.isfinite(shift) else None}
         _log_round(out_dir, rounds, theta, vals, n_rand, ctx.space.free_names, stats)
