@@ -90,7 +90,7 @@ def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path
     stopping rule."""
     from smcbayes.posterior.stage import PosteriorSettings, run_posterior
 
-    settings = PosteriorSettings(walkers=16, steps=1500, functions=4, refine=90, draws=20, seed=1)
+    settings = PosteriorSettings(walkers=16, steps=1500, refine=90, draws=20, seed=1)
     info = run_posterior(_fresh_copy(run_dir, tmp_path / "active"), settings)
     truth = {"tau_c_MPa": 0.01, "m": 1.5}
     for p in info["parameters"]:
