@@ -86,6 +86,9 @@ def run(args: argparse.Namespace) -> int:
               f"{r['holdout_shrink_pct']:>9.1f} {r['dm_z']:>7.2f} {r['score']:>9.3g}"
               f"{'  *' if r['significant'] else ''}")
     print(summary["decision"]["statement"])
+    left_out = summary["selection"].get("left_out") or []
+    if left_out:
+        print(f"selection: {', '.join(left_out)} not tried (alone they absorbed none of the gap)")
     for step in summary["selection"]["steps"]:
         verdict = f"added {step['added']}" if step["added"] else f"stop ({step['best_candidate']} not significant)"
         print(f"selection: {verdict}: held-out loss {step['holdout_loss_before_kN2']:.4g} -> "

@@ -95,21 +95,28 @@ def settings_for(spec: DiagnoseSpec, already_on: Sequence[str], figures: bool = 
 
 
 def default_holdout(ctx: DiagnosisContext) -> list[str]:
-    """The middle speed of each group (same charge shape and coverage) of >= 3 configurations.
+    """One configuration of each group (same charge shape and coverage) of >= 2 configurations.
 
-    Holding out an interior speed tests whether an effect fitted on the other speeds
-    predicts a new one, without extrapolating beyond the fitted speed range.
+    A group of three or more gives its middle speed: an effect fitted on the other speeds
+    must predict a new one without extrapolating beyond the fitted speed range.  A group of
+    two gives its faster and its slower member in turn (groups in sorted order), so that
+    both speeds are fitted and both are tested; holding out one configuration alone would
+    let a single trial's scatter choose the effect.  Without any such group, the middle of
+    the sorted ids is held out.
     """
     groups: dict[tuple[str, float], list[tuple[float, str]]] = {}
     for cid in ctx.ids:
         spec = ctx.project.get(cid)
         groups.setdefault((spec.charge.shape, spec.charge.coverage_pct), []).append(
             (spec.press.speed_mm_s, cid))
-    out = []
-    for members in groups.values():
+    out, pairs = [], 0
+    for key in sorted(groups):
+        members = sorted(groups[key])
         if len(members) >= 3:
-            members.sort()
             out.append(members[len(members) // 2][1])
+        elif len(members) == 2:
+            out.append(members[(pairs + 1) % 2][1])
+            pairs += 1
     if not out:
         out = [sorted(ctx.ids)[len(ctx.ids) // 2]]
     return [c for c in ctx.ids if c in out]
@@ -214,22 +221,49 @@ def decide(rows: list[dict[str, Any]], min_score: float) -> dict[str, Any]:
                           f"penalised score {top['score']:.3g})")}
 
 
+INERT_SHRINK_PCT = 1.0
+"""Held-out shrink (%) below which an effect that alone absorbs none of the gap is left out
+of the forward selection."""
+INERT_ABSORBABLE = 0.01
+"""Absorbable share (:class:`~smcbayes.diagnose.which.Signature`) below which an effect's
+parameters cannot move the curves along the gap."""
+
+
+def inert(row: dict[str, Any]) -> bool:
+    """Whether a single-effect ranking row shows an effect that cannot help: its parameters
+    move the curves across the gap's direction only (absorbable share below
+    :data:`INERT_ABSORBABLE`) and re-calibrating with it shrank the held-out loss by less
+    than :data:`INERT_SHRINK_PCT`.  Such an effect is not tried again in combination: each
+    trial costs a full re-calibration, and an effect that cannot move the curves along the
+    gap alone is not expected to pass the selection's score with another one on."""
+    share, shrink = row.get("absorbable_share"), row.get("holdout_shrink_pct")
+    return (share is not None and shrink is not None and np.isfinite(shrink)
+            and share < INERT_ABSORBABLE and shrink < INERT_SHRINK_PCT)
+
+
 def _select(ctx: DiagnosisContext, settings: DiagnoseSettings, decision: dict[str, Any],
             rows: list[dict[str, Any]], fits: dict[str, Fit], ids: tuple[list[str], list[str]],
             evidence: dict[str, Any], rng: np.random.Generator,
-            log: Callable[[str], None]) -> tuple[list[str], list[dict[str, Any]], dict[str, Fit]]:
+            log: Callable[[str], None]
+            ) -> tuple[list[str], list[dict[str, Any]], dict[str, Fit], list[str]]:
     """The effect set: empty without a significant single effect, else grown from it by
-    :func:`~smcbayes.diagnose.select.forward_selection` up to ``settings.max_effects``."""
+    :func:`~smcbayes.diagnose.select.forward_selection` up to ``settings.max_effects``;
+    also the effects left out of the selection as :func:`inert`."""
     best = decision["best"]
     if best is None:
-        return [], [], {}
-    others = [r["effect"] for r in rows if "+" not in r["effect"] and r["effect"] != best]
+        return [], [], {}, []
+    singles = [r for r in rows if "+" not in r["effect"] and r["effect"] != best]
+    others = [r["effect"] for r in singles if not inert(r)]
+    left_out = [r["effect"] for r in singles if inert(r)]
+    if left_out:
+        log(f"selection: {', '.join(left_out)} not tried (alone, the curves could not absorb the gap "
+            f"and the held-out loss shrank by less than {INERT_SHRINK_PCT:g} %)")
     selected, steps, grown = forward_selection(
         ctx, fits[best], others, ids[0], ids[1], settings.fit, rng,
         (evidence["n_eff_fit"], evidence["n_eff_holdout"]), settings.min_score, settings.max_effects, log)
     if len(selected) > 1:
         log(f"selected effect set: {' + '.join(selected)}")
-    return selected, steps, grown
+    return selected, steps, grown, left_out
 
 
 def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None,
@@ -252,7 +286,7 @@ def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None
     base, fits, rows, evidence = which_effect(ctx, settings, fit_ids, holdout, rng, log)
     decision = decide(rows, settings.min_score)
     log(decision["statement"])
-    selected, steps, grown = _select(ctx, settings, decision, rows, fits, (fit_ids, holdout), evidence, rng, log)
+    selected, steps, grown, left_out = _select(ctx, settings, decision, rows, fits, (fit_ids, holdout), evidence, rng, log)
     shown = {"base": base}
     pick = decision["best"] or (rows[0]["effect"] if rows else None)
     if pick is not None:
@@ -267,7 +301,7 @@ def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None
                "candidates": list(settings.candidates), "fit_settings": asdict(settings.fit),
                "min_score": settings.min_score, "where": where.to_json(), "ranking": rows,
                "decision": decision, "selected_effects": selected,
-               "selection": {"max_effects": settings.max_effects, "steps": steps}, "shrink": shrink, **evidence,
+               "selection": {"max_effects": settings.max_effects, "steps": steps, "left_out": left_out}, "shrink": shrink, **evidence,
                "base_calibrated_params": ctx.base_params, "truth": ctx.truth,
                "simulator_runs": ctx.forward_runs, "forward_runs_reused": ctx.forward_runs_reused,
                "forward_runs_made": ctx.forward_runs - ctx.forward_runs_reused, "seconds": time.perf_counter() - t0}

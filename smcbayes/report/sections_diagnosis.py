@@ -114,6 +114,10 @@ def _selection(diag: dict[str, Any]) -> list:
          f"{fmt(st.get('holdout_loss_before_kN2'))} -> {fmt(st.get('holdout_loss_after_kN2'))} kN^2, "
          f"score {fmt(st.get('score'), 3)}: not significant, the selection stops")
         for st in steps)
+    left_out = (diag.get("selection") or {}).get("left_out") or []
+    if left_out:
+        lines += (f"not tried: {', '.join(map(str, left_out))} (alone, their parameters could not move "
+                  "the curves along the gap and the held-out loss shrank by less than 1 %)",)
     blocks: list = []
     if lines:
         blocks += [Paragraph(f"Forward selection from {best}:"), Bullets(lines)]

@@ -130,3 +130,14 @@ def test_selection_steps_and_the_selected_set_are_named(tmp_path) -> None:
     last = blocks[-1].text
     assert "compressibility + press_compliance" in last and "--effects-from" in last
     assert _selection({"decision": {"best": None}}) == []
+
+
+def test_effects_left_out_of_the_selection_are_named(tmp_path) -> None:
+    from smcbayes.report.sections_diagnosis import _selection
+
+    diag = {"decision": {"best": "compressibility"}, "selected_effects": ["compressibility"],
+            "selection": {"left_out": ["heating", "curing"], "steps": [
+                {"added": None, "best_candidate": "press_compliance", "score": 1.0,
+                 "holdout_loss_before_kN2": 9e3, "holdout_loss_after_kN2": 8.9e3}]}}
+    bullets = [b for b in _selection(diag) if hasattr(b, "items")][0].items
+    assert len(bullets) == 2 and "not tried: heating, curing" in bullets[1]
