@@ -63,11 +63,6 @@ FOLDS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("60 % centre", tuple(c for c in TRAIN if c.startswith("60-center"))),
     ("80 % bar", tuple(c for c in TRAIN if c.startswith("80-bar"))),
 )
-# parameters fixed whenever their effect is on (as in calibration_real.py): the solid density
-# of consolidated CF-epoxy SMC (1.5 g/cm3, README of the data) and no bulk viscosity
-FIXED_IF_FREE = {"rho_solid_g_cm3": 1.5, "bulk_viscosity_MPa_s": 0.0}
-
-
 def toml_value(v: Any) -> str:
     """One TOML value (the subset thesis.toml uses: strings, numbers, lists, inline tables)."""
     if isinstance(v, bool):
@@ -197,15 +192,11 @@ def run_fold(k: int, args: argparse.Namespace) -> dict[str, Any]:
     else:
         effects = list(args.effects)
     final_run = base
+    # the solid density and the bulk viscosity are fixed by the project file when on
     fixed: dict[str, float] = {}
     if effects:
         t = time.perf_counter()
-        from smcbayes.simulation.problem import build_problem
-
-        free = build_problem(project, work / "probe", effects, {}).model.space.free_names
-        shutil.rmtree(work / "probe", ignore_errors=True)
-        fixed = {p: v for p, v in FIXED_IF_FREE.items() if p in free}
-        final_run = smcbayes.calibrate(project, work / "final", effects=effects, overrides=fixed,
+        final_run = smcbayes.calibrate(project, work / "final", effects=effects,
                                        figures=False, **cal_settings)
         times["calibrate_effects_s"] = time.perf_counter() - t
     t = time.perf_counter()

@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from smcbayes.config import MaterialSpec, ProjectConfig, SolverSpec
 from smcbayes.errors import ConfigError, SlowPathWarning, SolverError, closest
 from smcbayes.forward.case import Case
-from smcbayes.forward.effects import EffectStack, get_effect
+from smcbayes.forward.effects import EffectStack, available, get_effect
 from smcbayes.forward.hele_shaw2d import HeleShaw2D
 from smcbayes.forward.parameters import (
     BASE_PARAMETERS,
@@ -61,14 +61,18 @@ def build_space(project: ProjectConfig, effects: EffectStack,
     """Parameter space of base + effect parameters with the project's bounds and values.
 
     ``[parameters.NAME]`` tables set ``value`` (the simulate value and, if ``fixed``, a
-    constant) and ``bounds``; ``overrides`` (from ``--set``) fix values.
+    constant) and ``bounds``; ``overrides`` (from ``--set``) fix values.  A table may name
+    the parameter of any registered effect: it applies whenever that effect is switched on
+    (a project can state its material's known solid density once, for every run that
+    turns compressibility on), and is ignored otherwise.
     """
     params: list[Parameter] = list(BASE_PARAMETERS) + list(effects.parameters)
     names = [p.name for p in params]
+    known = names + [q.name for cls in available().values() for q in cls.parameters if q.name not in names]
     for name in project.parameters:
-        if name not in names:
-            raise ConfigError(f"[parameters.{name}]: unknown parameter{closest(name, names)}; "
-                              f"accepted with the enabled effects: {', '.join(names)}")
+        if name not in known:
+            raise ConfigError(f"[parameters.{name}]: unknown parameter{closest(name, known)}; "
+                              f"accepted: {', '.join(known)}")
     out: list[Parameter] = []
     fixed: dict[str, float] = {}
     for p in params:
@@ -80,7 +84,7 @@ def build_space(project: ProjectConfig, effects: EffectStack,
                 fixed[p.name] = float(spec.value)
         out.append(p)
     space = ParameterSpace(tuple(out))
-    bounds = {n: s.bounds for n, s in project.parameters.items() if s.bounds is not None}
+    bounds = {n: s.bounds for n, s in project.parameters.items() if s.bounds is not None and n in names}
     space = space.with_bounds(bounds).with_fixed(fixed, "[parameters]")
     return space.with_fixed(dict(overrides or {}), "--set")
 

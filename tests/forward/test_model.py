@@ -92,3 +92,17 @@ def test_compressibility_needs_the_charge_mass(make_project: Callable[..., Proje
     model = ForwardModel(raw_project, effects=["compressibility"])
     with pytest.raises(ConfigError, match="mass_g"):
         model.simulate()
+
+
+def test_effect_parameter_tables_apply_only_with_their_effect(thesis_config: Path) -> None:
+    project = load_project(thesis_config)
+    assert project.parameters["rho_solid_g_cm3"].fixed
+    base = ForwardModel(project)
+    assert "rho_solid_g_cm3" not in base.space.names
+    on = ForwardModel(project, effects=["compressibility"])
+    assert on.space.fixed == {"rho_solid_g_cm3": 1.5, "bulk_viscosity_MPa_s": 0.0}
+    assert "compaction_modulus_MPa" in on.space.free_names
+    typo = project.model_copy(update={"parameters": {**project.parameters,
+                                                     "rho_solid_g_cm": project.parameters["rho_solid_g_cm3"]}})
+    with pytest.raises(ConfigError, match="did you mean 'rho_solid_g_cm3'"):
+        ForwardModel(typo)
