@@ -218,6 +218,16 @@ def fit_discrepancy(curves: Sequence[ResidualCurve]) -> PhaseDiscrepancy | None:
     return PhaseDiscrepancy(edges, q, points, configs, centres)
 
 
+def residual_curve(config_id: str, res: Any, row: int, time_s: Array, force_kN: Array) -> ResidualCurve:
+    """Residuals of row ``row`` of one configuration's simulation result at the measured
+    ``time_s`` ``(N,)`` (the simulated force held at its last value beyond its record)."""
+    t, f, disp = res.time_s[row], res.force_kN[row], res.displacement_mm[row]
+    ts = float(res.switch_time_s[row])
+    tm = np.asarray(time_s, float)
+    return ResidualCurve(config_id, tm, np.asarray(force_kN, float) - np.interp(tm, t, f),
+                         ts, float(np.interp(ts, t, disp)))
+
+
 def training_residuals(model: Simulator, theta: Array, config_ids: Sequence[str],
                        measured: Mapping[str, tuple[Array, Array]]) -> list[ResidualCurve]:
     """Residuals of ``config_ids`` at one parameter vector ``theta`` ``(1, d)`` (user units).
@@ -229,14 +239,5 @@ def training_residuals(model: Simulator, theta: Array, config_ids: Sequence[str]
     if not ids:
         return []
     results = model.simulate(np.atleast_2d(theta), ids)
-    out = []
-    for cid in ids:
-        res = results[cid]
-        if not bool(np.asarray(res.ok)[0]):
-            continue
-        tm, fm = measured[cid]
-        t, f, disp = res.time_s[0], res.force_kN[0], res.displacement_mm[0]
-        ts = float(res.switch_time_s[0])
-        out.append(ResidualCurve(cid, np.asarray(tm, float), np.asarray(fm, float) - np.interp(tm, t, f),
-                                 ts, float(np.interp(ts, t, disp))))
-    return out
+    return [residual_curve(cid, results[cid], 0, *measured[cid]) for cid in ids
+            if bool(np.asarray(results[cid].ok)[0])]

@@ -11,6 +11,7 @@ import numpy as np
 
 from smcbayes.posterior.context import RunContext, true_log_loss
 from smcbayes.posterior.correct import K_HAT_WARN
+from smcbayes.posterior.crossfit import LocalFit, leave_one_out_residuals
 from smcbayes.posterior.discrepancy import fit_discrepancy, training_residuals
 from smcbayes.posterior.likelihood import EmulatedPosterior
 from smcbayes.posterior.plots import bands_plot, corner_plot, correlation_plot
@@ -101,15 +102,33 @@ def _corr_block(corr: tuple) -> dict[str, Any]:
     return {"labels": labels, "matrix": matrix.tolist(), "strongest": [{"a": a, "b": b, "r": r} for a, b, r in pairs]}
 
 
+def _error_model(ctx: RunContext, fit: LocalFit | None) -> tuple[Any, str, int]:
+    """The bands' discrepancy model, the residuals it was learnt from and the runs it took.
+
+    Leave-one-configuration-out residuals (:mod:`smcbayes.posterior.crossfit`) where the
+    local fit is usable and there are at least two training configurations; otherwise the
+    residuals at the calibrated point (one run per training configuration).
+    """
+    p = ctx.problem
+    if fit is not None and fit.usable and len(fit.config_ids) >= 2:
+        curves, runs = leave_one_out_residuals(ctx.runner, ctx.space, fit, p.dataset.measurements, p.project.loss)
+        if len(curves) >= 2:
+            return fit_discrepancy(curves), "leave-one-configuration-out refits", runs
+    curves = training_residuals(ctx.runner, ctx.best_theta, p.train_ids, p.measured_force(p.train_ids))
+    return fit_discrepancy(curves), "calibrated point", len(p.train_ids)
+
+
 def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any], settings: Any,
-                       rng: np.random.Generator, out_dir: Path) -> tuple[dict, int, list[str], Any]:
+                       rng: np.random.Generator, out_dir: Path,
+                       fit: LocalFit | None = None) -> tuple[dict, int, list[str], dict[str, Any] | None]:
     """Predictive bands from the reported draws, corner, correlation and band figures.
 
-    The bands' error term is the discrepancy model learnt from the training residuals at
-    the best point (:mod:`smcbayes.posterior.discrepancy`; one forward run per training
-    configuration), or the per-configuration white noise when no residual is usable.
+    The bands' error term is the discrepancy model learnt from out-of-sample training
+    residuals (:func:`_error_model`, :mod:`smcbayes.posterior.discrepancy`), or the
+    per-configuration white noise when no residual is usable.
 
-    Returns the bands, the forward runs they took, the validation ids and the error model.
+    Returns the bands, the forward runs they took, the validation ids and the error model's
+    summary.
     """
     space, p, unit = ctx.space, ctx.problem, t["unit"]
     draw_unit = unit[rng.choice(unit.shape[0], size=min(settings.draws, unit.shape[0]), replace=False)]
@@ -117,8 +136,7 @@ def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any
     band_ids = val_ids or p.train_ids
     measured = p.measured_force(band_ids)
     noise = {cid: float(np.sqrt(v)) for cid, v in budget["mse_kN2"].items()}
-    residuals = training_residuals(ctx.runner, ctx.best_theta, p.train_ids, p.measured_force(p.train_ids))
-    discrepancy = fit_discrepancy(residuals)
+    discrepancy, source, error_runs = _error_model(ctx, fit)
     limits = {cid: float(p.project.get(cid).press.force_limit_kN) for cid in band_ids}
     bands = predictive_bands(ctx.runner, space.from_unit(draw_unit), band_ids, measured, noise, rng,
                              discrepancy=discrepancy, force_limit_kN=limits)
@@ -129,13 +147,14 @@ def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any
         correlation_plot(t["corr"][0], t["corr"][1], fig / "correlations")
     kind = "validation" if val_ids else "training (no validation configuration)"
     bands_plot(bands, fig / "bands", f"posterior predictive bands on {kind} configurations")
-    runs = int(draw_unit.shape[0]) * len(band_ids) + len(p.train_ids)
-    return bands, runs, val_ids, discrepancy
+    runs = int(draw_unit.shape[0]) * len(band_ids) + error_runs
+    info = None if discrepancy is None else {**discrepancy.as_dict(), "residuals": source}
+    return bands, runs, val_ids, info
 
 
 def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget: dict[str, Any],
                   settings: Any, rng: np.random.Generator, out_dir: Path,
-                  corrected: Any = None) -> dict[str, Any]:
+                  corrected: Any = None, fit: LocalFit | None = None) -> dict[str, Any]:
     """Write NetCDF, tables and figures; returns the summary dictionary.
 
     With ``corrected`` (an importance-corrected sample) the reported posterior (table,
@@ -162,7 +181,7 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     check_unit = emu[rng.choice(emu.shape[0], size=min(settings.draws, emu.shape[0]), replace=False)]
     check = check_emulator(check_unit, lambda u: emul.log_loss(u),
                            lambda u: true_log_loss(ctx, space.from_unit(u)), emul.n_eff)
-    bands, band_runs, val_ids, discrepancy = _bands_and_figures(ctx, t, budget, settings, rng, out_dir)
+    bands, band_runs, val_ids, discrepancy = _bands_and_figures(ctx, t, budget, settings, rng, out_dir, fit)
     corr_info = correction_info(corrected, settings)
     return {
         "method": attrs["method"],
@@ -177,7 +196,7 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
                      "tau_max": float(np.max(c.tau)), "acceptance_median": float(np.median(c.acceptance))}
                     for c in chains],
         "bands": {cid: band_record(b, "validation" if val_ids else "train") for cid, b in bands.items()},
-        "discrepancy": None if discrepancy is None else discrepancy.as_dict(),
+        "discrepancy": discrepancy,
         "truth": ctx.problem.truth,
         "shape": shape_notes(space, t["unit"]),
     }

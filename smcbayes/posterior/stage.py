@@ -30,6 +30,7 @@ from smcbayes.errors import UnreliablePosteriorWarning
 from smcbayes.forward.nodes import interp_rows
 from smcbayes.posterior.context import RunContext, exact_log_posterior, load_run, true_log_loss
 from smcbayes.posterior.correct import correct
+from smcbayes.posterior.crossfit import LocalFit
 from smcbayes.posterior.likelihood import EmulatedPosterior, effective_points, sandwich_points
 from smcbayes.posterior.refine import check_values, quantile_shift, relevant_error, round_design
 from smcbayes.posterior.reliability import assess
@@ -56,21 +57,13 @@ SENSITIVITY_STEP = 0.02
 the roughness of the discrete solver's loss (about 1e-3)."""
 
 
-def residual_budget(ctx: RunContext) -> dict[str, Any]:
-    """Effective points from the force residuals and sensitivities at the best point.
+def local_fit(ctx: RunContext) -> LocalFit:
+    """Force residuals and sensitivities at the best point on every training configuration.
 
-    Two estimates: ``n_eff_residual`` = sum_k N_k / tau_k from the residuals' integrated
-    autocorrelation times, and the sandwich estimate of
-    :func:`~smcbayes.posterior.likelihood.sandwich_points`, which also uses the force
-    sensitivities (central differences: 2 d + 1 parameter rows, each simulated on every
-    training configuration; the perturbed forces are read on the best point's grid).  The
-    likelihood uses the smaller of the two (``n_eff_total``), the residual one alone where
-    a perturbed run fails or the data inform no direction.  Each can overstate N_eff: the
-    residual estimate when the misfit concentrates where a parameter acts, the sandwich
-    when the residuals are correlated over a whole curve (a systematic model error), as
-    its lag sums then span the record and the score sums nearly cancel at the optimum.
+    Central differences of step :data:`SENSITIVITY_STEP` in the unit cube: 2 d + 1
+    parameter rows, each simulated on every training configuration; the perturbed forces
+    are read on the best point's loss grid.  ``usable`` is false where a perturbed run fails.
     """
-
     p, space = ctx.problem, ctx.space
     u0 = space.to_unit(ctx.best_theta)[0]
     d = u0.size
@@ -79,20 +72,37 @@ def residual_budget(ctx: RunContext) -> dict[str, Any]:
     rows[1 + np.arange(d), np.arange(d)] = up
     rows[1 + d + np.arange(d), np.arange(d)] = down
     results = ctx.runner.simulate(space.from_unit(rows), p.train_ids)
-    residuals, sensitivities, mse, usable = [], [], {}, True
+    residuals, sensitivities, usable = [], [], True
     for cid in p.train_ids:
         pair = force_pair(results[cid], p.dataset.measurements[cid], p.project.loss)
         grid = np.broadcast_to(pair.time_s[:1], pair.time_s.shape)
         sim = interp_rows(grid, pair.time_s, pair.sim_kN)
-        r = pair.meas_kN[0] - sim[0]
-        residuals.append(r)
+        residuals.append(pair.meas_kN[0] - sim[0])
         sensitivities.append(((sim[1:1 + d] - sim[1 + d:]) / (up - down)[:, None]).T)
         usable &= bool(np.all(pair.ok))
-        mse[cid] = float(np.mean(r**2))
+    return LocalFit(tuple(p.train_ids), u0, tuple(residuals), tuple(sensitivities), usable)
+
+
+def residual_budget(ctx: RunContext, fit: LocalFit | None = None) -> dict[str, Any]:
+    """Effective points from the force residuals and sensitivities at the best point.
+
+    Two estimates: ``n_eff_residual`` = sum_k N_k / tau_k from the residuals' integrated
+    autocorrelation times, and the sandwich estimate of
+    :func:`~smcbayes.posterior.likelihood.sandwich_points`, which also uses the force
+    sensitivities (:func:`local_fit`, computed here when ``fit`` is not given).  The
+    likelihood uses the smaller of the two (``n_eff_total``), the residual one alone where
+    a perturbed run fails or the data inform no direction.  Each can overstate N_eff: the
+    residual estimate when the misfit concentrates where a parameter acts, the sandwich
+    when the residuals are correlated over a whole curve (a systematic model error), as
+    its lag sums then span the record and the score sums nearly cancel at the optimum.
+    """
+    fit = fit if fit is not None else local_fit(ctx)
+    residuals, sensitivities = list(fit.residuals_kN), list(fit.sensitivities)
+    mse = {cid: float(np.mean(r**2)) for cid, r in zip(fit.config_ids, residuals, strict=True)}
     tau, n_eff = effective_points(residuals, centred=False)
-    sandwich = sandwich_points(residuals, sensitivities) if usable else float("nan")
+    sandwich = sandwich_points(residuals, sensitivities) if fit.usable else float("nan")
     total = min(sandwich, float(n_eff.sum())) if np.isfinite(sandwich) and sandwich > 0 else float(n_eff.sum())
-    return {"config_ids": list(p.train_ids), "tau": tau.tolist(), "n_eff": n_eff.tolist(),
+    return {"config_ids": list(fit.config_ids), "tau": tau.tolist(), "n_eff": n_eff.tolist(),
             "n_eff_residual": float(n_eff.sum()), "n_eff_sandwich": sandwich,
             "n_eff_total": total, "mse_kN2": mse}
 
@@ -279,7 +289,8 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     rng = np.random.default_rng(settings.seed)
     calibration_gp, _ = load_surrogate(ctx.run.gp_path)
     with ctx.runner:
-        budget = residual_budget(ctx)
+        fit = local_fit(ctx)
+        budget = residual_budget(ctx, fit)
         n_eff = budget["n_eff_total"]
         data = (calibration_gp.x_unit, calibration_gp.log_loss)
         surrogate = fit_local(*data, n_eff, calibration_gp.kernel, settings.seed)
@@ -289,7 +300,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         t_correct = time.perf_counter()
         corrected = correct_posterior(ctx, chains, n_eff, settings, rng, data) if settings.correct_draws > 0 else None
         t_outputs = time.perf_counter()
-        info = write_outputs(ctx, emul, chains, budget, settings, rng, out_dir, corrected)
+        info = write_outputs(ctx, emul, chains, budget, settings, rng, out_dir, corrected, fit)
     cache.close()
     info["stage_seconds"] = {"setup_and_refine": t_sample - start, "emulator_sampling": t_correct - t_sample,
                              "correction": t_outputs - t_correct, "outputs": time.perf_counter() - t_outputs}

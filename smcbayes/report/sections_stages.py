@@ -368,8 +368,11 @@ def bands_section(run: RunFiles) -> Section | None:
 
 def _bands_text(kind: str, discrepancy: dict | None) -> str:
     """The paragraph above the bands table."""
+    source = (discrepancy or {}).get("residuals", "calibrated point")
+    where = ("each left out of a refit on the others" if source.startswith("leave")
+             else "at the calibrated point")
     error = (
-        "plus an error drawn from the training residuals at the calibrated point at the same "
+        f"plus an error drawn from the training configurations' residuals ({where}) at the same "
         "stage of the closing (remaining ram travel to the simulated end of closing; table "
         "below), so the bands widen where the model misses the press, such as the end of "
         "closing"

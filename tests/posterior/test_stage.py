@@ -72,6 +72,8 @@ def test_outputs_written(run_dir: Path) -> None:
     assert info["emulator_check"]["points"] > 0
     assert info["effective_points"]["n_eff_total"] > 0
     assert (out / "summary_emulator.csv").is_file()
+    # five training configurations: the bands' error model comes from leave-one-out refits
+    assert info["discrepancy"]["residuals"] == "leave-one-configuration-out refits"
 
 
 def test_correction_is_reported(run_dir: Path) -> None:
