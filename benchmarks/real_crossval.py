@@ -21,7 +21,7 @@ time of each step, and the thesis's clipped loss (force compared up to the incom
 flow-stop time, summed over the 9 configurations; the thesis's best is 18,384 kN^2) at the
 fold's calibrated point.
 
-    python benchmarks/real_crossval.py [--fold K] [--jobs N] [--effects a,b] [--workdir DIR]
+    python benchmarks/real_crossval.py [--fold K] [--jobs N] [--effects a,b] [--workdir DIR] [--reuse]
         [--budget 60 --init 20] [--population 64 --generations 50 --restarts 2]
         [--walkers 32 --steps 4000 --refine 400 --correct-draws 0 --draws 100]
 
@@ -162,42 +162,74 @@ def small_copy(src: Path, dest: Path, width_px: int = 1100) -> None:
         im.convert("RGB").quantize(colors=64).save(dest, optimize=True)
 
 
+REUSE_KEYS = ("data_dir", "seed", "budget", "init", "population", "generations", "restarts", "candidates",
+              "effects")
+"""Settings that shape a fold's calibrations and diagnosis: ``--reuse`` keeps a fold's
+work only when they are unchanged."""
+
+
+def fold_workdir(k: int, args: argparse.Namespace) -> Path:
+    """Fold ``k``'s work directory: emptied unless ``--reuse`` finds it made with the same
+    settings (:data:`REUSE_KEYS`, recorded in ``settings.json``)."""
+    work = Path(args.workdir) / f"fold-{k}"
+    settings = {key: getattr(args, key) for key in REUSE_KEYS}
+    record = work / "settings.json"
+    same = args.reuse and record.exists() and json.loads(record.read_text()) == settings
+    if work.exists() and not same:
+        shutil.rmtree(work)
+    work.mkdir(parents=True, exist_ok=True)
+    record.write_text(json.dumps(settings, indent=2) + "\n")
+    return work
+
+
+def choose_effects(base: Any, work: Path, args: argparse.Namespace,
+                   times: dict[str, float]) -> tuple[list[str], dict[str, Any] | None]:
+    """The effects to add (``--effects``, a reused choice or the diagnosis's) and the
+    diagnosis's record; the diagnosis's wall time goes into ``times``."""
+    import smcbayes
+
+    if args.effects is not None:
+        return list(args.effects), None
+    chosen = work / "effects.json"
+    if chosen.exists():  # only left by fold_workdir under --reuse with the same settings
+        kept = json.loads(chosen.read_text())
+        return kept["effects"], kept["diagnosis"]
+    t = time.perf_counter()
+    diag = smcbayes.diagnose_gap(base.run_dir, figures=False, population=args.population,
+                                 generations=args.generations, restarts=args.restarts, seed=args.seed,
+                                 effects=args.candidates)
+    times["diagnose_s"] = time.perf_counter() - t
+    effects = selected_effects(diag.summary)
+    diagnosis = {"statement": diag.statement, "holdout": diag.summary.get("holdout"),
+                 "ranking": [{k2: r.get(k2) for k2 in ("effect", "score", "holdout_shrink_pct", "significant")}
+                             for r in diag.summary.get("ranking") or []]}
+    chosen.write_text(json.dumps({"effects": effects, "diagnosis": diagnosis}, indent=2) + "\n")
+    return effects, diagnosis
+
+
 def run_fold(k: int, args: argparse.Namespace) -> dict[str, Any]:
     """The whole workflow on fold ``k``; returns its record."""
     import smcbayes
     from smcbayes.config import load_project
 
     name, held_out = FOLDS[k]
-    work = Path(args.workdir) / f"fold-{k}"
-    if work.exists():
-        shutil.rmtree(work)
+    work = fold_workdir(k, args)
     path = fold_project(held_out, Path(args.data_dir), work / "project.toml")
     project = load_project(path)
     times: dict[str, float] = {}
     t0 = time.perf_counter()
     cal_settings = {"budget": args.budget, "init": args.init, "seed": args.seed}
-    base = smcbayes.calibrate(project, work / "base", figures=False, **cal_settings)
+    base = smcbayes.calibrate(project, work / "base", figures=False,
+                              resume=(work / "base" / "config.json").exists(), **cal_settings)
     times["calibrate_base_s"] = time.perf_counter() - t0
-    diagnosis: dict[str, Any] | None = None
-    if args.effects is None:
-        t = time.perf_counter()
-        diag = smcbayes.diagnose_gap(base.run_dir, figures=False, population=args.population,
-                                     generations=args.generations, restarts=args.restarts, seed=args.seed,
-                                     effects=args.candidates)
-        times["diagnose_s"] = time.perf_counter() - t
-        effects = selected_effects(diag.summary)
-        diagnosis = {"statement": diag.statement, "holdout": diag.summary.get("holdout"),
-                     "ranking": [{k2: r.get(k2) for k2 in ("effect", "score", "holdout_shrink_pct", "significant")}
-                                 for r in diag.summary.get("ranking") or []]}
-    else:
-        effects = list(args.effects)
+    effects, diagnosis = choose_effects(base, work, args, times)
     final_run = base
     # the solid density and the bulk viscosity are fixed by the project file when on
     fixed: dict[str, float] = {}
     if effects:
         t = time.perf_counter()
-        final_run = smcbayes.calibrate(project, work / "final", effects=effects,
-                                       figures=False, **cal_settings)
+        final_run = smcbayes.calibrate(project, work / "final", effects=effects, figures=False,
+                                       resume=(work / "final" / "config.json").exists(), **cal_settings)
         times["calibrate_effects_s"] = time.perf_counter() - t
     t = time.perf_counter()
     post = smcbayes.sample_posterior(final_run.run_dir, walkers=args.walkers, steps=args.steps,
@@ -289,6 +321,10 @@ def parse() -> argparse.Namespace:
     ap.add_argument("--candidates", type=lambda s: s.split(","), default=None,
                     help="candidate effects of the diagnosis (default: all)")
     ap.add_argument("--workdir", default=str(RESULTS / "real_crossval" / "work"))
+    ap.add_argument("--reuse", action="store_true",
+                    help="keep each fold's calibrations and diagnosis in --workdir when made with the same "
+                         "settings, finish what is missing and rerun the posterior (whose stage cache "
+                         "reuses its forward runs)")
     ap.add_argument("--data-dir", default=str(DATA))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--budget", type=int, default=d(CalibrationSpec, "budget"))

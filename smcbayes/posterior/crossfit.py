@@ -3,9 +3,11 @@
 Residuals at the calibrated point understate the error on a configuration the fit has not
 seen: the calibration has bent its parameters towards every training curve, and with a
 handful of curves and several weakly identified parameters it bends far.  Prediction
-intervals built from leave-one-out residuals instead keep their coverage on new cases (the
-jackknife+: Barber, Candes, Ramdas & Tibshirani 2021, "Predictive inference with the
-jackknife+", Ann. Statist. 49:486-507).  Refitting the calibration once per configuration
+intervals built from leave-one-out residuals are the jackknife (Barber, Candes, Ramdas &
+Tibshirani 2021, "Predictive inference with the jackknife+", Ann. Statist. 49:486-507):
+they keep close to their coverage on new cases where the fit is stable, though without the
+jackknife+'s guarantee, since the band is centred on the full fit's prediction, not on
+each refit's.  Refitting the calibration once per configuration
 would cost a calibration each; here the refit without configuration ``k`` is one
 Levenberg-Marquardt step from the calibrated point on the other configurations' force
 residuals, with the force sensitivities the stage computes for N_eff anyway (the
@@ -133,9 +135,10 @@ def leave_one_out_residuals(model: Simulator, space: ParameterSpace, fit: LocalF
     """Residual curves of each training configuration at its leave-one-out refit point.
 
     One batch: every candidate row of :func:`candidate_rows` on every configuration of
-    ``fit`` (``(1 + 3 K) K`` forward runs).  The residuals are read at the measured times,
-    as :func:`~smcbayes.posterior.discrepancy.training_residuals` does at the calibrated
-    point; a configuration whose refit run failed is left out.
+    ``fit`` (``(1 + S K) K`` forward runs, ``S = 3`` nonzero :data:`SCALES`).  The residuals
+    are read at the measured times, as
+    :func:`~smcbayes.posterior.discrepancy.training_residuals` does at the calibrated point;
+    a configuration whose refit run failed is left out.
 
     Returns the curves and the forward runs made.
     """
@@ -150,9 +153,9 @@ def leave_one_out_residuals(model: Simulator, space: ParameterSpace, fit: LocalF
     picks = pick_rows(mse, ids)
     curves = []
     for cid, row in zip(ids, picks, strict=True):
-        m = measurements[cid]
-        if m.force is None or not bool(np.asarray(results[cid].ok)[row]):
+        force = measurements[cid].force
+        if force is None or not bool(np.asarray(results[cid].ok)[row]):
             continue
-        curves.append(residual_curve(cid, results[cid], row, m.force.time_s, m.force.values))
+        curves.append(residual_curve(cid, results[cid], row, force.time_s, force.values))
     logger.info("leave-one-out refits: step scales %s", [scale_of(p) for p in picks])
     return curves, rows.shape[0] * len(ids)

@@ -17,7 +17,8 @@ force the model raises almost vertically while the press raises it over the last
 across charges and speeds.
 
 Fit (:func:`fit_discrepancy`): the residuals ``measured - simulated`` (kN) of the training
-configurations at the calibrated point, at the measured times, are pooled into bins of
+configurations (at the calibrated point, or each at a refit that left it out:
+:mod:`smcbayes.posterior.crossfit`), at the measured times, are pooled into bins of
 ``d`` (quantile edges, split at ``d = 0``, merged until each bin holds enough points of
 enough configurations); each bin keeps the weighted quantiles of its residuals, every
 configuration weighing the same.  Prediction (:meth:`PhaseDiscrepancy.sample`): a draw
@@ -56,7 +57,8 @@ MIN_CONFIGS = 2
 
 @dataclass(frozen=True)
 class ResidualCurve:
-    """Residuals of one training configuration at the calibrated point.
+    """Residuals of one training configuration at one parameter point (the calibrated point or
+    a refit that left the configuration out).
 
     Attributes:
         config_id: configuration id.

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import logging
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -12,7 +13,7 @@ import numpy as np
 from smcbayes.posterior.context import RunContext, true_log_loss
 from smcbayes.posterior.correct import K_HAT_WARN
 from smcbayes.posterior.crossfit import LocalFit, leave_one_out_residuals
-from smcbayes.posterior.discrepancy import fit_discrepancy, training_residuals
+from smcbayes.posterior.discrepancy import PhaseDiscrepancy, fit_discrepancy, training_residuals
 from smcbayes.posterior.likelihood import EmulatedPosterior
 from smcbayes.posterior.plots import bands_plot, corner_plot, correlation_plot
 from smcbayes.posterior.predictive import Band, predictive_bands
@@ -26,6 +27,8 @@ from smcbayes.posterior.summary import (
     to_inference_data,
     warnings_for,
 )
+
+logger = logging.getLogger(__name__)
 
 
 def band_width90(band: Band) -> float:
@@ -102,20 +105,24 @@ def _corr_block(corr: tuple) -> dict[str, Any]:
     return {"labels": labels, "matrix": matrix.tolist(), "strongest": [{"a": a, "b": b, "r": r} for a, b, r in pairs]}
 
 
-def _error_model(ctx: RunContext, fit: LocalFit | None) -> tuple[Any, str, int]:
+def _error_model(ctx: RunContext, fit: LocalFit | None) -> tuple[PhaseDiscrepancy | None, str, int]:
     """The bands' discrepancy model, the residuals it was learnt from and the runs it took.
 
     Leave-one-configuration-out residuals (:mod:`smcbayes.posterior.crossfit`) where the
-    local fit is usable and there are at least two training configurations; otherwise the
-    residuals at the calibrated point (one run per training configuration).
+    local fit is usable and there are at least two training configurations; otherwise, or
+    where fewer than two refits ran, the residuals at the calibrated point (one run per
+    training configuration, counted beside any refits already made).
     """
     p = ctx.problem
+    runs = 0
     if fit is not None and fit.usable and len(fit.config_ids) >= 2:
         curves, runs = leave_one_out_residuals(ctx.runner, ctx.space, fit, p.dataset.measurements, p.project.loss)
         if len(curves) >= 2:
             return fit_discrepancy(curves), "leave-one-configuration-out refits", runs
+        logger.warning("only %d leave-one-out refit(s) ran; the bands' error model uses the residuals "
+                       "at the calibrated point, which understate the error on an unseen trial", len(curves))
     curves = training_residuals(ctx.runner, ctx.best_theta, p.train_ids, p.measured_force(p.train_ids))
-    return fit_discrepancy(curves), "calibrated point", len(p.train_ids)
+    return fit_discrepancy(curves), "calibrated point", runs + len(p.train_ids)
 
 
 def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any], settings: Any,

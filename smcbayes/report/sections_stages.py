@@ -353,8 +353,9 @@ def bands_section(run: RunFiles) -> Section | None:
             tuple((_travel_range(b), fmt(b.get("points")), fmt(b.get("configurations")),
                    fmt(b.get("q05_kN"), 3), fmt(b.get("q50_kN"), 3), fmt(b.get("q95_kN"), 3))
                   for b in disc["bins"]),
-            caption="error model: measured minus simulated force of the training configurations at the "
-                    "calibrated point, by remaining ram travel to the simulated end of closing",
+            caption="error model: measured minus simulated force of the training configurations (see "
+                    "above for the parameter points), by remaining ram travel to the simulated end of "
+                    "closing",
             numeric=(1, 2, 3, 4, 5)))
     if (fig := run.figure("posterior", "figures", "bands")) is not None:
         sec.add(

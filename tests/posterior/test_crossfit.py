@@ -24,12 +24,14 @@ from smcbayes.posterior.crossfit import (
 )
 
 
-def linear_problem(rng: np.random.Generator, k: int = 6, n: int = 50, d: int = 4,
+def linear_problem(rng: np.random.Generator, k: int = 6, n: int | list[int] = 50, d: int = 4,
                    offset_kN: float = 0.0, noise_kN: float = 1.0) -> tuple[list, list, np.ndarray]:
-    """Curves ``y_k = J_k u* + c_k + e`` with a per-curve offset ``c_k ~ N(0, offset)``."""
-    jac = [rng.normal(0.0, 20.0, (n, d)) + np.linspace(0, 40, n)[:, None] for _ in range(k)]
+    """Curves ``y_k = J_k u* + c_k + e`` with a per-curve offset ``c_k ~ N(0, offset)``;
+    ``n`` points per curve, or one count per curve."""
+    ns = [n] * k if isinstance(n, int) else list(n)
+    jac = [rng.normal(0.0, 20.0, (m, d)) + np.linspace(0, 40, m)[:, None] for m in ns]
     truth = rng.uniform(0.3, 0.7, d)
-    ys = [j @ truth + offset_kN * rng.standard_normal() + noise_kN * rng.standard_normal(n) for j in jac]
+    ys = [j @ truth + offset_kN * rng.standard_normal() + noise_kN * rng.standard_normal(j.shape[0]) for j in jac]
     return jac, ys, truth
 
 
@@ -47,7 +49,8 @@ def local_fit(jac: list, ys: list, u0: np.ndarray) -> LocalFit:
 
 
 def test_the_step_is_the_least_squares_refit_without_the_configuration() -> None:
-    jac, ys, _ = linear_problem(np.random.default_rng(0), offset_kN=3.0)
+    """Curves of unequal length: each weighs 1 / N_k, as in the loss."""
+    jac, ys, _ = linear_problem(np.random.default_rng(0), n=[30, 50, 80, 120, 40, 60], offset_kN=3.0)
     u0 = least_squares(jac, ys)
     steps = leave_one_out_steps(local_fit(jac, ys, u0))
     for k in range(len(jac)):
@@ -56,15 +59,22 @@ def test_the_step_is_the_least_squares_refit_without_the_configuration() -> None
         np.testing.assert_allclose(u0 + steps[k], exact, atol=0.02 * np.max(np.abs(exact - u0)) + 1e-9)
 
 
-def test_a_step_along_an_unidentified_direction_is_capped() -> None:
+def test_a_step_along_a_weakly_identified_direction_is_capped() -> None:
+    """The last parameter acts strongly on the first curve only: without it, the exact refit
+    moves that parameter far (beyond the cap); the step keeps its direction, shortened."""
     rng = np.random.default_rng(1)
-    jac, ys, _ = linear_problem(rng, k=3, offset_kN=5.0)
-    for j in jac:  # the last parameter only acts on the first curve
-        j[:, -1] = 0.0
+    jac, ys, _ = linear_problem(rng, k=4, offset_kN=5.0)
+    for j in jac:
+        j[:, -1] = 0.5
     jac[0][:, -1] = 30.0
     u0 = least_squares(jac, ys)
+    exact = least_squares(jac, ys, skip=0) - u0
+    assert np.max(np.abs(exact)) > 2 * MAX_STEP  # the uncapped refit leaves the linear picture
     steps = leave_one_out_steps(local_fit(jac, ys, u0))
     assert np.all(np.max(np.abs(steps), axis=1) <= MAX_STEP + 1e-12)
+    assert np.max(np.abs(steps[0])) == pytest.approx(MAX_STEP)
+    cosine = steps[0] @ exact / (np.linalg.norm(steps[0]) * np.linalg.norm(exact))
+    assert cosine > 0.99
 
 
 def test_candidates_and_picks() -> None:
