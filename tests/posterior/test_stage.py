@@ -74,6 +74,8 @@ def test_outputs_written(run_dir: Path) -> None:
     assert (out / "summary_emulator.csv").is_file()
     # five training configurations: the bands' error model comes from leave-one-out refits
     assert info["discrepancy"]["residuals"] == "leave-one-configuration-out refits"
+    # the bands' runs: 30 draws on the 5 configurations, and the refits' batch, (1 + 3 K) K
+    assert info["forward_evaluations"]["bands"] == 30 * 5 + (1 + 3 * 5) * 5
 
 
 def test_correction_is_reported(run_dir: Path) -> None:
