@@ -108,6 +108,7 @@ def pick_rows(mse: Mapping[str, Array], config_ids: Sequence[str]) -> list[int]:
     Args:
         mse: per configuration, the force MSE (kN^2) of every candidate row ``(1 + K * S,)``
             (NaN or inf where a run failed).
+        config_ids: the ``K`` configurations in the order of :func:`candidate_rows`'s steps.
     """
     ids = list(config_ids)
     s = sum(1 for x in SCALES if x > 0)

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from smcbayes.forward.result import SimulationResult
 from smcbayes.simulation.objective import Simulator
 
 Array = NDArray[np.float64]
@@ -220,9 +221,11 @@ def fit_discrepancy(curves: Sequence[ResidualCurve]) -> PhaseDiscrepancy | None:
     return PhaseDiscrepancy(edges, q, points, configs, centres)
 
 
-def residual_curve(config_id: str, res: Any, row: int, time_s: Array, force_kN: Array) -> ResidualCurve:
+def residual_curve(config_id: str, res: SimulationResult, row: int, time_s: Array,
+                   force_kN: Array) -> ResidualCurve:
     """Residuals of row ``row`` of one configuration's simulation result at the measured
-    ``time_s`` ``(N,)`` (the simulated force held at its last value beyond its record)."""
+    ``time_s`` ``(N,)`` with measured ``force_kN`` ``(N,)`` (the simulated force held at its
+    last value beyond its record)."""
     t, f, disp = res.time_s[row], res.force_kN[row], res.displacement_mm[row]
     ts = float(res.switch_time_s[row])
     tm = np.asarray(time_s, float)

@@ -115,6 +115,9 @@ def _error_model(ctx: RunContext, fit: LocalFit | None) -> tuple[PhaseDiscrepanc
     """
     p = ctx.problem
     runs = 0
+    if fit is not None and not fit.usable:
+        logger.info("a perturbed run at the best point failed: the bands' error model uses the "
+                    "residuals at the calibrated point")
     if fit is not None and fit.usable and len(fit.config_ids) >= 2:
         curves, runs = leave_one_out_residuals(ctx.runner, ctx.space, fit, p.dataset.measurements, p.project.loss)
         if len(curves) >= 2:
