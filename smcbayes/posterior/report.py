@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import csv
 import logging
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from smcbayes.config.project import ConfigurationSpec, ProjectConfig
 from smcbayes.posterior.context import RunContext, true_log_loss
 from smcbayes.posterior.correct import K_HAT_WARN
 from smcbayes.posterior.crossfit import LocalFit, leave_one_out_residuals
@@ -45,6 +47,49 @@ def band_record(band: Band, role: str) -> dict[str, Any]:
             "width90_kN": band_width90(band), "rmse_median_kN": band.rmse_median_kN,
             "crps_kN": band.crps_kN, "interval_score90_kN": band.interval_score90_kN,
             "error_model": band.error_model, "draws": band.draws, "role": role}
+
+
+SPEED_TOLERANCE = 0.01
+"""Relative margin by which a set speed may lie outside the training speeds' range and
+still count as inside it."""
+
+
+def _charge_key(cfg: ConfigurationSpec) -> tuple[Any, ...]:
+    """What makes two charges alike for the bands: shape, size and the mould they fill."""
+    c, m = cfg.charge, cfg.mould
+    pieces = tuple(tuple(sorted(piece.model_dump().items())) for piece in c.pieces or [])
+    return (c.shape, c.coverage_pct, c.length_mm, c.width_mm, pieces, m.length_mm, m.width_mm)
+
+
+def extrapolation_notes(project: ProjectConfig, train_ids: Sequence[str],
+                        band_ids: Sequence[str]) -> dict[str, list[str]]:
+    """Why each band configuration lies outside what the training configurations span.
+
+    The bands' error model is learnt from the training configurations' residuals, so it
+    stands for trials like them.  Two plain checks: a set closing speed outside the range of
+    the training speeds (by more than :data:`SPEED_TOLERANCE`), and a charge (shape, size,
+    mould) that no training configuration has.  A trial that extrapolates can err more
+    than any training trial, and its band then under-covers.
+
+    Returns:
+        per band configuration, the reasons in words (empty where it interpolates).
+    """
+    train = [project.get(c) for c in train_ids]
+    if not train:
+        return {cid: [] for cid in band_ids}
+    speeds = [c.press.speed_mm_s for c in train]
+    lo, hi = min(speeds), max(speeds)
+    charges = {_charge_key(c) for c in train}
+    notes: dict[str, list[str]] = {}
+    for cid in band_ids:
+        cfg, why = project.get(cid), []
+        v = cfg.press.speed_mm_s
+        if v < lo * (1 - SPEED_TOLERANCE) or v > hi * (1 + SPEED_TOLERANCE):
+            why.append(f"set speed {v:g} mm/s outside the fitted {lo:g}-{hi:g} mm/s")
+        if _charge_key(cfg) not in charges and cid not in train_ids:
+            why.append("a charge none of the fitted trials has")
+        notes[cid] = why
+    return notes
 
 
 def write_table(path: Path, rows: list) -> None:
@@ -193,6 +238,9 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
                            lambda u: true_log_loss(ctx, space.from_unit(u)), emul.n_eff)
     bands, band_runs, val_ids, discrepancy = _bands_and_figures(ctx, t, budget, settings, rng, out_dir, fit)
     corr_info = correction_info(corrected, settings)
+    notes = extrapolation_notes(ctx.problem.project, ctx.problem.train_ids, list(bands))
+    warns += [f"{cid}: {'; '.join(why)}: its band extrapolates from the training trials and may "
+              "under-cover" for cid, why in notes.items() if why]
     return {
         "method": attrs["method"],
         "parameters": [asdict(s) for s in t["table"]], "warnings": warns,
@@ -205,7 +253,8 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
         "sampler": [{"steps": c.steps, "burn": c.burn, "thin": c.thin, "converged": c.converged,
                      "tau_max": float(np.max(c.tau)), "acceptance_median": float(np.median(c.acceptance))}
                     for c in chains],
-        "bands": {cid: band_record(b, "validation" if val_ids else "train") for cid, b in bands.items()},
+        "bands": {cid: {**band_record(b, "validation" if val_ids else "train"), "extrapolates": notes[cid]}
+                  for cid, b in bands.items()},
         "discrepancy": discrepancy,
         "truth": ctx.problem.truth,
         "shape": shape_notes(space, t["unit"]),
