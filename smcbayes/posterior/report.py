@@ -86,7 +86,7 @@ def extrapolation_notes(project: ProjectConfig, train_ids: Sequence[str],
         v = cfg.press.speed_mm_s
         if v < lo * (1 - SPEED_TOLERANCE) or v > hi * (1 + SPEED_TOLERANCE):
             why.append(f"set speed {v:g} mm/s outside the fitted {lo:g}-{hi:g} mm/s")
-        if _charge_key(cfg) not in charges and cid not in train_ids:
+        if _charge_key(cfg) not in charges:
             why.append("a charge none of the fitted trials has")
         notes[cid] = why
     return notes
