@@ -19,7 +19,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "posterior", help="posterior of the parameters from a calibration run (GP emulator + emcee)",
         description="Start from the calibration's GP as an emulator of the likelihood, train it "
                     "by active learning with the run's simulator (fresh posterior draws as the "
-                    "out-of-sample check, points of largest expected posterior variance; stops "
+                    "out-of-sample check, points where the GP is unsure and a tempered posterior "
+                    "could be large; stops "
                     "once validated), sample it with emcee (a mixture over GP sample functions, "
                     "so the emulator's uncertainty widens the posterior), optionally correct it "
                     "by adaptive importance sampling (--correct-draws; Pareto k-hat reported), "

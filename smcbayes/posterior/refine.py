@@ -6,10 +6,10 @@ at three kinds of points (:func:`round_design`):
 * random posterior draws of the current emulator: unbiased test points; the emulator's
   error there, *before* they join the training data, is the round's out-of-sample check
   (:func:`check_values`) and drives the stopping rule of the stage;
-* the points of largest expected posterior variance (:func:`acquisition_points`), among
-  the posterior draws and uniform draws over the whole prior box, greedily and at least
-  ``min_distance`` apart in the unit cube: where the GP is unsure *and* the posterior could
-  hold mass, including regions the current emulated posterior has not reached;
+* the points where the GP is most unsure and a tempered posterior could be large
+  (:func:`log_exp_acquisition`, :func:`acquisition_points`), among the posterior draws and
+  uniform draws over the whole prior box, greedily and at least ``min_distance`` apart in
+  the unit cube, including regions the current emulated posterior has not reached;
 * a Latin hypercube over the box of the bulk of the draws (:func:`local_box`), which
   fills the posterior's region evenly, tails included, where draws are sparse, and random
   draws of the tempered emulated posterior (likelihood to the power 1/4), which reach along
@@ -39,28 +39,37 @@ from smcbayes.surrogate.gp import Surrogate
 Array = NDArray[np.float64]
 
 
-def log_expected_variance(x_unit: Array, surrogate: Surrogate, n_eff: float) -> Array:
-    """log of the variance of the emulated (unnormalised) posterior density at ``x_unit`` ``(N, d)``.
+def acquisition_zeta(d: int) -> float:
+    """Tempering exponent zeta of :func:`log_exp_acquisition` in ``d`` dimensions, d^-1.1.
 
-    With the log-likelihood l(x) = -(N_eff/2) log L(x) emulated by a GP of mean m(x) and
-    standard deviation s(x), exp(l) is log-normal and its variance is
-    exp(2 m + s^2) (exp(s^2) - 1): the "exponentiated variance" acquisition of Kandasamy,
-    Schneider & Poczos (2017, "Query efficient posterior estimation in scientific
-    experiments via Bayesian active learning", Artif. Intell. 243) and the prospective
-    uncertainty sampling of Acerbi (2018, "Variational Bayesian Monte Carlo", NeurIPS),
-    large where the GP is unsure and the posterior could be large.  Returns ``(N,)``.
+    El Gammal, Schoeneberg, Torrado & Fidler (2023, "Fast and robust Bayesian inference
+    using Gaussian processes with GPry", JCAP 10, 021) choose zeta so that it falls with the
+    dimension: the posterior's bulk lies about d/2 nats below its peak, and the acquisition
+    must still rate it above the far, uncertain landscape.
+    """
+    return float(max(int(d), 1)) ** -1.1
+
+
+def log_exp_acquisition(x_unit: Array, surrogate: Surrogate, n_eff: float) -> Array:
+    """log of the acquisition exp(2 zeta mu(x)) sigma(x) at ``x_unit`` ``(N, d)``, up to a constant.
+
+    mu and sigma are the GP's mean and standard deviation of the log-likelihood
+    l(x) = -(N_eff/2) log L(x) (nats): the GP's uncertainty where a tempered posterior,
+    exp(2 zeta l), could be large (El Gammal et al. 2023, the GPry acquisition; zeta from
+    :func:`acquisition_zeta`).  Unlike the variance of the posterior density,
+    exp(2 mu + sigma^2)(exp(sigma^2) - 1) (Kandasamy et al. 2017; Acerbi 2018), which grows
+    like exp(2 sigma^2) and so picks the far, uncertain and improbable corners of the box
+    once N_eff/2 is large, it grows only linearly with sigma.  Returns ``(N,)``.
     """
     mean, std = surrogate.predict(x_unit)
     a = 0.5 * n_eff
-    m, s2 = -a * mean, (a * std) ** 2
-    # log(expm1(v)) without overflow for large v and without -inf for tiny v
-    log_em1 = np.where(s2 > 30.0, s2, np.log(np.expm1(np.maximum(s2, 1e-300))))
-    return 2.0 * m + s2 + log_em1
+    zeta = acquisition_zeta(np.asarray(x_unit).shape[1])
+    return 2.0 * zeta * (-a * mean) + np.log(np.maximum(a * std, 1e-300))
 
 
 def acquisition_points(draws_unit: Array, surrogate: Surrogate, n_eff: float, count: int,
                        rng: np.random.Generator, min_distance: float = 0.03, pool: int = 2000) -> Array:
-    """``count`` points of largest :func:`log_expected_variance`, spread out.
+    """``count`` points of largest :func:`log_exp_acquisition`, spread out.
 
     Candidates: up to ``pool`` posterior draws and ``pool // 2`` uniform draws over the prior
     box, so that a region the emulated posterior misses but the GP cannot rule out is found.
@@ -73,7 +82,7 @@ def acquisition_points(draws_unit: Array, surrogate: Surrogate, n_eff: float, co
         return np.empty((0, d))
     idx = rng.choice(draws_unit.shape[0], size=min(pool, draws_unit.shape[0]), replace=False)
     cand = np.vstack([draws_unit[idx], rng.uniform(size=(pool // 2, d))])
-    score = log_expected_variance(cand, surrogate, n_eff)
+    score = log_exp_acquisition(cand, surrogate, n_eff)
     chosen: list[Array] = []
     for i in np.argsort(-score):
         x = cand[i]

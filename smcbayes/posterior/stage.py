@@ -174,13 +174,18 @@ TEMPER = 0.25
 
 def _round_draws(ctx: RunContext, surrogate: Any, n_eff: float, quick: PosteriorSettings,
                  rng: np.random.Generator) -> tuple[Array, Array]:
-    """Pooled draws ``(N, d)`` of the emulated posterior of the GP mean and of its tempered
-    version (likelihood^TEMPER), unit cube."""
-    out = []
-    for scale in (1.0, TEMPER):
-        _, chains = sample(ctx, surrogate, scale * n_eff, quick, rng)
-        out.append(np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains]))
-    return out[0], out[1]
+    """Pooled draws ``(N, d)`` of the emulated posterior of the GP mean, and draws of the
+    tempered (likelihood^TEMPER) emulated posterior of one GP sample function, unit cube.
+
+    The sample function (a Thompson draw) is as high as the GP allows where it is unsure,
+    so its tempered posterior reaches regions that the mean rates a few nats too low and
+    that the mean's own tempered posterior would not visit.
+    """
+    _, chains = sample(ctx, surrogate, n_eff, quick, rng)
+    mean_draws = np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
+    explore = quick.model_copy(update={"functions": 1, "seed": int(rng.integers(2**31 - 1))})
+    _, chains = sample(ctx, surrogate, TEMPER * n_eff, explore, rng)
+    return mean_draws, np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
 
 
 def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,

@@ -10,7 +10,8 @@ from smcbayes.posterior.refine import (
     check_emulator,
     check_values,
     local_box,
-    log_expected_variance,
+    acquisition_zeta,
+    log_exp_acquisition,
     quantile_shift,
     round_design,
 )
@@ -55,15 +56,26 @@ class Bowl:
         return np.sum((x - self.centre) ** 2, axis=1), self.sd * near + 1e-3
 
 
-def test_expected_variance_is_the_lognormal_variance_in_logs() -> None:
-    x = np.array([[0.3, 0.3], [0.5, 0.5]])
+def test_log_exp_acquisition_is_tempered_mean_plus_log_sd_in_nats() -> None:
+    x = np.array([[0.3, 0.3], [0.9, 0.9]])
     surrogate = DistanceStd()
-    mean, std = surrogate.predict(x[:1])
-    a = 0.5 * 4.0
-    want = np.log(np.exp(2 * (-a * mean) + (a * std) ** 2) * np.expm1((a * std) ** 2))
-    np.testing.assert_allclose(log_expected_variance(x[:1], surrogate, 4.0), want)
-    # no uncertainty, no variance (log -> very negative, finite)
-    assert log_expected_variance(x[1:], surrogate, 4.0)[0] < -600
+    mean, std = surrogate.predict(x)
+    a, zeta = 0.5 * 4.0, 2.0 ** -1.1
+    assert acquisition_zeta(2) == pytest.approx(zeta)
+    np.testing.assert_allclose(log_exp_acquisition(x, surrogate, 4.0), 2 * zeta * (-a * mean) + np.log(a * std))
+
+
+def test_log_exp_acquisition_prefers_a_probable_unsure_point_to_a_far_very_unsure_one() -> None:
+    # a point 10 nats below the best with sd 6 nats against one 110 nats below with sd 30:
+    # the posterior's variance, exp(2 m + s^2)(exp(s^2) - 1), would rank the far one first
+    class Two:
+        def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return np.array([10.0, 110.0]) / 20.0, np.array([6.0, 30.0]) / 20.0
+
+    score = log_exp_acquisition(np.zeros((2, 7)), Two(), 40.0)
+    assert score[0] > score[1]
+    variance = [2 * m + s**2 + np.log(np.expm1(s**2)) for m, s in ((-10.0, 6.0), (-110.0, 30.0))]
+    assert variance[1] > variance[0]
 
 
 def test_acquisition_prefers_unsure_and_probable_points_spread_out() -> None:
@@ -99,7 +111,7 @@ def test_round_design_orders_random_draws_lhs_then_uncertain_points() -> None:
     # a sixth: the Latin hypercube over the local box (one point of 9)
     lo, hi = local_box(x)
     assert np.all((pts[3] >= lo) & (pts[3] <= hi))
-    # the rest: by expected variance; with a flat mean, the most uncertain candidates
+    # the rest: by the acquisition; with a flat mean, the most uncertain candidates
     # (farthest from the stand-in's centre: draws or uniform points over the box)
     for p in pts[4:]:
         assert np.linalg.norm(p - 0.5) > 0.4
