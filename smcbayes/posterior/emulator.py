@@ -40,13 +40,15 @@ class NumpyGP:
 
     Attributes:
         kind: ``rbf`` or ``matern52``.
-        x: training inputs, ``(N, d)`` (unit cube).
+        x: training inputs of the kernel, ``(N, d)`` (unit cube, rotated by ``rotation``).
         lengthscale: ``(d,)``.
         mean_const, noise: constant mean and noise variance (standardised units).
         y_mean, y_std: the outcome standardisation.
         alpha: (K + s^2 I)^-1 (y - c), ``(N,)``.
         chol: Cholesky factor of K + s^2 I, ``(N, N)``.
         y: standardised targets, ``(N,)``.
+        rotation: orthogonal ``(d, d)`` matrix; the kernel acts on ``u @ rotation`` (``x`` is
+            stored rotated), or ``None``.
     """
 
     kind: str
@@ -59,6 +61,19 @@ class NumpyGP:
     alpha: Array
     chol: Array
     y: Array
+    rotation: Array | None = None
+
+    @classmethod
+    def from_surrogate(cls, surrogate) -> NumpyGP:
+        """Copy a :class:`~smcbayes.surrogate.gp.Surrogate`, its input rotation included."""
+        gp = cls.from_botorch(surrogate.model)
+        gp.rotation = surrogate.rotation
+        return gp
+
+    def features(self, u: Array) -> Array:
+        """The kernel's inputs ``(W, d)`` at unit-cube points ``u`` ``(W, d)``."""
+        u = np.atleast_2d(u)
+        return u if self.rotation is None else u @ self.rotation
 
     @classmethod
     def from_botorch(cls, model) -> NumpyGP:
@@ -85,12 +100,12 @@ class NumpyGP:
 
     def mean(self, u: Array) -> Array:
         """Posterior mean of log(loss) at ``u`` ``(W, d)``, ``(W,)``."""
-        k = _kernel(self.kind, np.atleast_2d(u), self.x, self.lengthscale)
+        k = _kernel(self.kind, self.features(u), self.x, self.lengthscale)
         return (self.mean_const + k @ self.alpha) * self.y_std + self.y_mean
 
     def std(self, u: Array) -> Array:
         """Posterior standard deviation of the latent log(loss), ``(W,)``."""
-        k = _kernel(self.kind, np.atleast_2d(u), self.x, self.lengthscale)
+        k = _kernel(self.kind, self.features(u), self.x, self.lengthscale)
         v = np.linalg.solve(self.chol, k.T)
         return np.sqrt(np.maximum(1.0 - (v * v).sum(0), 0.0)) * self.y_std
 
@@ -126,7 +141,8 @@ class PathSamples:
         return self.omega.shape[0]
 
     def prior(self, u: Array, which: int | None = None) -> Array:
-        """Prior part (standardised, zero mean) at ``u`` ``(W, d)``: ``(S, W)`` or ``(W,)``."""
+        """Prior part (standardised, zero mean) at kernel inputs ``u`` ``(W, d)`` (rotated, see
+        :meth:`NumpyGP.features`): ``(S, W)`` or ``(W,)``."""
         F = self.omega.shape[1]
         idx = range(self.count) if which is None else [which]
         out = np.stack([np.cos(u @ self.omega[s].T + self.phase[s]) @ self.weight[s] for s in idx])
@@ -135,7 +151,7 @@ class PathSamples:
 
     def __call__(self, u: Array, which: int) -> Array:
         """Sample function ``which`` of log(loss) (original units) at ``u`` ``(W, d)``."""
-        u = np.atleast_2d(u)
+        u = self.gp.features(u)
         k = _kernel(self.gp.kind, u, self.gp.x, self.gp.lengthscale)
         f = self.gp.mean_const + self.prior(u, which) + k @ self.update[which]
         return f * self.gp.y_std + self.gp.y_mean

@@ -190,7 +190,7 @@ class EmulatedPosterior:
     def __post_init__(self) -> None:
         if not np.isfinite(self.n_eff) or self.n_eff <= 0:
             raise SurrogateError(f"effective number of points must be > 0, got {self.n_eff}")
-        self.gp = NumpyGP.from_botorch(self.surrogate.model)
+        self.gp = NumpyGP.from_surrogate(self.surrogate)
         self._paths = None
         if self.functions > 0:
             self._paths = self.gp.sample_functions(self.functions, np.random.default_rng(self.seed))

@@ -126,15 +126,34 @@ CAP_NATS = 30.0
 """Targets more than this many nats of log-likelihood above the best are capped."""
 
 
-def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int) -> Any:
-    """GP of log(loss) with targets capped at min + CAP_NATS / (N_eff / 2).
+def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int,
+              draws: Array | None = None) -> Any:
+    """GP of log(loss) with targets capped at min + CAP_NATS / (N_eff / 2), its inputs
+    rotated onto the principal axes of ``draws`` ``(M, d)`` (posterior draws, unit cube)
+    when given.
 
     Where the true log-likelihood is CAP_NATS below the best the posterior density is
     below e^-30 of its peak whatever the emulator says, so capping loses nothing and lets
     the GP spend its flexibility where the posterior lives instead of on the far landscape.
+    The rotation lets the ARD lengthscales follow a ridge of the posterior (two parameters
+    that trade off, as the slip law's tau_c and m): along the axes of the cube a ridge needs
+    short lengthscales in both, and the GP then cannot extrapolate along it; the
+    "rotoscaling" warping of PyVBMC (Acerbi 2018, 2020; Huggins et al. 2023, JOSS 8, 5428)
+    rotates its inputs in the same way.
     """
     cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
-    return fit_surrogate(x, np.minimum(y, cap), kernel, seed)
+    return fit_surrogate(x, np.minimum(y, cap), kernel, seed, rotation=principal_axes(draws))
+
+
+def principal_axes(draws: Array | None) -> Array | None:
+    """Eigenvectors ``(d, d)`` of the covariance of ``draws`` ``(M, d)``; ``None`` without
+    enough draws (fewer than 2 d) or with a degenerate covariance."""
+    if draws is None or draws.shape[0] < 2 * draws.shape[1]:
+        return None
+    cov = np.cov(np.asarray(draws, dtype=float).T)
+    if not np.all(np.isfinite(cov)) or np.trace(cov) <= 0:
+        return None
+    return np.linalg.eigh(cov)[1]
 
 
 def correct_posterior(ctx: RunContext, chains: list, n_eff: float, settings: PosteriorSettings,
@@ -229,7 +248,7 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
         _log_round(out_dir, rounds, theta, vals, n_rand, ctx.space.free_names, stats)
         ok = np.isfinite(vals)
         x, y = np.vstack([x, pts[ok]]), np.concatenate([y, vals[ok]])
-        surrogate = fit_local(x, y, n_eff, surrogate.kernel, int(rng.integers(2**31 - 1)))
+        surrogate = fit_local(x, y, n_eff, surrogate.kernel, int(rng.integers(2**31 - 1)), pooled)
         rounds += 1
         below = below + 1 if err < settings.refine_tolerance_nats else 0
         logger.info("active learning round %d: %d training points, out-of-sample error %.2f nats, "

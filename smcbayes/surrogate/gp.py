@@ -64,6 +64,8 @@ class Surrogate:
         kernel: ``rbf`` or ``matern52``.
         fitted: False if hyperparameter fitting failed and priors' modes were kept.
         noise: the fixed noise variance, or ``None`` if the noise was fitted.
+        rotation: orthogonal ``(d, d)`` matrix R: the GP's inputs are ``x_unit @ R`` (its
+            ARD lengthscales act along the columns of R), or ``None``: the unit cube's axes.
     """
 
     model: SingleTaskGP
@@ -72,16 +74,27 @@ class Surrogate:
     kernel: str
     fitted: bool = True
     noise: float | None = None
+    rotation: Array | None = None
+
+    def features(self, x_unit: Array) -> Array:
+        """The GP's inputs ``(M, d)`` at unit-cube points ``(M, d)``."""
+        return rotate(x_unit, self.rotation)
 
     def predict(self, x_unit: Array) -> tuple[Array, Array]:
         """Posterior mean and standard deviation of log(loss) at ``x_unit`` ``(M, d)``; ``(M,)`` each."""
-        x = torch.as_tensor(np.atleast_2d(x_unit), dtype=DTYPE)
+        x = torch.as_tensor(self.features(x_unit), dtype=DTYPE)
         self.model.eval()
         with torch.no_grad():
             post = self.model.posterior(x)
             mean = post.mean.squeeze(-1).numpy()
             std = post.variance.clamp_min(0).sqrt().squeeze(-1).numpy()
         return mean.astype(float), std.astype(float)
+
+
+def rotate(x_unit: Array, rotation: Array | None) -> Array:
+    """``x_unit @ rotation`` ``(M, d)`` (unchanged when ``rotation`` is ``None``)."""
+    x = np.atleast_2d(np.asarray(x_unit, dtype=float))
+    return x if rotation is None else x @ rotation
 
 
 def build_model(x_unit: Array, log_loss: Array, kernel: str, noise: float | None = None) -> SingleTaskGP:
@@ -101,7 +114,7 @@ def build_model(x_unit: Array, log_loss: Array, kernel: str, noise: float | None
 
 
 def fit_surrogate(x_unit: Array, log_loss: Array, kernel: str, seed: int,
-                  noise: float | None = None) -> Surrogate:
+                  noise: float | None = None, rotation: Array | None = None) -> Surrogate:
     """Fit the GP's hyperparameters by maximum marginal likelihood.
 
     Args:
@@ -111,11 +124,14 @@ def fit_surrogate(x_unit: Array, log_loss: Array, kernel: str, seed: int,
         seed: torch seed for the fitting restarts.
         noise: fixed noise variance of log(loss) (deterministic simulators: small, e.g.
             1e-6); ``None`` fits a noise term as the thesis did.
+        rotation: orthogonal ``(d, d)`` matrix; the kernel acts on ``x_unit @ rotation``
+            (see :class:`Surrogate`); ``None``: on ``x_unit``.
     """
     if x_unit.shape[0] < 2 or not np.all(np.isfinite(log_loss)):
         raise SurrogateError("the GP needs at least 2 finite training targets")
     torch.manual_seed(seed)
-    model = build_model(x_unit, log_loss, kernel, noise)
+    inputs = rotate(x_unit, rotation)
+    model = build_model(inputs, log_loss, kernel, noise)
     mll = ExactMarginalLogLikelihood(model.likelihood, model)
     fitted = True
     with warnings.catch_warnings():
@@ -124,10 +140,10 @@ def fit_surrogate(x_unit: Array, log_loss: Array, kernel: str, seed: int,
             fit_gpytorch_mll(mll)
         except ModelFittingError:
             fitted = False
-            model = build_model(x_unit, log_loss, kernel, noise)
+            model = build_model(inputs, log_loss, kernel, noise)
     model.eval()
     return Surrogate(model, np.asarray(x_unit, float), np.asarray(log_loss, float), kernel, fitted,
-                     noise)
+                     noise, None if rotation is None else np.asarray(rotation, float))
 
 
 def save_surrogate(path: Path, surrogate: Surrogate, meta: dict[str, Any]) -> None:
@@ -140,6 +156,7 @@ def save_surrogate(path: Path, surrogate: Surrogate, meta: dict[str, Any]) -> No
         "kernel": surrogate.kernel,
         "fitted": surrogate.fitted,
         "noise": surrogate.noise,
+        "rotation": None if surrogate.rotation is None else torch.as_tensor(surrogate.rotation, dtype=DTYPE),
         "target": "natural log of the loss (kN^2)",
         "meta": meta,
     }, tmp)
@@ -155,8 +172,10 @@ def load_surrogate(path: str | Path) -> tuple[Surrogate, dict[str, Any]]:
     x = state["train_x_unit"].numpy()
     y = state["train_log_loss"].numpy()
     noise = state.get("noise")
-    model = build_model(x, y, state["kernel"], noise)
+    rotation = state.get("rotation")
+    rotation = None if rotation is None else rotation.numpy()
+    model = build_model(rotate(x, rotation), y, state["kernel"], noise)
     model.load_state_dict(state["state_dict"])
     model.eval()
-    surrogate = Surrogate(model, x, y, state["kernel"], bool(state.get("fitted", True)), noise)
+    surrogate = Surrogate(model, x, y, state["kernel"], bool(state.get("fitted", True)), noise, rotation)
     return surrogate, state["meta"]

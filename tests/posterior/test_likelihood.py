@@ -21,7 +21,8 @@ from smcbayes.posterior.likelihood import (
 )
 from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
 from smcbayes.posterior.summary import ParameterSummary, warnings_for
-from smcbayes.surrogate.gp import fit_surrogate
+from smcbayes.posterior.stage import fit_local, principal_axes
+from smcbayes.surrogate.gp import fit_surrogate, load_surrogate, save_surrogate
 
 
 def ar1(phi: float, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -116,29 +117,65 @@ def surrogates() -> dict:
     rng = np.random.default_rng(0)
     x = rng.random((40, 3))
     y = np.log(1 + ((x - 0.4) ** 2).sum(1) * 50) + 1e-3 * rng.standard_normal(40)
-    return {k: fit_surrogate(x, y, k, 0) for k in ("rbf", "matern52")}
+    rotation = np.linalg.qr(rng.standard_normal((3, 3)))[0]
+    out = {k: fit_surrogate(x, y, k, 0) for k in ("rbf", "matern52")}
+    out.update({f"{k}-rotated": fit_surrogate(x, y, k, 0, rotation=rotation) for k in ("rbf", "matern52")})
+    return out
 
 
-@pytest.mark.parametrize("kernel", ["rbf", "matern52"])
+KINDS = ["rbf", "matern52", "rbf-rotated", "matern52-rotated"]
+
+
+@pytest.mark.parametrize("kernel", KINDS)
 def test_numpy_gp_equals_botorch(surrogates: dict, kernel: str) -> None:
     s = surrogates[kernel]
-    g = NumpyGP.from_botorch(s.model)
+    g = NumpyGP.from_surrogate(s)
     u = np.random.default_rng(3).random((50, 3))
     mean, std = s.predict(u)
     np.testing.assert_allclose(g.mean(u), mean, atol=1e-7)
     np.testing.assert_allclose(g.std(u), std, rtol=1e-5)
 
 
-@pytest.mark.parametrize("kernel", ["rbf", "matern52"])
+@pytest.mark.parametrize("kernel", KINDS)
 def test_sample_functions_have_posterior_moments(surrogates: dict, kernel: str) -> None:
     s = surrogates[kernel]
-    g = NumpyGP.from_botorch(s.model)
+    g = NumpyGP.from_surrogate(s)
     u = np.array([[0.9, 0.9, 0.1], [0.4, 0.4, 0.4]])
     paths = g.sample_functions(300, np.random.default_rng(4), features=1024)
     values = np.stack([paths(u, i) for i in range(paths.count)])
     mean, std = s.predict(u)
     assert np.all(np.abs(values.mean(0) - mean) < 4 * std / np.sqrt(300) + 1e-6)
     np.testing.assert_allclose(values.std(0), std, rtol=0.2)
+
+
+def test_rotated_surrogate_survives_save_and_load(surrogates: dict, tmp_path: Path) -> None:
+    s = surrogates["matern52-rotated"]
+    save_surrogate(tmp_path / "gp.pt", s, {})
+    back, _ = load_surrogate(tmp_path / "gp.pt")
+    np.testing.assert_array_equal(back.rotation, s.rotation)
+    u = np.random.default_rng(5).random((20, 3))
+    np.testing.assert_allclose(back.predict(u)[0], s.predict(u)[0], atol=1e-10)
+
+
+def test_inputs_rotated_onto_a_ridge_extrapolate_along_it() -> None:
+    # log-loss with a narrow valley along x0 = x1, trained on its lower half only: along the
+    # cube's axes the valley needs short lengthscales in both and the GP cannot follow it
+    # into the upper half; on the draws' principal axes one lengthscale runs along it
+    rng = np.random.default_rng(6)
+
+    def f(u: np.ndarray) -> np.ndarray:
+        return ((u[:, 0] - u[:, 1]) / 0.05) ** 2 + 0.5 * (u[:, 0] + u[:, 1])
+
+    along = rng.uniform(0.0, 0.5, 60)
+    x = np.column_stack([along, along]) + rng.normal(0, 0.04, (60, 2))
+    draws = np.column_stack([along, along]) + rng.normal(0, 0.02, (60, 2))
+    test = np.column_stack([np.linspace(0.6, 0.9, 10)] * 2)
+    plain = fit_local(x, f(x), 8.0, "matern52", 0)
+    rotated = fit_local(x, f(x), 8.0, "matern52", 0, draws)
+    assert principal_axes(draws) is not None and principal_axes(draws[:3]) is None
+    err_plain = np.abs(plain.predict(test)[0] - f(test)).mean()
+    err_rotated = np.abs(rotated.predict(test)[0] - f(test)).mean()
+    assert err_rotated < 0.5 * err_plain
 
 
 def test_sampler_recovers_a_gaussian() -> None:
