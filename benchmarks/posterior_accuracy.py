@@ -463,8 +463,8 @@ def main() -> int:
     ap.add_argument("--cases", type=int, default=2, help=f"number of truths (max {len(CASES)})")
     ap.add_argument("--case", type=int, default=None,
                     help="run this case only (results in posterior_accuracy_case<K>.json)")
-    ap.add_argument("--refine", type=int, default=400,
-                    help="most forward evaluations of the emulator's active learning")
+    ap.add_argument("--refine", type=int, default=PosteriorSettings().refine,
+                    help="most forward evaluations of the emulator's active learning (default: the stage's)")
     ap.add_argument("--correct-draws", type=int, default=0,
                     help="most proposal draws of the importance correction (0: the default path, none)")
     ap.add_argument("--tag", default="", help="suffix of the result file (e.g. the budget)")

@@ -18,7 +18,7 @@ datasets fit in about half an hour on two shared cores; the forward model is the
 1-D solver of the accuracy benchmark.
 
     python benchmarks/posterior_coverage.py [--datasets 20] [--quick] [--free n,B_Pa_s,tau_c_MPa]
-        [--refine 400] [--correct-draws 0] [--jobs 2] [--workdir DIR]
+        [--refine 800] [--correct-draws 0] [--jobs 2] [--workdir DIR]
 
 Prints a table and writes benchmarks/results/posterior_coverage.json.
 """

@@ -159,10 +159,11 @@ class PosteriorSpec(Strict):
                            description="GP sample functions in the mixture (0: GP mean only; the active "
                                        "learning validates the mean where the posterior lies, and sample "
                                        "functions of a GP trained on few hundred points add spurious modes)")
-    refine: int = Field(400, ge=0, le=1_000_000,
+    refine: int = Field(800, ge=0, le=1_000_000,
                         description="most forward evaluations of the active learning of the emulator "
-                                    "(rounds of fresh posterior draws and points of largest expected "
-                                    "posterior variance; it stops earlier once validated)")
+                                    "(rounds of fresh posterior draws and points where the GP is unsure "
+                                    "and a tempered posterior could be large; it stops earlier once "
+                                    "validated)")
     draws: int = Field(100, ge=1, le=1_000_000,
                        description="posterior draws through the forward model for bands and checks")
     seed: int = Field(0, ge=0, description="random seed (same seed, same posterior)")
