@@ -23,7 +23,7 @@ fold's calibrated point.
 
     python benchmarks/real_crossval.py [--fold K] [--jobs N] [--effects a,b] [--workdir DIR] [--reuse]
         [--budget 60 --init 20] [--population 64 --generations 50 --restarts 2]
-        [--walkers 32 --steps 4000 --refine 800 --correct-draws 0 --draws 100]
+        [--walkers 32 --steps 10000 --refine 800 --correct-draws 0 --draws 100]
 
 The budgets default to the workflow's defaults (``[calibration]``, ``[diagnose]``,
 ``[posterior]`` of settings.py).  Writes ``benchmarks/results/real_crossval.json`` (merged

@@ -154,7 +154,7 @@ class PosteriorSpec(Strict):
     """Settings of ``smcbayes posterior``; CLI options override them."""
 
     walkers: int = Field(32, ge=4, le=10000, description="emcee walkers")
-    steps: int = Field(4000, ge=1, le=10_000_000, description="maximum steps per chain")
+    steps: int = Field(10000, ge=1, le=10_000_000, description="maximum steps per chain")
     functions: int = Field(0, ge=0, le=1000,
                            description="GP sample functions in the mixture (0: GP mean only; the active "
                                        "learning validates the mean where the posterior lies, and sample "
