@@ -20,8 +20,8 @@ from smcbayes.posterior.likelihood import (
     sandwich_points,
 )
 from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
-from smcbayes.posterior.summary import ParameterSummary, warnings_for
 from smcbayes.posterior.stage import fit_local, principal_axes
+from smcbayes.posterior.summary import ParameterSummary, warnings_for
 from smcbayes.surrogate.gp import fit_surrogate, load_surrogate, save_surrogate
 
 

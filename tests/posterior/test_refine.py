@@ -7,10 +7,10 @@ import pytest
 
 from smcbayes.posterior.refine import (
     acquisition_points,
+    acquisition_zeta,
     check_emulator,
     check_values,
     local_box,
-    acquisition_zeta,
     log_exp_acquisition,
     quantile_shift,
     round_design,
