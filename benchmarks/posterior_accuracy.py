@@ -476,7 +476,8 @@ def main() -> int:
                     help="proposal draws of each importance-sampling explorer")
     ap.add_argument("--reference-draws", type=int, default=120000,
                     help="proposal draws of the reference and of its check")
-    ap.add_argument("--emulator-steps", type=int, default=4000, help="maximum emcee steps per mixture component")
+    ap.add_argument("--emulator-steps", type=int, default=PosteriorSettings().steps,
+                    help="maximum emcee steps per mixture component (default: the stage's)")
     ap.add_argument("--posterior-seeds", type=int, default=1,
                     help="run the posterior stage with this many seeds (k, k + 100, ...) and judge them all")
     ap.add_argument("--functions", type=int, default=PosteriorSettings().functions,

@@ -79,7 +79,7 @@ def one_dataset(i: int, free: list[str], args: argparse.Namespace, tmp: Path) ->
         toml = make_dataset(folder, project_doc(free, truth, TRAIN, VALIDATION), truth, seed=10_000 + i)
         cal = calibrate_run(toml, run_dir, budget=budget, init=max(5, 4 * len(free)), seed=i,
                             local_evaluations=budget // 3, local_radius=0.1)
-    settings = PosteriorSettings(refine=args.refine, seed=i, steps=1500 if args.quick else 4000,
+    settings = PosteriorSettings(refine=args.refine, seed=i, steps=1500 if args.quick else PosteriorSettings().steps,
                                  draws=60 if args.quick else 100, correct_draws=args.correct_draws)
     info = run_posterior(run_dir, settings)
     space = load_run(run_dir).space

@@ -15,11 +15,15 @@ eps ~ N(0, s^2 I).  Each sample is a consistent function that can be evaluated a
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.errors import SurrogateError
+
+if TYPE_CHECKING:
+    from smcbayes.surrogate.gp import Surrogate
 
 Array = NDArray[np.float64]
 
@@ -64,7 +68,7 @@ class NumpyGP:
     rotation: Array | None = None
 
     @classmethod
-    def from_surrogate(cls, surrogate) -> NumpyGP:
+    def from_surrogate(cls, surrogate: Surrogate) -> NumpyGP:
         """Copy a :class:`~smcbayes.surrogate.gp.Surrogate`, its input rotation included."""
         gp = cls.from_botorch(surrogate.model)
         gp.rotation = surrogate.rotation
@@ -77,7 +81,8 @@ class NumpyGP:
 
     @classmethod
     def from_botorch(cls, model) -> NumpyGP:
-        """Copy a fitted SingleTaskGP (no input transform, Standardize outcome transform)."""
+        """Copy a fitted SingleTaskGP (no input transform, Standardize outcome transform); its
+        inputs are the model's own (use :meth:`from_surrogate` for a rotated surrogate)."""
         cov = model.covar_module
         name = type(cov).__name__
         if name == "RBFKernel":

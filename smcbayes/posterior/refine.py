@@ -12,8 +12,9 @@ at three kinds of points (:func:`round_design`):
   the unit cube, including regions the current emulated posterior has not reached;
 * a Latin hypercube over the box of the bulk of the draws (:func:`local_box`), which
   fills the posterior's region evenly, tails included, where draws are sparse, and random
-  draws of the tempered emulated posterior (likelihood to the power 1/4), which reach along
-  ridges and into flat arms the posterior itself hardly visits.
+  draws of the tempered (likelihood to the power 1/4) emulated posterior of one GP sample
+  function, which reach along ridges, into flat arms the posterior itself hardly visits and
+  into regions the GP mean rates a few nats too low.
 
 Every point of a round, before it joins the training data, also enters a second check
 (:func:`relevant_error`): the error where the true or the emulated log-likelihood is near

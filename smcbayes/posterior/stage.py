@@ -137,23 +137,28 @@ def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int,
     the GP spend its flexibility where the posterior lives instead of on the far landscape.
     The rotation lets the ARD lengthscales follow a ridge of the posterior (two parameters
     that trade off, as the slip law's tau_c and m): along the axes of the cube a ridge needs
-    short lengthscales in both, and the GP then cannot extrapolate along it; the
+    short lengthscales in both, and the GP then cannot extrapolate along it.  The
     "rotoscaling" warping of PyVBMC (Acerbi 2018, 2020; Huggins et al. 2023, JOSS 8, 5428)
-    rotates its inputs in the same way.
+    rotates its inputs likewise (and rescales them, which ARD lengthscales make unneeded
+    here).
     """
     cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
     return fit_surrogate(x, np.minimum(y, cap), kernel, seed, rotation=principal_axes(draws))
 
 
 def principal_axes(draws: Array | None) -> Array | None:
-    """Eigenvectors ``(d, d)`` of the covariance of ``draws`` ``(M, d)``; ``None`` without
-    enough draws (fewer than 2 d) or with a degenerate covariance."""
-    if draws is None or draws.shape[0] < 2 * draws.shape[1]:
+    """Eigenvectors ``(d, d)`` of the covariance of ``draws`` ``(M, d)``, each signed so that
+    its largest component is positive (LAPACK may return either sign, and the sample
+    functions drawn for a seed depend on it); ``None`` in one dimension, without enough
+    draws (fewer than 2 d) or with a degenerate covariance."""
+    if draws is None or draws.ndim != 2 or draws.shape[1] < 2 or draws.shape[0] < 2 * draws.shape[1]:
         return None
-    cov = np.cov(np.asarray(draws, dtype=float).T)
+    cov = np.cov(np.asarray(draws, dtype=float), rowvar=False)
     if not np.all(np.isfinite(cov)) or np.trace(cov) <= 0:
         return None
-    return np.linalg.eigh(cov)[1]
+    vectors = np.linalg.eigh(cov)[1]
+    lead = vectors[np.argmax(np.abs(vectors), axis=0), np.arange(vectors.shape[1])]
+    return vectors * np.where(lead < 0, -1.0, 1.0)
 
 
 def correct_posterior(ctx: RunContext, chains: list, n_eff: float, settings: PosteriorSettings,
@@ -211,9 +216,10 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
            settings: PosteriorSettings, rng: np.random.Generator,
            out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any]]:
     """Active learning of the log-likelihood emulator: rounds of sample the emulated
-    posterior of the GP mean (shorter chains), evaluate the forward model at fresh
-    posterior draws (the out-of-sample check) and at the points of largest expected
-    posterior variance (:func:`~smcbayes.posterior.refine.round_design`), refit.
+    posterior of the GP mean and the tempered one of a GP sample function (shorter chains),
+    evaluate the forward model at fresh posterior draws (the out-of-sample check) and at
+    the points of :func:`~smcbayes.posterior.refine.round_design`, refit on inputs rotated
+    onto the principal axes of the round's posterior draws (:func:`fit_local`).
 
     Stops when ``settings.refine`` evaluations are spent or, after at least two rounds,
     when the out-of-sample error (the larger of that at the round's random posterior draws

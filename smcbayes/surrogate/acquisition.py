@@ -12,6 +12,7 @@ from botorch.optim import optimize_acqf
 from botorch.sampling import SobolQMCNormalSampler
 from numpy.typing import NDArray
 
+from smcbayes.errors import SurrogateError
 from smcbayes.surrogate.gp import DTYPE, Surrogate
 
 Array = NDArray[np.float64]
@@ -37,6 +38,9 @@ def propose(surrogate: Surrogate, q: int, seed: int, restarts: int = 8,
     Returns:
         candidates ``(q, d)`` in the unit cube, and the acquisition value (log scale).
     """
+    if surrogate.rotation is not None:
+        # the optimiser searches the model's own inputs, which a rotation moves off the cube
+        raise SurrogateError("propose() needs a GP on unrotated unit-cube inputs")
     torch.manual_seed(seed)
     d = surrogate.x_unit.shape[1]
     best = float(np.min(surrogate.log_loss))

@@ -4,7 +4,8 @@ Inputs are the free parameters mapped to ``[0, 1]^d`` by
 :meth:`~smcbayes.forward.parameters.ParameterSpace.to_unit` (tau*, B and tau_c in log10);
 the target is ``log(loss)`` (natural log, loss in kN^2), standardised by the model's
 outcome transform.  The state file (``gp.pt``) keeps the torch ``state_dict``, the
-training data and the kernel name, so that :func:`load_gp` rebuilds the same posterior.
+training data, the kernel name and the input rotation (if any), so that
+:func:`load_surrogate` rebuilds the same posterior.
 """
 
 from __future__ import annotations
@@ -58,7 +59,8 @@ class Surrogate:
     """A fitted GP and its training data.
 
     Attributes:
-        model: the BoTorch model (posterior in log-loss units).
+        model: the BoTorch model (posterior in log-loss units); its inputs are
+            ``features(x_unit)``, not ``x_unit`` itself when ``rotation`` is set.
         x_unit: training inputs, shape ``(N, d)``, unit cube.
         log_loss: training targets, shape ``(N,)``, natural log of the loss (kN^2).
         kernel: ``rbf`` or ``matern52``.
