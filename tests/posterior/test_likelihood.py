@@ -178,6 +178,25 @@ def test_inputs_rotated_onto_a_ridge_extrapolate_along_it() -> None:
     assert err_rotated < 0.5 * err_plain
 
 
+def test_principal_axes_are_signed_and_absent_in_one_dimension(monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(7)
+    draws = rng.multivariate_normal([0.5, 0.5, 0.5], [[1, 0.9, 0], [0.9, 1, 0], [0, 0, 0.2]], 200) * 0.05
+    axes = principal_axes(draws)
+    np.testing.assert_allclose(axes.T @ axes, np.eye(3), atol=1e-12)
+    lead = axes[np.argmax(np.abs(axes), axis=0), np.arange(3)]
+    assert np.all(lead > 0)
+    # the columns do not depend on the signs the eigensolver happens to return
+    eigh = np.linalg.eigh
+
+    def flipped(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        values, vectors = eigh(a)
+        return values, vectors * np.array([-1.0, 1.0, -1.0])
+
+    monkeypatch.setattr(np.linalg, "eigh", flipped)
+    np.testing.assert_allclose(principal_axes(draws), axes, atol=1e-12)
+    assert principal_axes(draws[:, :1]) is None
+
+
 def test_sampler_recovers_a_gaussian() -> None:
     centre, sd = np.array([0.3, 0.6]), np.array([0.05, 0.1])
 

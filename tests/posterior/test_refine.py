@@ -65,17 +65,27 @@ def test_log_exp_acquisition_is_tempered_mean_plus_log_sd_in_nats() -> None:
     np.testing.assert_allclose(log_exp_acquisition(x, surrogate, 4.0), 2 * zeta * (-a * mean) + np.log(a * std))
 
 
-def test_log_exp_acquisition_prefers_a_probable_unsure_point_to_a_far_very_unsure_one() -> None:
-    # a point 10 nats below the best with sd 6 nats against one 110 nats below with sd 30:
-    # the posterior's variance, exp(2 m + s^2)(exp(s^2) - 1), would rank the far one first
-    class Two:
-        def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            return np.array([10.0, 110.0]) / 20.0, np.array([6.0, 30.0]) / 20.0
+class Fixed:
+    """Stand-in surrogate: given log-likelihoods (nats) and sds (nats) at successive points,
+    for N_eff = 40 (a = 20)."""
 
-    score = log_exp_acquisition(np.zeros((2, 7)), Two(), 40.0)
-    assert score[0] > score[1]
-    variance = [2 * m + s**2 + np.log(np.expm1(s**2)) for m, s in ((-10.0, 6.0), (-110.0, 30.0))]
-    assert variance[1] > variance[0]
+    def __init__(self, ll_nats: list[float], sd_nats: list[float]) -> None:
+        self.ll, self.sd = np.asarray(ll_nats), np.asarray(sd_nats)
+
+    def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return -self.ll / 20.0, self.sd / 20.0
+
+
+def test_log_exp_acquisition_weighs_uncertainty_against_the_tempered_posterior() -> None:
+    # in 7 dimensions zeta = 7^-1.1 = 0.118 lies between 0.075 and 0.15, where these
+    # orderings change: 10 nats down with sd e^3 beats the best with sd 1, 10 nats down
+    # with sd e^1.5 does not (zeta = 0 or zeta = 1 would reverse one of them)
+    x = np.zeros((2, 7))
+    assert np.diff(log_exp_acquisition(x, Fixed([0.0, -10.0], [1.0, np.exp(3.0)]), 40.0))[0] > 0
+    assert np.diff(log_exp_acquisition(x, Fixed([0.0, -10.0], [1.0, np.exp(1.5)]), 40.0))[0] < 0
+    # the posterior's variance, exp(2 m + s^2)(exp(s^2) - 1), would pick a point 110 nats
+    # down with sd 30 over one 10 nats down with sd 6; this acquisition does not
+    assert np.diff(log_exp_acquisition(x, Fixed([-10.0, -110.0], [6.0, 30.0]), 40.0))[0] < 0
 
 
 def test_acquisition_prefers_unsure_and_probable_points_spread_out() -> None:

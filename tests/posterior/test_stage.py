@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from smcbayes.cli import main
+from smcbayes.surrogate.gp import load_surrogate
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -112,6 +113,10 @@ def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path
         assert active["error_nats"] < 1.0 and active["quantile_shift"] <= 0.05
     else:
         assert not info["reliable"] and any("active learning" in r for r in info["reliability"]["reasons"])
+    # the refined GP works on inputs rotated onto the last round's principal axes
+    refined, _ = load_surrogate(tmp_path / "active" / "posterior" / "gp_refined.pt")
+    assert refined.rotation is not None
+    np.testing.assert_allclose(refined.rotation.T @ refined.rotation, np.eye(2), atol=1e-10)
 
 
 def test_missing_run_dir_is_input_error(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
