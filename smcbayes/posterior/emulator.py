@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.errors import SurrogateError
+from smcbayes.surrogate.gp import rotate
 
 if TYPE_CHECKING:
     from smcbayes.surrogate.gp import Surrogate
@@ -76,8 +77,7 @@ class NumpyGP:
 
     def features(self, u: Array) -> Array:
         """The kernel's inputs ``(W, d)`` at unit-cube points ``u`` ``(W, d)``."""
-        u = np.atleast_2d(u)
-        return u if self.rotation is None else u @ self.rotation
+        return rotate(u, self.rotation)
 
     @classmethod
     def from_botorch(cls, model) -> NumpyGP:
