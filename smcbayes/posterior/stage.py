@@ -178,6 +178,13 @@ STABLE_QUANTILES = 0.05
 """Active learning stops only when no 5/50/95 % quantile of the emulated posterior moved by
 more than this share of its prior range since the previous round."""
 
+STABLE_ROUNDS = 3
+"""...and when the out-of-sample error was below the tolerance in this many consecutive
+rounds.  Each round's points reach a region the emulator misses (a flat arm of the
+posterior that the GP rates many nats too low) only by chance, and a miss shows only in
+the round whose points land there: with two rounds the synthetic accuracy benchmark was
+called reliable while a 5 % arm was missing."""
+
 
 def _log_round(out_dir: Path, rnd: int, theta: Array, vals: Array, n_rand: int, names: list[str],
                stats: dict[str, Any]) -> None:
@@ -221,11 +228,12 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
     the points of :func:`~smcbayes.posterior.refine.round_design`, refit on inputs rotated
     onto the principal axes of the round's posterior draws (:func:`fit_local`).
 
-    Stops when ``settings.refine`` evaluations are spent or, after at least two rounds,
-    when the out-of-sample error (the larger of that at the round's random posterior draws
-    and :func:`~smcbayes.posterior.refine.relevant_error` over all its points) is below
-    ``settings.refine_tolerance_nats`` in two consecutive rounds and no 5/50/95 % quantile
-    moved by more than :data:`STABLE_QUANTILES` of its range since the previous round.
+    Stops when ``settings.refine`` evaluations are spent or when the out-of-sample error
+    (the larger of that at the round's random posterior draws and
+    :func:`~smcbayes.posterior.refine.relevant_error` over all its points) is below
+    ``settings.refine_tolerance_nats`` in :data:`STABLE_ROUNDS` consecutive rounds and no
+    5/50/95 % quantile moved by more than :data:`STABLE_QUANTILES` of its range since the
+    previous round.
 
     Returns the refitted surrogate, the enlarged training data ``(x_unit, log_loss)`` and
     ``{"rounds", "converged", "error_nats", "quantile_shift"}``.
@@ -260,7 +268,7 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
         logger.info("active learning round %d: %d training points, out-of-sample error %.2f nats, "
                     "quantiles moved by %.3f of the range", rounds, x.shape[0], err, shift)
         status.update(rounds=rounds, error_nats=stats["error_nats"], quantile_shift=stats["quantile_shift"])
-        if rounds >= 2 and below >= 2 and shift <= STABLE_QUANTILES:
+        if below >= STABLE_ROUNDS and shift <= STABLE_QUANTILES:
             status["converged"] = True
             break
     return surrogate, (x, y), status

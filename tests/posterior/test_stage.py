@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from smcbayes.cli import main
+from smcbayes.posterior.stage import STABLE_ROUNDS
 from smcbayes.surrogate.gp import load_surrogate
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -111,6 +112,10 @@ def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path
     assert sum("round_stats" in rec for rec in log) == active["rounds"]
     if active["converged"]:
         assert active["error_nats"] < 1.0 and active["quantile_shift"] <= 0.05
+        # every round of the required run below the tolerance is logged
+        stats = [rec["round_stats"] for rec in log if "round_stats" in rec]
+        assert len(stats) >= STABLE_ROUNDS
+        assert all(s["error_nats"] < 1.0 for s in stats[-STABLE_ROUNDS:])
     else:
         assert not info["reliable"] and any("active learning" in r for r in info["reliability"]["reasons"])
     # the refined GP works on inputs rotated onto the last round's principal axes
