@@ -219,6 +219,17 @@ def _round_draws(ctx: RunContext, surrogate: Any, n_eff: float, quick: Posterior
     return mean_draws, np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
 
 
+def _round_error(predicted: Array, vals: Array, n_rand: int, best_log_loss: float, n_eff: float) -> float:
+    """A round's out-of-sample error (nats): the larger of the error at its ``n_rand``
+    leading random posterior draws (targets capped as in :func:`fit_local`) and
+    :func:`~smcbayes.posterior.refine.relevant_error` over all its points."""
+    cap = best_log_loss + CAP_NATS / (0.5 * n_eff)
+    err = check_values(predicted[:n_rand], np.minimum(vals[:n_rand], cap), n_eff)
+    # judged on the uncapped values: a capped far point cannot hide a missed mode
+    missed = relevant_error(predicted, vals, n_eff)
+    return max(err, missed) if np.isfinite(missed) else err
+
+
 def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
            settings: PosteriorSettings, rng: np.random.Generator,
            out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any]]:
@@ -245,24 +256,25 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
                               seed=int(rng.integers(2**31 - 1)))
     status: dict[str, Any] = {"rounds": 0, "converged": False, "error_nats": None, "quantile_shift": None}
     while remaining > 0:
+        clock = [time.perf_counter()]
         pooled, wide = _round_draws(ctx, surrogate, n_eff, quick, rng)
         quantiles, shift = quantile_shift(quantiles, pooled)
         pts, n_rand = round_design(pooled, surrogate, min(per_round, remaining), rng, n_eff, wide)
         remaining -= max(len(pts), 1)
         theta = ctx.space.from_unit(pts)
+        clock.append(time.perf_counter())
         vals = true_log_loss(ctx, theta)
-        cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
-        predicted = surrogate.predict(pts)[0]
-        err = check_values(predicted[:n_rand], np.minimum(vals[:n_rand], cap), n_eff)
-        # judged on the uncapped values: a capped far point cannot hide a missed mode
-        missed = relevant_error(predicted, vals, n_eff)
-        err = max(err, missed) if np.isfinite(missed) else err
-        stats = {"training_points": int(x.shape[0]), "error_nats": err if np.isfinite(err) else None,
-                 "quantile_shift": shift if np.isfinite(shift) else None}
-        _log_round(out_dir, rounds, theta, vals, n_rand, ctx.space.free_names, stats)
+        clock.append(time.perf_counter())
+        err = _round_error(surrogate.predict(pts)[0], vals, n_rand, float(np.min(y)), n_eff)
         ok = np.isfinite(vals)
-        x, y = np.vstack([x, pts[ok]]), np.concatenate([y, vals[ok]])
-        surrogate = fit_local(x, y, n_eff, surrogate.kernel, int(rng.integers(2**31 - 1)), pooled)
+        x_new, y_new = np.vstack([x, pts[ok]]), np.concatenate([y, vals[ok]])
+        surrogate = fit_local(x_new, y_new, n_eff, surrogate.kernel, int(rng.integers(2**31 - 1)), pooled)
+        clock.append(time.perf_counter())
+        stats = {"training_points": int(x.shape[0]), "error_nats": err if np.isfinite(err) else None,
+                 "quantile_shift": shift if np.isfinite(shift) else None,
+                 "seconds": dict(zip(("sampling", "forward", "fit"), np.diff(clock).round(2).tolist(), strict=True))}
+        _log_round(out_dir, rounds, theta, vals, n_rand, ctx.space.free_names, stats)
+        x, y = x_new, y_new
         rounds += 1
         below = below + 1 if err < settings.refine_tolerance_nats else 0
         logger.info("active learning round %d: %d training points, out-of-sample error %.2f nats, "

@@ -109,11 +109,13 @@ def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path
     assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5
     log = [json.loads(line) for line in (tmp_path / "active" / "posterior" / "refine.jsonl").read_text().splitlines()]
     assert len(log) == active["evaluations"]
-    assert sum("round_stats" in rec for rec in log) == active["rounds"]
+    stats = [rec["round_stats"] for rec in log if "round_stats" in rec]
+    assert len(stats) == active["rounds"]
+    assert all(set(s["seconds"]) == {"sampling", "forward", "fit"} and min(s["seconds"].values()) >= 0
+               for s in stats)
     if active["converged"]:
         assert active["error_nats"] < 1.0 and active["quantile_shift"] <= 0.05
         # every round of the required run below the tolerance is logged
-        stats = [rec["round_stats"] for rec in log if "round_stats" in rec]
         assert len(stats) >= STABLE_ROUNDS
         assert all(s["error_nats"] < 1.0 for s in stats[-STABLE_ROUNDS:])
     else:
