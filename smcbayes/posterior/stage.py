@@ -39,7 +39,7 @@ from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
 from smcbayes.posterior.summary import stack_components
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import Executor
-from smcbayes.surrogate.gp import fit_surrogate, load_surrogate, save_surrogate
+from smcbayes.surrogate.gp import condition_surrogate, fit_surrogate, load_surrogate, save_surrogate
 
 logger = logging.getLogger(__name__)
 
@@ -146,6 +146,25 @@ def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int,
     return fit_surrogate(x, np.minimum(y, cap), kernel, seed, rotation=principal_axes(draws))
 
 
+REFIT_GROWTH = 1.25
+"""The active learning refits the GP's hyperparameters (and its input rotation) once the
+training set has grown by this factor since the last fit; in between it conditions the
+fitted GP on the new points.  A fit costs tens of marginal-likelihood gradients on up to
+about 900 points, and fitting every round dominated the stage's time."""
+
+
+def update_gp(surrogate: Any, x: Array, y: Array, n_eff: float, seed: int, draws: Array,
+              fitted_at: int) -> tuple[Any, int]:
+    """The GP on the enlarged training data ``x`` ``(N, d)``, ``y`` ``(N,)`` (log loss):
+    refitted by :func:`fit_local` (rotated onto ``draws``) when N reached
+    :data:`REFIT_GROWTH` times ``fitted_at`` (the size at the last fit), else conditioned on
+    the data with the current hyperparameters.  Returns the GP and the size at its last fit."""
+    if x.shape[0] >= REFIT_GROWTH * fitted_at:
+        return fit_local(x, y, n_eff, surrogate.kernel, seed, draws), int(x.shape[0])
+    cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
+    return condition_surrogate(surrogate, x, np.minimum(y, cap)), fitted_at
+
+
 def principal_axes(draws: Array | None) -> Array | None:
     """Eigenvectors ``(d, d)`` of the covariance of ``draws`` ``(M, d)``, each signed so that
     its largest component is positive (LAPACK may return either sign, and the sample
@@ -236,8 +255,9 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
     """Active learning of the log-likelihood emulator: rounds of sample the emulated
     posterior of the GP mean and the tempered one of a GP sample function (shorter chains),
     evaluate the forward model at fresh posterior draws (the out-of-sample check) and at
-    the points of :func:`~smcbayes.posterior.refine.round_design`, refit on inputs rotated
-    onto the principal axes of the round's posterior draws (:func:`fit_local`).
+    the points of :func:`~smcbayes.posterior.refine.round_design`, and update the GP
+    (:func:`update_gp`: refitted on inputs rotated onto the principal axes of the round's
+    posterior draws once the data grew by :data:`REFIT_GROWTH`, else conditioned).
 
     Stops when ``settings.refine`` evaluations are spent or when the out-of-sample error
     (the larger of that at the round's random posterior draws and
@@ -250,7 +270,7 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
     ``{"rounds", "converged", "error_nats", "quantile_shift"}``.
     """
     x, y = data
-    remaining, rounds, below, quantiles = settings.refine, 0, 0, None
+    remaining, rounds, below, quantiles, fitted_at = settings.refine, 0, 0, None, x.shape[0]
     per_round = max(9, min(30, settings.refine // 4))
     quick = PosteriorSettings(walkers=settings.walkers, steps=min(settings.steps, 1000), functions=0,
                               seed=int(rng.integers(2**31 - 1)))
@@ -268,7 +288,8 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
         err = _round_error(surrogate.predict(pts)[0], vals, n_rand, float(np.min(y)), n_eff)
         ok = np.isfinite(vals)
         x_new, y_new = np.vstack([x, pts[ok]]), np.concatenate([y, vals[ok]])
-        surrogate = fit_local(x_new, y_new, n_eff, surrogate.kernel, int(rng.integers(2**31 - 1)), pooled)
+        surrogate, fitted_at = update_gp(surrogate, x_new, y_new, n_eff, int(rng.integers(2**31 - 1)),
+                                         pooled, fitted_at)
         clock.append(time.perf_counter())
         stats = {"training_points": int(x.shape[0]), "error_nats": err if np.isfinite(err) else None,
                  "quantile_shift": shift if np.isfinite(shift) else None,

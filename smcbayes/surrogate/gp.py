@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import gpytorch
 import numpy as np
 import torch
 from botorch.exceptions import ModelFittingError
@@ -33,6 +34,11 @@ from smcbayes.errors import SurrogateError
 Array = NDArray[np.float64]
 KERNELS = ("rbf", "matern52")
 DTYPE = torch.float64
+MAX_CHOLESKY = 5000
+"""Largest training set solved by Cholesky.  gpytorch's default (800) switches larger sets
+to conjugate gradients with a stochastic log-determinant, which for the posterior stage's
+800-900 points is slower and makes the fitted hyperparameters depend on torch's random
+state."""
 
 
 @contextmanager
@@ -86,7 +92,7 @@ class Surrogate:
         """Posterior mean and standard deviation of log(loss) at ``x_unit`` ``(M, d)``; ``(M,)`` each."""
         x = torch.as_tensor(self.features(x_unit), dtype=DTYPE)
         self.model.eval()
-        with torch.no_grad():
+        with torch.no_grad(), gpytorch.settings.max_cholesky_size(MAX_CHOLESKY):
             post = self.model.posterior(x)
             mean = post.mean.squeeze(-1).numpy()
             std = post.variance.clamp_min(0).sqrt().squeeze(-1).numpy()
@@ -136,7 +142,7 @@ def fit_surrogate(x_unit: Array, log_loss: Array, kernel: str, seed: int,
     model = build_model(inputs, log_loss, kernel, noise)
     mll = ExactMarginalLogLikelihood(model.likelihood, model)
     fitted = True
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), gpytorch.settings.max_cholesky_size(MAX_CHOLESKY):
         warnings.simplefilter("ignore")
         try:
             fit_gpytorch_mll(mll)
@@ -146,6 +152,24 @@ def fit_surrogate(x_unit: Array, log_loss: Array, kernel: str, seed: int,
     model.eval()
     return Surrogate(model, np.asarray(x_unit, float), np.asarray(log_loss, float), kernel, fitted,
                      noise, None if rotation is None else np.asarray(rotation, float))
+
+
+def condition_surrogate(surrogate: Surrogate, x_unit: Array, log_loss: Array) -> Surrogate:
+    """The GP of ``surrogate`` (hyperparameters, kernel, noise, rotation) conditioned on new
+    training data ``x_unit`` ``(N, d)``, ``log_loss`` ``(N,)`` without refitting.
+
+    One Cholesky factorisation instead of a hyperparameter fit (tens of marginal-likelihood
+    gradients, each a few times the cost of the factorisation).  The outcome transform is
+    re-estimated from the new targets; the hyperparameters keep their fitted values.
+    """
+    if x_unit.shape[0] < 2 or not np.all(np.isfinite(log_loss)):
+        raise SurrogateError("the GP needs at least 2 finite training targets")
+    model = build_model(surrogate.features(x_unit), log_loss, surrogate.kernel, surrogate.noise)
+    hyper = {k: v for k, v in surrogate.model.state_dict().items() if not k.startswith("outcome_transform")}
+    model.load_state_dict(hyper, strict=False)
+    model.eval()
+    return Surrogate(model, np.asarray(x_unit, float), np.asarray(log_loss, float), surrogate.kernel,
+                     surrogate.fitted, surrogate.noise, surrogate.rotation)
 
 
 def save_surrogate(path: Path, surrogate: Surrogate, meta: dict[str, Any]) -> None:

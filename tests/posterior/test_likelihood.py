@@ -20,9 +20,9 @@ from smcbayes.posterior.likelihood import (
     sandwich_points,
 )
 from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
-from smcbayes.posterior.stage import fit_local, principal_axes
+from smcbayes.posterior.stage import REFIT_GROWTH, fit_local, principal_axes, update_gp
 from smcbayes.posterior.summary import ParameterSummary, warnings_for
-from smcbayes.surrogate.gp import fit_surrogate, load_surrogate, save_surrogate
+from smcbayes.surrogate.gp import condition_surrogate, fit_surrogate, load_surrogate, save_surrogate
 
 
 def ar1(phi: float, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -155,6 +155,39 @@ def test_rotated_surrogate_survives_save_and_load(surrogates: dict, tmp_path: Pa
     np.testing.assert_array_equal(back.rotation, s.rotation)
     u = np.random.default_rng(5).random((20, 3))
     np.testing.assert_allclose(back.predict(u)[0], s.predict(u)[0], atol=1e-10)
+
+
+@pytest.mark.parametrize("kernel", ["rbf", "matern52-rotated"])
+def test_conditioned_gp_keeps_its_hyperparameters_and_learns_the_new_points(surrogates: dict,
+                                                                             kernel: str) -> None:
+    s = surrogates[kernel]
+    rng = np.random.default_rng(8)
+    x_new = rng.random((15, 3))
+    x = np.vstack([s.x_unit, x_new])
+    y = np.concatenate([s.log_loss, np.log(1 + ((x_new - 0.4) ** 2).sum(1) * 50)])
+    c = condition_surrogate(s, x, y)
+    hyper = {k: v for k, v in s.model.state_dict().items() if not k.startswith("outcome_transform")}
+    for k, v in hyper.items():
+        np.testing.assert_array_equal(c.model.state_dict()[k].numpy(), v.numpy())
+    assert (c.rotation is None) == (s.rotation is None)
+    if s.rotation is not None:
+        np.testing.assert_array_equal(c.rotation, s.rotation)
+    assert np.abs(c.predict(x_new)[0] - y[-15:]).max() < 0.4 * np.abs(s.predict(x_new)[0] - y[-15:]).max()
+    # what the NumPy emulator and the refined GP's file see is the same conditioned GP
+    np.testing.assert_allclose(NumpyGP.from_surrogate(c).mean(x_new), c.predict(x_new)[0], atol=1e-7)
+
+
+def test_update_gp_refits_only_after_the_data_grew() -> None:
+    rng = np.random.default_rng(9)
+    x = rng.random((40, 2))
+    y = np.log(1 + ((x - 0.5) ** 2).sum(1) * 20)
+    first = fit_local(x, y, 8.0, "matern52", 0)
+    same, at = update_gp(first, x[:45], y[:45], 8.0, 1, x, fitted_at=40)
+    assert at == 40 and same.model.covar_module.lengthscale.tolist() == first.model.covar_module.lengthscale.tolist()
+    x2 = np.vstack([x, rng.random((10, 2))])
+    y2 = np.log(1 + ((x2 - 0.5) ** 2).sum(1) * 20)
+    refit, at = update_gp(first, x2, y2, 8.0, 1, x2, fitted_at=40)
+    assert at == 50 == int(REFIT_GROWTH * 40) and refit.rotation is not None
 
 
 def test_inputs_rotated_onto_a_ridge_extrapolate_along_it() -> None:
