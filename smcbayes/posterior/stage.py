@@ -39,7 +39,13 @@ from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
 from smcbayes.posterior.summary import stack_components
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import Executor
-from smcbayes.surrogate.gp import condition_surrogate, fit_surrogate, load_surrogate, save_surrogate
+from smcbayes.surrogate.gp import (
+    condition_surrogate,
+    fit_surrogate,
+    gp_session,
+    load_surrogate,
+    save_surrogate,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -127,10 +133,10 @@ CAP_NATS = 30.0
 
 
 def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int,
-              draws: Array | None = None) -> Any:
+              draws: Array | None = None, start: Any = None) -> Any:
     """GP of log(loss) with targets capped at min + CAP_NATS / (N_eff / 2), its inputs
     rotated onto the principal axes of ``draws`` ``(M, d)`` (posterior draws, unit cube)
-    when given.
+    when given; ``start``: a GP whose hyperparameters start the fit.
 
     Where the true log-likelihood is CAP_NATS below the best the posterior density is
     below e^-30 of its peak whatever the emulator says, so capping loses nothing and lets
@@ -143,7 +149,7 @@ def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int,
     here).
     """
     cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
-    return fit_surrogate(x, np.minimum(y, cap), kernel, seed, rotation=principal_axes(draws))
+    return fit_surrogate(x, np.minimum(y, cap), kernel, seed, rotation=principal_axes(draws), start=start)
 
 
 REFIT_GROWTH = 1.25
@@ -158,9 +164,10 @@ def update_gp(surrogate: Any, x: Array, y: Array, n_eff: float, seed: int, draws
     """The GP on the enlarged training data ``x`` ``(N, d)``, ``y`` ``(N,)`` (log loss):
     refitted by :func:`fit_local` (rotated onto ``draws``) when N reached
     :data:`REFIT_GROWTH` times ``fitted_at`` (the size at the last fit), else conditioned on
-    the data with the current hyperparameters.  Returns the GP and the size at its last fit."""
+    the data with the current hyperparameters (from which a refit starts).  Returns the GP
+    and the size at its last fit."""
     if x.shape[0] >= REFIT_GROWTH * fitted_at:
-        return fit_local(x, y, n_eff, surrogate.kernel, seed, draws), int(x.shape[0])
+        return fit_local(x, y, n_eff, surrogate.kernel, seed, draws, surrogate), int(x.shape[0])
     cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
     return condition_surrogate(surrogate, x, np.minimum(y, cap)), fitted_at
 
@@ -359,7 +366,8 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     ctx.runner.cache = cache = ctx.run.forward_cache("posterior")
     rng = np.random.default_rng(settings.seed)
     calibration_gp, _ = load_surrogate(ctx.run.gp_path)
-    with ctx.runner:
+    # torch on one thread: on a loaded machine two threads made the GP fits three times slower
+    with ctx.runner, gp_session():
         fit = local_fit(ctx)
         budget = residual_budget(ctx, fit)
         n_eff = budget["n_eff_total"]

@@ -177,6 +177,18 @@ def test_conditioned_gp_keeps_its_hyperparameters_and_learns_the_new_points(surr
     np.testing.assert_allclose(NumpyGP.from_surrogate(c).mean(x_new), c.predict(x_new)[0], atol=1e-7)
 
 
+def test_fit_starts_from_the_given_gp(surrogates: dict, monkeypatch: pytest.MonkeyPatch) -> None:
+    import smcbayes.surrogate.gp as gp_module
+
+    s = surrogates["matern52"]
+    monkeypatch.setattr(gp_module, "fit_gpytorch_mll", lambda mll: None)  # where the fit starts
+    warm = fit_surrogate(s.x_unit, s.log_loss, "matern52", 0, start=s)
+    cold = fit_surrogate(s.x_unit, s.log_loss, "matern52", 0)
+    ls = s.model.covar_module.lengthscale.detach().numpy()
+    np.testing.assert_array_equal(warm.model.covar_module.lengthscale.detach().numpy(), ls)
+    assert not np.allclose(cold.model.covar_module.lengthscale.detach().numpy(), ls)
+
+
 def test_update_gp_refits_only_after_the_data_grew() -> None:
     rng = np.random.default_rng(9)
     x = rng.random((40, 2))
