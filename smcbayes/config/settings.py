@@ -169,7 +169,7 @@ class PosteriorSpec(Strict):
     seed: int = Field(0, ge=0, description="random seed (same seed, same posterior)")
     refine_tolerance_nats: float = Field(
         1.0, gt=0, description="active learning stops once the emulator's out-of-sample error at "
-                               "fresh posterior draws is below this (nats) twice in a row and the "
+                               "fresh posterior draws is below this (nats) in three rounds in a row and the "
                                "quantiles are stable")
     correct_draws: int = Field(
         0, ge=0, le=10_000_000,

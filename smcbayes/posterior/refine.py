@@ -20,7 +20,8 @@ Every point of a round, before it joins the training data, also enters a second 
 (:func:`relevant_error`): the error where the true or the emulated log-likelihood is near
 the best, which catches mass the emulated posterior misses.
 
-The GP is then refitted on calibration + refinement data.
+The GP is then updated on calibration + refinement data (conditioned on the new points,
+its hyperparameters refitted once the data have grown enough).
 
 The check runs the forward model at posterior draws and compares the emulated with the
 true log-likelihood, -(N_eff/2) log L, in nats.

@@ -163,10 +163,10 @@ def update_gp(surrogate: Any, x: Array, y: Array, n_eff: float, seed: int, draws
               fitted_at: int) -> tuple[Any, int]:
     """The GP on the enlarged training data ``x`` ``(N, d)``, ``y`` ``(N,)`` (log loss):
     refitted by :func:`fit_local` (rotated onto ``draws``) when N reached
-    :data:`REFIT_GROWTH` times ``fitted_at`` (the size at the last fit), else conditioned on
-    the data with the current hyperparameters (from which a refit starts).  Returns the GP
-    and the size at its last fit."""
-    if x.shape[0] >= REFIT_GROWTH * fitted_at:
+    :data:`REFIT_GROWTH` times ``fitted_at`` (the size at the last fit; 0 forces a fit) or
+    when the current GP's fit failed, else conditioned on the data with the current
+    hyperparameters (from which a refit starts).  Returns the GP and the size at its last fit."""
+    if x.shape[0] >= REFIT_GROWTH * fitted_at or not surrogate.fitted:
         return fit_local(x, y, n_eff, surrogate.kernel, seed, draws, surrogate), int(x.shape[0])
     cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
     return condition_surrogate(surrogate, x, np.minimum(y, cap)), fitted_at
@@ -273,11 +273,12 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
     5/50/95 % quantile moved by more than :data:`STABLE_QUANTILES` of its range since the
     previous round.
 
-    Returns the refitted surrogate, the enlarged training data ``(x_unit, log_loss)`` and
+    Returns the updated surrogate, the enlarged training data ``(x_unit, log_loss)`` and
     ``{"rounds", "converged", "error_nats", "quantile_shift"}``.
     """
     x, y = data
-    remaining, rounds, below, quantiles, fitted_at = settings.refine, 0, 0, None, x.shape[0]
+    # the first round fits: the calibration's GP is not yet rotated onto the posterior's axes
+    remaining, rounds, below, quantiles, fitted_at = settings.refine, 0, 0, None, 0
     per_round = max(9, min(30, settings.refine // 4))
     quick = PosteriorSettings(walkers=settings.walkers, steps=min(settings.steps, 1000), functions=0,
                               seed=int(rng.integers(2**31 - 1)))

@@ -10,6 +10,7 @@ training data, the kernel name and the input rotation (if any), so that
 
 from __future__ import annotations
 
+import logging
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -31,6 +32,8 @@ from numpy.typing import NDArray
 
 from smcbayes.errors import SurrogateError
 
+logger = logging.getLogger(__name__)
+
 Array = NDArray[np.float64]
 KERNELS = ("rbf", "matern52")
 DTYPE = torch.float64
@@ -43,7 +46,8 @@ state."""
 
 @contextmanager
 def gp_session(threads: int = 1) -> Iterator[None]:
-    """Run torch with ``threads`` intra-op threads and without gpytorch's noise warnings.
+    """Run torch with ``threads`` intra-op threads, Cholesky solves up to
+    :data:`MAX_CHOLESKY` points and without gpytorch's noise warnings.
 
     GPs of a few hundred points are fastest on one thread, and on a loaded machine torch's
     spinning thread pool makes them up to ten times slower.  A small fixed noise is
@@ -53,7 +57,7 @@ def gp_session(threads: int = 1) -> Iterator[None]:
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), gpytorch.settings.max_cholesky_size(MAX_CHOLESKY):
             warnings.simplefilter("ignore", NumericalWarning)
             yield
     finally:
@@ -127,6 +131,36 @@ def hyperparameters(model: SingleTaskGP) -> dict[str, torch.Tensor]:
     return {k: v for k, v in model.state_dict().items() if not k.startswith("outcome_transform")}
 
 
+def matched_axes(old: Array | None, new: Array | None, d: int, min_overlap: float = 0.8) -> Array | None:
+    """For each column of the rotation ``new`` ``(d, d)`` the column of ``old`` it continues
+    (``None`` = the cube's axes), or ``None`` when some axis has no partner with
+    ``|cos| >= min_overlap`` or two share one (the axes turned too far for the old
+    lengthscales to mean anything along the new ones)."""
+    overlap = np.abs((np.eye(d) if old is None else old).T @ (np.eye(d) if new is None else new))
+    partner = np.argmax(overlap, axis=0)
+    if len(set(partner.tolist())) < d or np.min(overlap[partner, np.arange(d)]) < min_overlap:
+        return None
+    return partner
+
+
+def warm_start(model: SingleTaskGP, start: Surrogate, kernel: str, noise: float | None,
+               rotation: Array | None) -> bool:
+    """Load the hyperparameters of ``start`` into the unfitted ``model`` (whose inputs are
+    rotated by ``rotation``), its ARD lengthscales carried to the matching axes; returns
+    False and leaves the model as built when the kernel, the noise model or the axes do
+    not match."""
+    d = model.train_inputs[0].shape[-1]
+    partner = matched_axes(start.rotation, rotation, d)
+    if start.kernel != kernel or start.noise != noise or partner is None:
+        logger.debug("GP fit without warm start: kernel, noise model or input axes changed")
+        return False
+    state = {**model.state_dict(), **hyperparameters(start.model)}
+    key = "covar_module.raw_lengthscale"
+    state[key] = state[key][..., torch.as_tensor(partner)]
+    model.load_state_dict(state)
+    return True
+
+
 def fit_surrogate(x_unit: Array, log_loss: Array, kernel: str, seed: int,
                   noise: float | None = None, rotation: Array | None = None,
                   start: Surrogate | None = None) -> Surrogate:
@@ -149,8 +183,8 @@ def fit_surrogate(x_unit: Array, log_loss: Array, kernel: str, seed: int,
     torch.manual_seed(seed)
     inputs = rotate(x_unit, rotation)
     model = build_model(inputs, log_loss, kernel, noise)
-    if start is not None and start.kernel == kernel and start.noise == noise:
-        model.load_state_dict(hyperparameters(start.model), strict=False)
+    if start is not None:
+        warm_start(model, start, kernel, noise, rotation)
     mll = ExactMarginalLogLikelihood(model.likelihood, model)
     fitted = True
     with warnings.catch_warnings(), gpytorch.settings.max_cholesky_size(MAX_CHOLESKY):
@@ -170,13 +204,15 @@ def condition_surrogate(surrogate: Surrogate, x_unit: Array, log_loss: Array) ->
     training data ``x_unit`` ``(N, d)``, ``log_loss`` ``(N,)`` without refitting.
 
     One Cholesky factorisation instead of a hyperparameter fit (tens of marginal-likelihood
-    gradients, each a few times the cost of the factorisation).  The outcome transform is
-    re-estimated from the new targets; the hyperparameters keep their fitted values.
+    gradients, each a few times the cost of the factorisation).  The new targets are
+    standardised with the fitted GP's own mean and scale, so that its mean, variance and
+    noise keep their values in log-loss units.
     """
     if x_unit.shape[0] < 2 or not np.all(np.isfinite(log_loss)):
         raise SurrogateError("the GP needs at least 2 finite training targets")
     model = build_model(surrogate.features(x_unit), log_loss, surrogate.kernel, surrogate.noise)
-    model.load_state_dict(hyperparameters(surrogate.model), strict=False)
+    # BoTorch re-standardises the training targets with the loaded transform's statistics
+    model.load_state_dict(surrogate.model.state_dict())
     model.eval()
     return Surrogate(model, np.asarray(x_unit, float), np.asarray(log_loss, float), surrogate.kernel,
                      surrogate.fitted, surrogate.noise, surrogate.rotation)

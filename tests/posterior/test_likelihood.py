@@ -22,7 +22,13 @@ from smcbayes.posterior.likelihood import (
 from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
 from smcbayes.posterior.stage import REFIT_GROWTH, fit_local, principal_axes, update_gp
 from smcbayes.posterior.summary import ParameterSummary, warnings_for
-from smcbayes.surrogate.gp import condition_surrogate, fit_surrogate, load_surrogate, save_surrogate
+from smcbayes.surrogate.gp import (
+    condition_surrogate,
+    fit_surrogate,
+    load_surrogate,
+    matched_axes,
+    save_surrogate,
+)
 
 
 def ar1(phi: float, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -166,8 +172,8 @@ def test_conditioned_gp_keeps_its_hyperparameters_and_learns_the_new_points(surr
     x = np.vstack([s.x_unit, x_new])
     y = np.concatenate([s.log_loss, np.log(1 + ((x_new - 0.4) ** 2).sum(1) * 50)])
     c = condition_surrogate(s, x, y)
-    hyper = {k: v for k, v in s.model.state_dict().items() if not k.startswith("outcome_transform")}
-    for k, v in hyper.items():
+    # hyperparameters and the standardisation they are expressed in: the same GP in log-loss units
+    for k, v in s.model.state_dict().items():
         np.testing.assert_array_equal(c.model.state_dict()[k].numpy(), v.numpy())
     assert (c.rotation is None) == (s.rotation is None)
     if s.rotation is not None:
@@ -180,26 +186,45 @@ def test_conditioned_gp_keeps_its_hyperparameters_and_learns_the_new_points(surr
 def test_fit_starts_from_the_given_gp(surrogates: dict, monkeypatch: pytest.MonkeyPatch) -> None:
     import smcbayes.surrogate.gp as gp_module
 
-    s = surrogates["matern52"]
     monkeypatch.setattr(gp_module, "fit_gpytorch_mll", lambda mll: None)  # where the fit starts
-    warm = fit_surrogate(s.x_unit, s.log_loss, "matern52", 0, start=s)
-    cold = fit_surrogate(s.x_unit, s.log_loss, "matern52", 0)
-    ls = s.model.covar_module.lengthscale.detach().numpy()
-    np.testing.assert_array_equal(warm.model.covar_module.lengthscale.detach().numpy(), ls)
-    assert not np.allclose(cold.model.covar_module.lengthscale.detach().numpy(), ls)
+
+    def lengthscales(g: object) -> np.ndarray:
+        return g.model.covar_module.lengthscale.detach().numpy().ravel()
+
+    s = surrogates["matern52-rotated"]
+    warm = fit_surrogate(s.x_unit, s.log_loss, "matern52", 0, rotation=s.rotation, start=s)
+    np.testing.assert_array_equal(lengthscales(warm), lengthscales(s))
+    # the same axes in another order carry their lengthscales with them
+    order = np.array([2, 0, 1])
+    turned = fit_surrogate(s.x_unit, s.log_loss, "matern52", 0, rotation=s.rotation[:, order], start=s)
+    np.testing.assert_array_equal(lengthscales(turned), lengthscales(s)[order])
+    cold = fit_surrogate(s.x_unit, s.log_loss, "matern52", 0, rotation=s.rotation)
+    assert not np.allclose(lengthscales(cold), lengthscales(s))
+    # another kernel, or axes turned by 45 degrees, start cold
+    half = np.sqrt(0.5)
+    turn = s.rotation @ np.array([[half, -half, 0.0], [half, half, 0.0], [0.0, 0.0, 1.0]])
+    assert matched_axes(s.rotation, turn, 3) is None
+    for kernel, rotation in (("rbf", s.rotation), ("matern52", turn)):
+        other = fit_surrogate(s.x_unit, s.log_loss, kernel, 0, rotation=rotation, start=s)
+        np.testing.assert_array_equal(lengthscales(other), lengthscales(cold))
+    np.testing.assert_array_equal(matched_axes(None, np.eye(2)[:, ::-1], 2), [1, 0])
 
 
 def test_update_gp_refits_only_after_the_data_grew() -> None:
     rng = np.random.default_rng(9)
-    x = rng.random((40, 2))
-    y = np.log(1 + ((x - 0.5) ** 2).sum(1) * 20)
-    first = fit_local(x, y, 8.0, "matern52", 0)
-    same, at = update_gp(first, x[:45], y[:45], 8.0, 1, x, fitted_at=40)
-    assert at == 40 and same.model.covar_module.lengthscale.tolist() == first.model.covar_module.lengthscale.tolist()
-    x2 = np.vstack([x, rng.random((10, 2))])
-    y2 = np.log(1 + ((x2 - 0.5) ** 2).sum(1) * 20)
-    refit, at = update_gp(first, x2, y2, 8.0, 1, x2, fitted_at=40)
+    x = rng.random((50, 2))
+    y = np.log(1 + ((x - 0.5) ** 2).sum(1) * 20) + np.sin(8 * x[:, 0])
+    first = fit_local(x[:40], y[:40], 8.0, "matern52", 0)
+    same, at = update_gp(first, x[:49], y[:49], 8.0, 1, x, fitted_at=40)
+    assert at == 40 and same.x_unit.shape == (49, 2) and same.rotation is None
+    assert same.model.covar_module.lengthscale.tolist() == first.model.covar_module.lengthscale.tolist()
+    new_err = np.abs(same.predict(x[40:49])[0] - y[40:49]).max()
+    assert new_err < 0.2 * np.abs(first.predict(x[40:49])[0] - y[40:49]).max()
+    refit, at = update_gp(first, x, y, 8.0, 1, x, fitted_at=40)
     assert at == 50 == int(REFIT_GROWTH * 40) and refit.rotation is not None
+    assert update_gp(first, x[:41], y[:41], 8.0, 1, x, fitted_at=0)[1] == 41
+    first.fitted = False
+    assert update_gp(first, x[:41], y[:41], 8.0, 1, x, fitted_at=40)[1] == 41
 
 
 def test_inputs_rotated_onto_a_ridge_extrapolate_along_it() -> None:

@@ -120,7 +120,7 @@ def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path
         assert all(s["error_nats"] < 1.0 for s in stats[-STABLE_ROUNDS:])
     else:
         assert not info["reliable"] and any("active learning" in r for r in info["reliability"]["reasons"])
-    # the refined GP works on inputs rotated onto the last round's principal axes
+    # the refined GP works on inputs rotated onto the principal axes of its last refit's draws
     refined, _ = load_surrogate(tmp_path / "active" / "posterior" / "gp_refined.pt")
     assert refined.rotation is not None
     np.testing.assert_allclose(refined.rotation.T @ refined.rotation, np.eye(2), atol=1e-10)
