@@ -5,7 +5,9 @@ A posterior is reported unreliable when its own diagnostics fail: the importance
 (Pareto k-hat > 0.7, Vehtari et al. 2024, "Pareto smoothed importance sampling", JMLR 25)
 or, without a correction, the emulator chains (R-hat > 1.05, Vehtari et al. 2021,
 "Rank-normalization, folding, and localization", Bayesian Analysis 16) and the emulator's
-error at posterior draws (above 1 nat the emulated likelihood misplaces mass).  Two
+error at posterior draws (above 1 nat the emulated likelihood misplaces mass) and the
+emulator's spread (the posteriors of GP sample functions move a quantile by more than
+:data:`~smcbayes.posterior.spread.SPREAD_MAX` of its range, :mod:`smcbayes.posterior.spread`).  Two
 degenerate cases are named as well: a posterior that is the prior (the data do not inform
 the parameters) and a loss that vanishes at the best point (noise-free data: the
 likelihood -(N_eff/2) log L has a spike there, and no sampler or emulator can resolve it).
@@ -19,6 +21,7 @@ from typing import Any
 
 from smcbayes.forward.parameters import ParameterSpace
 from smcbayes.posterior.correct import K_HAT_WARN
+from smcbayes.posterior.spread import SPREAD_MAX
 
 R_HAT_MAX = 1.05
 CHECK_MAX_NATS = 1.0
@@ -71,6 +74,13 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
     if not check <= CHECK_MAX_NATS:
         out.append(f"the emulator is {check:.2g} nats off at posterior draws (> {CHECK_MAX_NATS}) and "
                    "nothing corrects it; use the correction (--correct-draws) or --refine")
+    spread = info.get("emulator_spread")
+    if spread and not spread["max_quantile_shift"] <= SPREAD_MAX:
+        worst = max(spread["per_parameter"], key=spread["per_parameter"].get)
+        out.append(f"the emulator's own uncertainty moves the posterior: with a GP sample function instead "
+                   f"of its mean a 5/50/95 % quantile of {worst} moves by {spread['max_quantile_shift']:.2f} "
+                   f"of its range (> {SPREAD_MAX}), so a tail or an arm of the posterior is not pinned down "
+                   "yet; raise --refine or use the correction (--correct-draws)")
     return out
 
 

@@ -36,6 +36,7 @@ from smcbayes.posterior.refine import check_values, quantile_shift, relevant_err
 from smcbayes.posterior.reliability import assess
 from smcbayes.posterior.report import write_outputs
 from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
+from smcbayes.posterior.spread import emulator_spread
 from smcbayes.posterior.summary import stack_components
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import Executor
@@ -315,6 +316,18 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
     return surrogate, (x, y), status
 
 
+def _function_sampler(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
+                      rng: np.random.Generator) -> Any:
+    """``(functions, steps) -> [unit-cube draws (M, d) of each GP sample function's posterior]``
+    for :func:`~smcbayes.posterior.spread.emulator_spread`, seeded from ``rng``."""
+    def draws(functions: int, steps: int) -> list[Array]:
+        spec = settings.model_copy(update={"functions": functions, "steps": steps,
+                                           "seed": int(rng.integers(2**31 - 1))})
+        _, chains = sample(ctx, surrogate, n_eff, spec, rng)
+        return [c.samples.reshape(-1, ctx.space.dim) for c in chains]
+    return draws
+
+
 def _refine_stage(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
                   settings: PosteriorSettings, rng: np.random.Generator,
                   out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any]]:
@@ -381,9 +394,15 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         corrected = correct_posterior(ctx, chains, n_eff, settings, rng, data) if settings.correct_draws > 0 else None
         t_outputs = time.perf_counter()
         info = write_outputs(ctx, emul, chains, budget, settings, rng, out_dir, corrected, fit)
+        t_spread = time.perf_counter()
+        if corrected is None:  # the correction's weights judge a corrected posterior instead
+            info["emulator_spread"] = emulator_spread(_function_sampler(ctx, surrogate, n_eff, settings, rng),
+                                                      stack_components(chains)[0].reshape(-1, ctx.space.dim),
+                                                      ctx.space.free_names)
     cache.close()
     info["stage_seconds"] = {"setup_and_refine": t_sample - start, "emulator_sampling": t_correct - t_sample,
-                             "correction": t_outputs - t_correct, "outputs": time.perf_counter() - t_outputs}
+                             "correction": t_outputs - t_correct, "outputs": t_spread - t_outputs,
+                             "emulator_spread": time.perf_counter() - t_spread}
     info["active_learning"] = active
     _count_runs(info["forward_evaluations"], active["evaluations"], 2 * ctx.space.dim + 1)
     info["reliability"] = assess(info, ctx.space, ctx.summary.get("best_loss_kN2"), ctx.noise_free)

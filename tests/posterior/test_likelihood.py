@@ -363,3 +363,32 @@ def test_reliability_names_each_failed_diagnostic() -> None:
     assert len(reasons) == 2 and "R-hat 1.20" in reasons[0] and "3 nats" in reasons[1]
     assert "is the prior" in assess({**good, "parameters": wide}, space, 10.0)["reasons"][0]
     assert "noise-free" in assess(good, space, 1e-12)["reasons"][0]
+    converged = {"parameters": narrow, "emulator_check": {"mean_abs_error": 0.4}}
+    assert assess(converged, space, 10.0)["reliable"]
+    spread = {"max_quantile_shift": 0.25, "per_parameter": {"n": 0.05, "m": 0.25}}
+    reasons = assess({**converged, "emulator_spread": spread}, space, 10.0)["reasons"]
+    assert len(reasons) == 1 and "quantile of m moves by 0.25" in reasons[0]
+    small = {"max_quantile_shift": 0.08, "per_parameter": {"n": 0.08, "m": 0.01}}
+    assert assess({**converged, "emulator_spread": small}, space, 10.0)["reliable"]
+
+
+def test_quantile_shifts_measure_how_far_sample_function_posteriors_move() -> None:
+    from smcbayes.posterior.spread import emulator_spread, quantile_shifts
+
+    rng = np.random.default_rng(10)
+    reported = rng.uniform(0.2, 0.6, size=(20000, 2))
+    same = [rng.uniform(0.2, 0.6, size=(20000, 2)) for _ in range(3)]
+    assert quantile_shifts(reported, same).max() < 0.01
+    # one function extends the first parameter's upper tail to 0.9: its 95 % quantile moves
+    tail = rng.uniform(0.2, 0.9, size=(20000, 2)) * np.array([1.0, 0.0]) + same[0] * np.array([0.0, 1.0])
+    shifts = quantile_shifts(reported, [*same, tail])
+    np.testing.assert_allclose(shifts, [0.865 - 0.58, 0.0], atol=0.01)
+    calls = []
+
+    def sampler(functions: int, steps: int) -> list[np.ndarray]:
+        calls.append((functions, steps))
+        return [*same, tail][:functions]
+
+    out = emulator_spread(sampler, reported, ["a", "b"], functions=4, steps=300)
+    assert calls == [(4, 300)] and out["per_parameter"]["a"] == pytest.approx(shifts[0])
+    assert out["max_quantile_shift"] == pytest.approx(shifts.max())

@@ -88,6 +88,7 @@ def test_correction_is_reported(run_dir: Path) -> None:
     assert info["forward_evaluations"]["correction"] == corr["evaluations"]
     assert info["forward_evaluations"]["total"] >= corr["evaluations"] + info["forward_evaluations"]["refine"]
     assert [p["name"] for p in info["emulator_parameters"]] == [p["name"] for p in info["parameters"]]
+    assert "emulator_spread" not in info  # the correction's weights judge a corrected posterior
 
 
 def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path) -> None:
@@ -105,6 +106,11 @@ def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path
     assert r[labels.index("log10 tau_c_MPa"), labels.index("m")] > 0.2
     active = info["active_learning"]
     assert not info["correction"]["enabled"] and active["enabled"]
+    spread = info["emulator_spread"]
+    assert spread["functions"] >= 2 and set(spread["per_parameter"]) == set(truth)
+    assert 0 <= spread["max_quantile_shift"] == max(spread["per_parameter"].values()) < 1
+    if spread["max_quantile_shift"] > 0.1:
+        assert not info["reliable"] and any("sample function" in r for r in info["reliability"]["reasons"])
     assert info["forward_evaluations"]["refine"] == active["evaluations"] <= 90
     assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5
     log = [json.loads(line) for line in (tmp_path / "active" / "posterior" / "refine.jsonl").read_text().splitlines()]
