@@ -74,6 +74,10 @@ def print_summary(info: dict[str, Any]) -> None:
     ec = info["emulator_check"]
     print(f"emulator check at {ec['points']} posterior draws: log-likelihood error "
           f"mean |e| {ec['mean_abs_error']:.3g} nats, max {ec['max_abs_error']:.3g} nats")
+    spread = info.get("emulator_spread")
+    if spread:
+        print(f"emulator spread: GP sample functions move a 5/50/95 % quantile by up to "
+              f"{spread['max_quantile_shift']:.2f} of its range beyond the chains' own noise")
     for cid, b in info["bands"].items():
         if b["coverage90"] == b["coverage90"]:
             sharp = "".join(f", {label} {b[key]:.3g} kN" for key, label in

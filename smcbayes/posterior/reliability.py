@@ -77,10 +77,14 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
     spread = info.get("emulator_spread")
     if spread and not spread["max_quantile_shift"] <= SPREAD_MAX:
         worst = max(spread["per_parameter"], key=spread["per_parameter"].get)
+        # a validated active learning stops at the same point with a larger budget
+        remedy = ("use the correction (--correct-draws) where the simulator is cheap, or lower "
+                  "refine_tolerance_nats in the project's [posterior] table" if active.get("converged")
+                  else "raise --refine or use the correction (--correct-draws)")
         out.append(f"the emulator's own uncertainty moves the posterior: with a GP sample function instead "
                    f"of its mean a 5/50/95 % quantile of {worst} moves by {spread['max_quantile_shift']:.2f} "
                    f"of its range (> {SPREAD_MAX}), so a tail or an arm of the posterior is not pinned down "
-                   "yet; raise --refine or use the correction (--correct-draws)")
+                   f"yet; {remedy}")
     return out
 
 

@@ -26,7 +26,8 @@ Array = NDArray[np.float64]
 SPREAD_FUNCTIONS = 4
 """GP sample functions whose posteriors are compared with the reported one."""
 SPREAD_STEPS = 2000
-"""Steps of each sample function's chains (quantiles to about 0.03 of the prior range)."""
+"""Steps of each sample function's chains (quantiles to about 0.03 of the prior range), or
+the stage's ``steps`` if fewer."""
 SPREAD_MAX = 0.10
 """Largest quantile shift (share of the prior range) the emulator's uncertainty may cause
 for the posterior to count as determined: the accuracy the synthetic benchmark asks of the
@@ -43,20 +44,25 @@ def quantile_shifts(reported_unit: Array, function_draws: Sequence[Array]) -> Ar
     return np.max(np.array(shifts), axis=0)
 
 
-def emulator_spread(sample_functions: Callable[[int, int], list[Array]], reported_unit: Array,
+def emulator_spread(sample_functions: Callable[[int | None, int], list[Array]], reported_unit: Array,
                     names: Sequence[str], functions: int = SPREAD_FUNCTIONS,
                     steps: int = SPREAD_STEPS) -> dict[str, Any]:
     """Quantile shifts of the posteriors of ``functions`` GP sample functions against the
-    reported posterior's draws ``reported_unit`` ``(N, d)`` (unit cube).
+    reported posterior's draws ``reported_unit`` ``(N, d)`` (unit cube), less the shift of
+    a control chain of the same length on the GP mean (the chains' own sampling noise).
 
     Args:
         sample_functions: ``(functions, steps) -> [draws (M_k, d), ...]``, one unit-cube
-            sample per GP sample function (the stage's seeded sampler).
+            sample per GP sample function, or one of the GP mean's posterior when
+            ``functions`` is ``None`` (the stage's seeded sampler).
         names: the free parameters' names, ``d`` of them.
 
     Returns:
-        ``{"functions", "steps", "max_quantile_shift", "per_parameter": {name: shift}}``.
+        ``{"functions", "steps", "max_quantile_shift", "per_parameter": {name: shift},
+        "sampling_noise": {name: shift of the control chain}}``, the shifts net of the noise.
     """
-    shifts = quantile_shifts(reported_unit, sample_functions(functions, steps))
+    noise = quantile_shifts(reported_unit, sample_functions(None, steps))
+    shifts = np.maximum(quantile_shifts(reported_unit, sample_functions(functions, steps)) - noise, 0.0)
     return {"functions": functions, "steps": steps, "max_quantile_shift": float(np.max(shifts)),
-            "per_parameter": {n: float(s) for n, s in zip(names, shifts, strict=True)}}
+            "per_parameter": {n: float(v) for n, v in zip(names, shifts, strict=True)},
+            "sampling_noise": {n: float(v) for n, v in zip(names, noise, strict=True)}}

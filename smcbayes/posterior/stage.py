@@ -1,12 +1,14 @@
 """The posterior stage of a calibration run directory (``smcbayes posterior``).
 
 Reads the run (its resolved config, GP state and best point), estimates the effective
-number of independent points from the residuals at the best point, samples the emulated
-posterior (a mixture over GP sample functions), optionally refines the emulator (rounds
-of forward evaluations at random, most uncertain and space-filling points of the emulated
-posterior's region, stopped early once the out-of-sample error at fresh posterior draws
-is below ``refine_tolerance_nats``; see :func:`refine` and :mod:`smcbayes.posterior.refine`),
-checks it against the forward model at posterior draws, and writes ``RUN_DIR/posterior/``:
+number of independent points from the residuals at the best point, refines the emulator
+(rounds of forward evaluations at random, most uncertain and space-filling points of the
+emulated posterior's region, stopped early once the out-of-sample error at fresh posterior
+draws is below ``refine_tolerance_nats``; see :func:`refine` and
+:mod:`smcbayes.posterior.refine`), samples the emulated posterior (of the GP mean, or a
+mixture over GP sample functions), checks it against the forward model at posterior
+draws, measures how far the emulator's uncertainty moves it (:mod:`smcbayes.posterior.spread`)
+and writes ``RUN_DIR/posterior/``:
 ``posterior.nc`` (arviz InferenceData), ``summary.json``, ``summary.csv``, figures
 (corner, correlations, predictive bands; PNG and SVG) and, after refinement,
 ``gp_refined.pt`` and ``refine.jsonl``.
@@ -319,9 +321,10 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
 def _function_sampler(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
                       rng: np.random.Generator) -> Any:
     """``(functions, steps) -> [unit-cube draws (M, d) of each GP sample function's posterior]``
-    for :func:`~smcbayes.posterior.spread.emulator_spread`, seeded from ``rng``."""
-    def draws(functions: int, steps: int) -> list[Array]:
-        spec = settings.model_copy(update={"functions": functions, "steps": steps,
+    (of the GP mean's when ``functions`` is ``None``; at most the stage's ``steps``) for
+    :func:`~smcbayes.posterior.spread.emulator_spread`, seeded from ``rng``."""
+    def draws(functions: int | None, steps: int) -> list[Array]:
+        spec = settings.model_copy(update={"functions": functions or 0, "steps": min(steps, settings.steps),
                                            "seed": int(rng.integers(2**31 - 1))})
         _, chains = sample(ctx, surrogate, n_eff, spec, rng)
         return [c.samples.reshape(-1, ctx.space.dim) for c in chains]
@@ -395,7 +398,8 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         t_outputs = time.perf_counter()
         info = write_outputs(ctx, emul, chains, budget, settings, rng, out_dir, corrected, fit)
         t_spread = time.perf_counter()
-        if corrected is None:  # the correction's weights judge a corrected posterior instead
+        # the correction's weights judge a corrected posterior, and a noise-free one is degenerate
+        if corrected is None and not ctx.noise_free:
             info["emulator_spread"] = emulator_spread(_function_sampler(ctx, surrogate, n_eff, settings, rng),
                                                       stack_components(chains)[0].reshape(-1, ctx.space.dim),
                                                       ctx.space.free_names)

@@ -367,7 +367,10 @@ def test_reliability_names_each_failed_diagnostic() -> None:
     assert assess(converged, space, 10.0)["reliable"]
     spread = {"max_quantile_shift": 0.25, "per_parameter": {"n": 0.05, "m": 0.25}}
     reasons = assess({**converged, "emulator_spread": spread}, space, 10.0)["reasons"]
-    assert len(reasons) == 1 and "quantile of m moves by 0.25" in reasons[0]
+    assert len(reasons) == 1 and "quantile of m moves by 0.25" in reasons[0] and "raise --refine" in reasons[0]
+    validated = {**converged, "emulator_spread": spread, "active_learning": {"enabled": True, "converged": True}}
+    reasons = assess(validated, space, 10.0)["reasons"]
+    assert len(reasons) == 1 and "--refine" not in reasons[0] and "--correct-draws" in reasons[0]
     small = {"max_quantile_shift": 0.08, "per_parameter": {"n": 0.08, "m": 0.01}}
     assert assess({**converged, "emulator_spread": small}, space, 10.0)["reliable"]
 
@@ -384,11 +387,16 @@ def test_quantile_shifts_measure_how_far_sample_function_posteriors_move() -> No
     shifts = quantile_shifts(reported, [*same, tail])
     np.testing.assert_allclose(shifts, [0.865 - 0.58, 0.0], atol=0.01)
     calls = []
+    # the control chain on the GP mean is off by 0.05 in b alone: that much is sampling noise
+    control = same[1] + np.array([0.0, 0.05])
 
-    def sampler(functions: int, steps: int) -> list[np.ndarray]:
+    def sampler(functions: int | None, steps: int) -> list[np.ndarray]:
         calls.append((functions, steps))
-        return [*same, tail][:functions]
+        return [control] if functions is None else [*same, tail][:functions]
 
     out = emulator_spread(sampler, reported, ["a", "b"], functions=4, steps=300)
-    assert calls == [(4, 300)] and out["per_parameter"]["a"] == pytest.approx(shifts[0])
-    assert out["max_quantile_shift"] == pytest.approx(shifts.max())
+    assert calls == [(None, 300), (4, 300)]
+    assert out["sampling_noise"]["b"] == pytest.approx(0.05, abs=0.01) and out["per_parameter"]["b"] == 0.0
+    assert out["per_parameter"]["a"] == pytest.approx(shifts[0] - out["sampling_noise"]["a"])
+    assert out["max_quantile_shift"] == pytest.approx(out["per_parameter"]["a"])
+    assert out["max_quantile_shift"] > 0.25
