@@ -356,18 +356,9 @@ def _count_runs(runs: dict[str, int], refine: int, residual_budget: int) -> None
     runs["checks_and_bands"] = runs["emulator_check"] + runs["bands"]
 
 
-def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = None,
-                  executor: Executor | None = None) -> dict[str, Any]:
-    """The whole stage; returns the content of ``posterior/summary.json``.
-
-    Args:
-        run_dir: a calibration run directory.
-        settings: the stage's settings (default: the project's ``[posterior]`` table).
-        executor: where the stage's forward batches run (default: in process).
-    """
-    start = time.perf_counter()
-    ctx = load_run(run_dir, executor)
-    settings = settings if settings is not None else ctx.problem.project.posterior
+def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSettings, Path]:
+    """Start the stage in the run directory; returns the settings it runs with (no active
+    learning on noise-free data) and its output folder."""
     if ctx.summary.get("simulator") == "external" and settings.correct_draws > 0:
         # each correction draw inside the box is one run of the user's solver per configuration
         logger.warning("the importance correction may run the external simulator up to %d times "
@@ -379,6 +370,21 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         logger.info("noise-free training curves: no active learning; the posterior will be "
                     "reported unreliable")
         settings = settings.model_copy(update={"refine": 0})
+    return settings, out_dir
+
+
+def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = None,
+                  executor: Executor | None = None) -> dict[str, Any]:
+    """The whole stage; returns the content of ``posterior/summary.json``.
+
+    Args:
+        run_dir: a calibration run directory.
+        settings: the stage's settings (default: the project's ``[posterior]`` table).
+        executor: where the stage's forward batches run (default: in process).
+    """
+    start = time.perf_counter()
+    ctx = load_run(run_dir, executor)
+    settings, out_dir = _begin(ctx, settings if settings is not None else ctx.problem.project.posterior)
     # every step is seeded: a rerun after a kill asks for the same rows and finds them here
     ctx.runner.cache = cache = ctx.run.forward_cache("posterior")
     rng = np.random.default_rng(settings.seed)
