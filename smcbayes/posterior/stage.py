@@ -20,6 +20,7 @@ import json
 import logging
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -319,7 +320,7 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
 
 
 def _function_sampler(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
-                      rng: np.random.Generator) -> Any:
+                      rng: np.random.Generator) -> Callable[[int | None, int], list[Array]]:
     """``(functions, steps) -> [unit-cube draws (M, d) of each GP sample function's posterior]``
     (of the GP mean's when ``functions`` is ``None``; at most the stage's ``steps``) for
     :func:`~smcbayes.posterior.spread.emulator_spread`, seeded from ``rng``."""
