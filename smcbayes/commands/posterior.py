@@ -21,8 +21,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "by active learning with the run's simulator (fresh posterior draws as the "
                     "out-of-sample check, points where the GP is unsure and a tempered posterior "
                     "could be large; stops "
-                    "once validated), sample it with emcee (a mixture over GP sample functions, "
-                    "so the emulator's uncertainty widens the posterior), optionally correct it "
+                    "once validated), sample it with emcee (the GP mean's posterior pooled with "
+                    "those of GP sample functions, so the emulator's uncertainty widens the "
+                    "posterior), optionally correct it "
                     "by adaptive importance sampling (--correct-draws; Pareto k-hat reported), "
                     "and write "
                     "RUN_DIR/posterior/: posterior.nc (arviz), summary table, correlations, corner "
@@ -34,6 +35,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                 ("seed", int, None)):
         p.add_argument("--" + name.replace("_", "-"), type=kind, default=None, metavar=metavar,
                        help=help_of(PosteriorSpec, name))
+    p.add_argument("--pool-functions", action=argparse.BooleanOptionalAction, default=None,
+                   help=help_of(PosteriorSpec, "pool_functions"))
     add_executor_options(p)
     p.set_defaults(run=run)
 
@@ -45,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     run_dir = RunDir(args.run_dir)
     run_dir.require()
     project = run_dir.identity().project_config()
-    fields = ("walkers", "steps", "functions", "refine", "draws", "correct_draws", "seed")
+    fields = ("walkers", "steps", "functions", "pool_functions", "refine", "draws", "correct_draws", "seed")
     settings = override(project.posterior, {k: getattr(args, k) for k in fields})
     run_dir.record_command("posterior", args.argv)
     with warnings.catch_warnings():
@@ -76,8 +79,9 @@ def print_summary(info: dict[str, Any]) -> None:
           f"mean |e| {ec['mean_abs_error']:.3g} nats, max {ec['max_abs_error']:.3g} nats")
     spread = info.get("emulator_spread")
     if spread:
+        pooled = " (their posteriors are pooled into the table above)" if spread.get("pooled") else ""
         print(f"emulator spread: GP sample functions move a 5/50/95 % quantile by up to "
-              f"{spread['max_quantile_shift']:.2f} of its range beyond the chains' own noise")
+              f"{spread['max_quantile_shift']:.2f} of its range beyond the chains' own noise{pooled}")
     for cid, b in info["bands"].items():
         if b["coverage90"] == b["coverage90"]:
             sharp = "".join(f", {label} {b[key]:.3g} kN" for key, label in

@@ -156,9 +156,13 @@ class PosteriorSpec(Strict):
     walkers: int = Field(32, ge=4, le=10000, description="emcee walkers")
     steps: int = Field(10000, ge=1, le=10_000_000, description="maximum steps per chain")
     functions: int = Field(0, ge=0, le=1000,
-                           description="GP sample functions in the mixture (0: GP mean only; the active "
-                                       "learning validates the mean where the posterior lies, and sample "
-                                       "functions of a GP trained on few hundred points add spurious modes)")
+                           description="GP sample functions whose posteriors alone make the sampled "
+                                       "mixture (0: the GP mean's posterior, pooled with those of the "
+                                       "spread check's sample functions unless --no-pool-functions)")
+    pool_functions: bool = Field(True, description="carry the emulator's uncertainty into the reported "
+                                                   "posterior: pool the GP mean's posterior with those of "
+                                                   "the spread check's GP sample functions, so that what "
+                                                   "the GP cannot rule out widens the result")
     refine: int = Field(800, ge=0, le=1_000_000,
                         description="most forward evaluations of the active learning of the emulator "
                                     "(rounds of fresh posterior draws and points where the GP is unsure "

@@ -225,6 +225,7 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
         warns = [f"emulator chains (proposal of the correction): {w}" for w in warns]
     warns += correction_warnings(corrected)
     attrs = {"n_eff": budget["n_eff_total"], "functions": emul.functions,
+             "pooled_functions": len(chains) - emul.components,
              "method": "emulator + importance correction" if corrected is not None else "emulator"}
     if corrected is not None:
         attrs.update(k_hat=corrected.k_hat, importance_ess=corrected.ess, correction_evaluations=corrected.evaluations)

@@ -6,9 +6,10 @@ number of independent points from the residuals at the best point, refines the e
 emulated posterior's region, stopped early once the out-of-sample error at fresh posterior
 draws is below ``refine_tolerance_nats``; see :func:`refine` and
 :mod:`smcbayes.posterior.refine`), samples the emulated posterior (of the GP mean, or a
-mixture over GP sample functions), checks it against the forward model at posterior
-draws, measures how far the emulator's uncertainty moves it (:mod:`smcbayes.posterior.spread`)
-and writes ``RUN_DIR/posterior/``:
+mixture over GP sample functions), measures how far the emulator's uncertainty moves it
+(:mod:`smcbayes.posterior.spread`) and pools the sample functions' posteriors of that check
+with the GP mean's (``pool_functions``), checks the result against the forward model at
+posterior draws and writes ``RUN_DIR/posterior/``:
 ``posterior.nc`` (arviz InferenceData), ``summary.json``, ``summary.csv``, figures
 (corner, correlations, predictive bands; PNG and SVG) and, after refinement,
 ``gp_refined.pt`` and ``refine.jsonl``.
@@ -20,7 +21,6 @@ import json
 import logging
 import time
 import warnings
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +39,7 @@ from smcbayes.posterior.refine import check_values, quantile_shift, relevant_err
 from smcbayes.posterior.reliability import assess
 from smcbayes.posterior.report import write_outputs
 from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
-from smcbayes.posterior.spread import emulator_spread
+from smcbayes.posterior.spread import SPREAD_FUNCTIONS, SPREAD_STEPS, emulator_spread
 from smcbayes.posterior.summary import stack_components
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import Executor
@@ -319,17 +319,28 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
     return surrogate, (x, y), status
 
 
-def _function_sampler(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
-                      rng: np.random.Generator) -> Callable[[int | None, int], list[Array]]:
-    """``(functions, steps) -> [unit-cube draws (M, d) of each GP sample function's posterior]``
-    (of the GP mean's when ``functions`` is ``None``; at most the stage's ``steps``) for
-    :func:`~smcbayes.posterior.spread.emulator_spread`, seeded from ``rng``."""
-    def draws(functions: int | None, steps: int) -> list[Array]:
-        spec = settings.model_copy(update={"functions": functions or 0, "steps": min(steps, settings.steps),
+def _emulator_uncertainty(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
+                          rng: np.random.Generator, chains: list) -> tuple[dict[str, Any], list]:
+    """The emulator's spread (:func:`~smcbayes.posterior.spread.emulator_spread`) around the
+    posterior of ``chains``, and the chains of its GP sample functions' posteriors.
+
+    The functions' chains and a control chain on the GP mean run :data:`SPREAD_STEPS` steps
+    (at most the stage's ``steps``), seeded from ``rng``.
+    """
+    steps = min(SPREAD_STEPS, settings.steps)
+
+    def run(functions: int) -> list:
+        spec = settings.model_copy(update={"functions": functions, "steps": steps,
                                            "seed": int(rng.integers(2**31 - 1))})
-        _, chains = sample(ctx, surrogate, n_eff, spec, rng)
-        return [c.samples.reshape(-1, ctx.space.dim) for c in chains]
-    return draws
+        return sample(ctx, surrogate, n_eff, spec, rng)[1]
+
+    def flat(c: Any) -> Array:
+        return c.samples.reshape(-1, ctx.space.dim)
+
+    control, functions = run(0), run(SPREAD_FUNCTIONS)
+    spread = emulator_spread(stack_components(chains)[0].reshape(-1, ctx.space.dim), flat(control[0]),
+                             [flat(c) for c in functions], ctx.space.free_names, steps)
+    return spread, functions
 
 
 def _refine_stage(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
@@ -402,18 +413,21 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         emul, chains = sample(ctx, surrogate, n_eff, settings, rng)
         t_correct = time.perf_counter()
         corrected = correct_posterior(ctx, chains, n_eff, settings, rng, data) if settings.correct_draws > 0 else None
-        t_outputs = time.perf_counter()
-        info = write_outputs(ctx, emul, chains, budget, settings, rng, out_dir, corrected, fit)
         t_spread = time.perf_counter()
+        spread, pooled = None, []
         # the correction's weights judge a corrected posterior, and a noise-free one is degenerate
         if corrected is None and not ctx.noise_free:
-            info["emulator_spread"] = emulator_spread(_function_sampler(ctx, surrogate, n_eff, settings, rng),
-                                                      stack_components(chains)[0].reshape(-1, ctx.space.dim),
-                                                      ctx.space.free_names)
+            spread, functions = _emulator_uncertainty(ctx, surrogate, n_eff, settings, rng, chains)
+            # a mixture requested through ``functions`` already carries the GP's uncertainty
+            pooled = functions if settings.pool_functions and settings.functions == 0 else []
+        t_outputs = time.perf_counter()
+        info = write_outputs(ctx, emul, chains + pooled, budget, settings, rng, out_dir, corrected, fit)
+        if spread is not None:
+            info["emulator_spread"] = {**spread, "pooled": bool(pooled)}
     cache.close()
     info["stage_seconds"] = {"setup_and_refine": t_sample - start, "emulator_sampling": t_correct - t_sample,
-                             "correction": t_outputs - t_correct, "outputs": t_spread - t_outputs,
-                             "emulator_spread": time.perf_counter() - t_spread}
+                             "correction": t_spread - t_correct, "emulator_spread": t_outputs - t_spread,
+                             "outputs": time.perf_counter() - t_outputs}
     info["active_learning"] = active
     _count_runs(info["forward_evaluations"], active["evaluations"], 2 * ctx.space.dim + 1)
     info["reliability"] = assess(info, ctx.space, ctx.summary.get("best_loss_kN2"), ctx.noise_free)

@@ -105,6 +105,8 @@ def _diagnostics(post: dict[str, Any]) -> list:
                 "emulator can be trusted where the posterior lies."
             )
         )
+    if (spread := _spread_paragraph(post.get("emulator_spread") or {})) is not None:
+        blocks.append(spread)
     eff = post.get("effective_points") or {}
     if eff.get("n_eff_total") is not None:
         blocks.append(
@@ -118,6 +120,29 @@ def _diagnostics(post: dict[str, Any]) -> list:
     if warns:
         blocks.append(Bullets(tuple(warns), tone="warning"))
     return blocks
+
+
+def _spread_paragraph(spread: dict[str, Any]) -> Paragraph | None:
+    """How far GP sample functions move the posterior, and whether they widen it."""
+    if not spread:
+        return None
+    pooled = (" Their posteriors are pooled with the GP mean's in the table above, so the "
+              "emulator's uncertainty widens it." if spread.get("pooled") else "")
+    return Paragraph(
+        f"Emulator spread: the posteriors of {fmt(spread.get('functions'))} GP sample functions move "
+        f"a 5/50/95 % quantile by up to {fmt(spread.get('max_quantile_shift'), 2)} of its range "
+        "beyond the chains' own noise; above 0.10 the simulator runs spent on the emulator do "
+        f"not yet determine the posterior.{pooled}"
+    )
+
+
+def _sampled_words(post: dict[str, Any]) -> str:
+    """What emcee sampled: the GP mean, a mixture of sample functions, or both pooled."""
+    functions = (post.get("settings") or {}).get("functions") or 0
+    spread = post.get("emulator_spread") or {}
+    if spread.get("pooled"):
+        return f"the GP mean and {fmt(spread.get('functions'))} GP sample functions, pooled"
+    return f"{fmt(functions)} GP sample functions" if functions else "the GP mean"
 
 
 def _active_words(post: dict[str, Any]) -> str:
@@ -289,7 +314,7 @@ def posterior_section(
         Paragraph(
             f"The calibration's Gaussian process emulates the likelihood{_active_words(post)}; "
             f"emcee samples it ({fmt(s.get('walkers'))} walkers, up to {fmt(s.get('steps'))} steps, "
-            f"{fmt(s.get('functions'))} GP sample functions, seed {fmt(s.get('seed'))}; "
+            f"{_sampled_words(post)}, seed {fmt(s.get('seed'))}; "
             f"{fmt(post.get('seconds'), 3)} s)."
         ),
         _posterior_table(params, truth, ranges),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import arviz as az
 import numpy as np
 import pytest
 
@@ -109,6 +110,11 @@ def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path
     spread = info["emulator_spread"]
     assert spread["functions"] >= 2 and set(spread["per_parameter"]) == set(spread["sampling_noise"]) == set(truth)
     assert 0 <= spread["max_quantile_shift"] == max(spread["per_parameter"].values()) < 1
+    # the sample functions' posteriors are pooled with the GP mean's, one component each
+    assert spread["pooled"]
+    idata = az.from_netcdf(str(tmp_path / "active" / "posterior" / "posterior.nc"))
+    assert idata.attrs["pooled_functions"] == spread["functions"]
+    assert idata.posterior.sizes["chain"] == (1 + spread["functions"]) * settings.walkers
     flagged = any("sample function" in r for r in info["reliability"]["reasons"])
     assert flagged == (spread["max_quantile_shift"] > 0.1)
     assert info["forward_evaluations"]["refine"] == active["evaluations"] <= 90

@@ -200,3 +200,21 @@ def test_posterior_section_states_how_n_eff_was_estimated(tmp_path: Path, budget
     text = posterior_report_text(tmp_path, {"effective_points": budget})
     assert absent not in text
     assert "Effective number of independent points in the likelihood" in text and expected in text
+
+
+@pytest.mark.parametrize(("extra", "sampled", "pooled"), [
+    ({"emulator_spread": {"functions": 4, "max_quantile_shift": 0.31, "pooled": True},
+      "settings": {"functions": 0}}, "the GP mean and 4 GP sample functions, pooled", True),
+    ({"emulator_spread": {"functions": 4, "max_quantile_shift": 0.04, "pooled": False},
+      "settings": {"functions": 0}}, "the GP mean,", False),
+    ({"settings": {"functions": 8}}, "8 GP sample functions,", False),
+])
+def test_posterior_section_states_what_was_sampled_and_the_spread(tmp_path: Path, extra: dict, sampled: str,
+                                                                  pooled: bool) -> None:
+    text = " ".join(posterior_report_text(tmp_path, extra).split())
+    assert sampled in text
+    spread = extra.get("emulator_spread")
+    assert ("Emulator spread" in text) == (spread is not None)
+    if spread is not None:
+        assert f"up to {spread['max_quantile_shift']:.2f} of its range" in text
+    assert ("widens it" in text) == pooled
