@@ -174,6 +174,8 @@ def fold_workdir(k: int, args: argparse.Namespace) -> Path:
     settings (:data:`REUSE_KEYS`, recorded in ``settings.json``)."""
     work = Path(args.workdir) / f"fold-{k}"
     settings = {key: getattr(args, key) for key in REUSE_KEYS}
+    # the same data reached through another checkout's relative path is the same data
+    settings["data_dir"] = str(Path(args.data_dir).resolve())
     settings["project_sha256"] = hashlib.sha256(PROJECT.read_bytes()).hexdigest()
     record = work / "settings.json"
     same = args.reuse and record.exists() and json.loads(record.read_text()) == settings

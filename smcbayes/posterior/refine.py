@@ -110,9 +110,11 @@ def local_box(draws_unit: Array, widen: float = 0.5, min_width: float = 0.02) ->
 
 
 def round_design(draws_unit: Array, surrogate: Surrogate, count: int,
-                 rng: np.random.Generator, n_eff: float, wide_unit: Array | None = None) -> tuple[Array, int]:
-    """Points of one refinement round: a third random posterior draws (first), a sixth
-    random draws of the tempered posterior ``wide_unit`` (if given), a sixth a Latin
+                 rng: np.random.Generator, n_eff: float, wide_unit: Array | None = None,
+                 wide_share: int = 6) -> tuple[Array, int]:
+    """Points of one refinement round: a third random posterior draws (first), a
+    ``1/wide_share`` random draws of ``wide_unit`` (if given: draws of a tempered posterior,
+    or of sample functions' posteriors the GP mean's disagrees with), a sixth a Latin
     hypercube over :func:`local_box`, the rest by :func:`acquisition_points` among the
     posterior draws, the tempered ones and uniform points.
 
@@ -125,7 +127,7 @@ def round_design(draws_unit: Array, surrogate: Surrogate, count: int,
     parts = [rand]
     pool = draws_unit
     if wide_unit is not None and wide_unit.shape[0]:
-        parts.append(wide_unit[rng.choice(wide_unit.shape[0], size=min(count // 6, wide_unit.shape[0]),
+        parts.append(wide_unit[rng.choice(wide_unit.shape[0], size=min(count // wide_share, wide_unit.shape[0]),
                                           replace=False)])
         pool = np.vstack([draws_unit, wide_unit])
     lo, hi = local_box(draws_unit)

@@ -21,6 +21,7 @@ import json
 import logging
 import time
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +40,7 @@ from smcbayes.posterior.refine import check_values, quantile_shift, relevant_err
 from smcbayes.posterior.reliability import assess
 from smcbayes.posterior.report import write_outputs
 from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
-from smcbayes.posterior.spread import SPREAD_FUNCTIONS, SPREAD_STEPS, emulator_spread
+from smcbayes.posterior.spread import SPREAD_FUNCTIONS, SPREAD_MAX, SPREAD_STEPS, emulator_spread
 from smcbayes.posterior.summary import stack_components
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import Executor
@@ -260,6 +261,52 @@ def _round_error(predicted: Array, vals: Array, n_rand: int, best_log_loss: floa
     return max(err, missed) if np.isfinite(missed) else err
 
 
+@dataclass
+class _Progress:
+    """State of the active learning between rounds."""
+
+    remaining: int
+    rounds: int = 0
+    below: int = 0
+    quantiles: Array | None = None
+    fitted_at: int = 0  # training size at the last hyperparameter fit; 0 forces one
+    disputed: Array | None = None  # draws (M, d) of sample functions' posteriors to test
+    spread_checks: int = 0
+
+
+def _one_round(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
+               quick: PosteriorSettings, rng: np.random.Generator, out_dir: Path, state: _Progress,
+               per_round: int) -> tuple[Any, tuple[Array, Array], float, float]:
+    """One round of :func:`refine`; returns the updated surrogate and data, the round's
+    out-of-sample error (nats) and the quantile shift since the previous round."""
+    x, y = data
+    clock = [time.perf_counter()]
+    pooled, wide = _round_draws(ctx, surrogate, n_eff, quick, rng)
+    state.quantiles, shift = quantile_shift(state.quantiles, pooled)
+    if state.disputed is not None:
+        # a third of the round where GP sample functions put posterior mass the mean does not
+        wide, share = state.disputed, 3
+    else:
+        share = 6
+    pts, n_rand = round_design(pooled, surrogate, min(per_round, state.remaining), rng, n_eff, wide, share)
+    state.remaining -= max(len(pts), 1)
+    theta = ctx.space.from_unit(pts)
+    clock.append(time.perf_counter())
+    vals = true_log_loss(ctx, theta)
+    clock.append(time.perf_counter())
+    err = _round_error(surrogate.predict(pts)[0], vals, n_rand, float(np.min(y)), n_eff)
+    ok = np.isfinite(vals)
+    x_new, y_new = np.vstack([x, pts[ok]]), np.concatenate([y, vals[ok]])
+    surrogate, state.fitted_at = update_gp(surrogate, x_new, y_new, n_eff, int(rng.integers(2**31 - 1)),
+                                           pooled, state.fitted_at)
+    clock.append(time.perf_counter())
+    stats = {"training_points": int(x.shape[0]), "error_nats": err if np.isfinite(err) else None,
+             "quantile_shift": shift if np.isfinite(shift) else None, "disputed": state.disputed is not None,
+             "seconds": dict(zip(("sampling", "forward", "fit"), np.diff(clock).round(2).tolist(), strict=True))}
+    _log_round(out_dir, state.rounds, theta, vals, n_rand, ctx.space.free_names, stats)
+    return surrogate, (x_new, y_new), err, shift
+
+
 def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
            settings: PosteriorSettings, rng: np.random.Generator,
            out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any]]:
@@ -270,62 +317,54 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
     (:func:`update_gp`: refitted on inputs rotated onto the principal axes of the round's
     posterior draws once the data grew by :data:`REFIT_GROWTH`, else conditioned).
 
-    Stops when ``settings.refine`` evaluations are spent or when the out-of-sample error
-    (the larger of that at the round's random posterior draws and
-    :func:`~smcbayes.posterior.refine.relevant_error` over all its points) is below
-    ``settings.refine_tolerance_nats`` in :data:`STABLE_ROUNDS` consecutive rounds and no
-    5/50/95 % quantile moved by more than :data:`STABLE_QUANTILES` of its range since the
-    previous round.
+    A round is validated when its out-of-sample error (the larger of that at its random
+    posterior draws and :func:`~smcbayes.posterior.refine.relevant_error` over all its
+    points) is below ``settings.refine_tolerance_nats``.  After :data:`STABLE_ROUNDS`
+    consecutive validated rounds with no 5/50/95 % quantile moved by more than
+    :data:`STABLE_QUANTILES` of its range, the emulator's spread is measured
+    (:func:`_spread_settled`): at most :data:`~smcbayes.posterior.spread.SPREAD_MAX` stops
+    the active learning; above it, a third of the following rounds are draws of the sample
+    functions' posteriors (where they put mass the GP mean's posterior does not, the
+    simulator decides), and one more validated round triggers the next measurement.
+    Stops otherwise when ``settings.refine`` evaluations are spent.
 
     Returns the updated surrogate, the enlarged training data ``(x_unit, log_loss)`` and
-    ``{"rounds", "converged", "error_nats", "quantile_shift"}``.
+    ``{"rounds", "converged", "error_nats", "quantile_shift", "spread", "spread_checks"}``.
     """
-    x, y = data
-    # the first round fits: the calibration's GP is not yet rotated onto the posterior's axes
-    remaining, rounds, below, quantiles, fitted_at = settings.refine, 0, 0, None, 0
+    state = _Progress(remaining=settings.refine)
     per_round = max(9, min(30, settings.refine // 4))
     quick = PosteriorSettings(walkers=settings.walkers, steps=min(settings.steps, 1000), functions=0,
                               seed=int(rng.integers(2**31 - 1)))
-    status: dict[str, Any] = {"rounds": 0, "converged": False, "error_nats": None, "quantile_shift": None}
-    while remaining > 0:
-        clock = [time.perf_counter()]
-        pooled, wide = _round_draws(ctx, surrogate, n_eff, quick, rng)
-        quantiles, shift = quantile_shift(quantiles, pooled)
-        pts, n_rand = round_design(pooled, surrogate, min(per_round, remaining), rng, n_eff, wide)
-        remaining -= max(len(pts), 1)
-        theta = ctx.space.from_unit(pts)
-        clock.append(time.perf_counter())
-        vals = true_log_loss(ctx, theta)
-        clock.append(time.perf_counter())
-        err = _round_error(surrogate.predict(pts)[0], vals, n_rand, float(np.min(y)), n_eff)
-        ok = np.isfinite(vals)
-        x_new, y_new = np.vstack([x, pts[ok]]), np.concatenate([y, vals[ok]])
-        surrogate, fitted_at = update_gp(surrogate, x_new, y_new, n_eff, int(rng.integers(2**31 - 1)),
-                                         pooled, fitted_at)
-        clock.append(time.perf_counter())
-        stats = {"training_points": int(x.shape[0]), "error_nats": err if np.isfinite(err) else None,
-                 "quantile_shift": shift if np.isfinite(shift) else None,
-                 "seconds": dict(zip(("sampling", "forward", "fit"), np.diff(clock).round(2).tolist(), strict=True))}
-        _log_round(out_dir, rounds, theta, vals, n_rand, ctx.space.free_names, stats)
-        x, y = x_new, y_new
-        rounds += 1
-        below = below + 1 if err < settings.refine_tolerance_nats else 0
+    status: dict[str, Any] = {"rounds": 0, "converged": False, "error_nats": None, "quantile_shift": None,
+                              "spread": None, "spread_checks": 0}
+    while state.remaining > 0:
+        surrogate, data, err, shift = _one_round(ctx, data, surrogate, n_eff, quick, rng, out_dir, state, per_round)
+        state.rounds += 1
+        state.below = state.below + 1 if err < settings.refine_tolerance_nats else 0
         logger.info("active learning round %d: %d training points, out-of-sample error %.2f nats, "
-                    "quantiles moved by %.3f of the range", rounds, x.shape[0], err, shift)
-        status.update(rounds=rounds, error_nats=stats["error_nats"], quantile_shift=stats["quantile_shift"])
-        if below >= STABLE_ROUNDS and shift <= STABLE_QUANTILES:
-            status["converged"] = True
-            break
-    return surrogate, (x, y), status
+                    "quantiles moved by %.3f of the range", state.rounds, data[0].shape[0], err, shift)
+        status.update(rounds=state.rounds, error_nats=err if np.isfinite(err) else None,
+                      quantile_shift=shift if np.isfinite(shift) else None)
+        if state.below >= STABLE_ROUNDS and shift <= STABLE_QUANTILES:
+            spread, state.disputed = _spread_settled(ctx, surrogate, n_eff, quick, rng)
+            state.spread_checks += 1
+            status.update(spread=spread, spread_checks=state.spread_checks)
+            logger.info("emulator spread %.3f of the range after round %d", spread, state.rounds)
+            if spread <= SPREAD_MAX:
+                status["converged"] = True
+                break
+            state.below = STABLE_ROUNDS - 1
+    return surrogate, data, status
 
 
 def _emulator_uncertainty(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
-                          rng: np.random.Generator, chains: list) -> tuple[dict[str, Any], list]:
+                          rng: np.random.Generator, reported_unit: Array) -> tuple[dict[str, Any], list]:
     """The emulator's spread (:func:`~smcbayes.posterior.spread.emulator_spread`) around the
-    posterior of ``chains``, and the chains of its GP sample functions' posteriors.
+    posterior draws ``reported_unit`` ``(N, d)``, and the chains of its GP sample functions'
+    posteriors.
 
     The functions' chains and a control chain on the GP mean run :data:`SPREAD_STEPS` steps
-    (at most the stage's ``steps``), seeded from ``rng``.
+    (at most ``settings.steps``), seeded from ``rng``.
     """
     steps = min(SPREAD_STEPS, settings.steps)
 
@@ -338,9 +377,20 @@ def _emulator_uncertainty(ctx: RunContext, surrogate: Any, n_eff: float, setting
         return c.samples.reshape(-1, ctx.space.dim)
 
     control, functions = run(0), run(SPREAD_FUNCTIONS)
-    spread = emulator_spread(stack_components(chains)[0].reshape(-1, ctx.space.dim), flat(control[0]),
-                             [flat(c) for c in functions], ctx.space.free_names, steps)
+    spread = emulator_spread(reported_unit, flat(control[0]), [flat(c) for c in functions],
+                             ctx.space.free_names, steps)
     return spread, functions
+
+
+def _spread_settled(ctx: RunContext, surrogate: Any, n_eff: float, quick: PosteriorSettings,
+                    rng: np.random.Generator) -> tuple[float, Array]:
+    """The emulator's spread for the active learning's stopping rule, from chains as short
+    as a round's: ``(largest net quantile shift, pooled draws (M, d) of the sample
+    functions' posteriors)``."""
+    _, chains = sample(ctx, surrogate, n_eff, quick.model_copy(update={"seed": int(rng.integers(2**31 - 1))}), rng)
+    spread, functions = _emulator_uncertainty(ctx, surrogate, n_eff, quick, rng,
+                                              stack_components(chains)[0].reshape(-1, ctx.space.dim))
+    return spread["max_quantile_shift"], np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in functions])
 
 
 def _refine_stage(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
@@ -417,7 +467,8 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         spread, pooled = None, []
         # the correction's weights judge a corrected posterior, and a noise-free one is degenerate
         if corrected is None and not ctx.noise_free:
-            spread, functions = _emulator_uncertainty(ctx, surrogate, n_eff, settings, rng, chains)
+            spread, functions = _emulator_uncertainty(ctx, surrogate, n_eff, settings, rng,
+                                                      stack_components(chains)[0].reshape(-1, ctx.space.dim))
             # a mixture requested through ``functions`` already carries the GP's uncertainty
             pooled = functions if settings.pool_functions and settings.functions == 0 else []
         t_outputs = time.perf_counter()

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from smcbayes.cli import main
+from smcbayes.posterior.context import load_run
 from smcbayes.posterior.stage import STABLE_ROUNDS
 from smcbayes.surrogate.gp import load_surrogate
 
@@ -136,6 +137,35 @@ def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path
     refined, _ = load_surrogate(tmp_path / "active" / "posterior" / "gp_refined.pt")
     assert refined.rotation is not None
     np.testing.assert_allclose(refined.rotation.T @ refined.rotation, np.eye(2), atol=1e-10)
+
+
+def test_a_large_spread_sends_the_active_learning_where_sample_functions_disagree(
+        run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Validated rounds end the active learning only once the emulator's spread is small:
+    after a large one, the next round tests draws of the sample functions' posteriors and
+    one more validated round measures the spread again."""
+    import smcbayes.posterior.stage as stage
+
+    rng = np.random.default_rng(4)
+    disputed = np.column_stack([rng.uniform(0.6, 0.9, 400), rng.uniform(0.1, 0.3, 400)])
+    spreads = iter([0.5, 0.02])
+    monkeypatch.setattr(stage, "_round_error", lambda *args: 0.1)  # every round validated
+    monkeypatch.setattr(stage, "quantile_shift", lambda previous, draws: (None, 0.0))
+    monkeypatch.setattr(stage, "_spread_settled", lambda *args: (next(spreads), disputed))
+    folder = _fresh_copy(run_dir, tmp_path / "spread")
+    settings = stage.PosteriorSettings(walkers=16, steps=300, refine=150, draws=10, seed=2)
+    info = stage.run_posterior(folder, settings)
+    active = info["active_learning"]
+    assert active["converged"] and active["spread_checks"] == 2 and active["spread"] == 0.02
+    assert active["rounds"] == STABLE_ROUNDS + 1
+    log = [json.loads(line) for line in (folder / "posterior" / "refine.jsonl").read_text().splitlines()]
+    flags = [rec["round_stats"]["disputed"] for rec in log if "round_stats" in rec]
+    assert flags == [False] * STABLE_ROUNDS + [True]
+    space = load_run(folder).space
+    last = space.to_unit(np.array([[rec["params"][n] for n in space.free_names]
+                                   for rec in log if rec["round"] == STABLE_ROUNDS]))
+    tested = sum(bool(np.any(np.all(np.isclose(row, disputed), axis=1))) for row in last)
+    assert tested >= len(last) // 3
 
 
 def test_missing_run_dir_is_input_error(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
