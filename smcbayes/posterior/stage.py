@@ -4,7 +4,7 @@ Reads the run (its resolved config, GP state and best point), estimates the effe
 number of independent points from the residuals at the best point, refines the emulator
 (rounds of forward evaluations at random, most uncertain and space-filling points of the
 emulated posterior's region, stopped early once the out-of-sample error at fresh posterior
-draws is below ``refine_tolerance_nats``; see :func:`refine` and
+draws is below ``refine_tolerance_nats``; see :func:`~smcbayes.posterior.active.refine` and
 :mod:`smcbayes.posterior.refine`), samples the emulated posterior (of the GP mean, or a
 mixture over GP sample functions), measures how far the emulator's uncertainty moves it
 (:mod:`smcbayes.posterior.spread`) and pools the sample functions' posteriors of that check
@@ -17,11 +17,9 @@ posterior draws and writes ``RUN_DIR/posterior/``:
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,24 +30,19 @@ from smcbayes.config import PosteriorSpec
 from smcbayes.data.loss import force_pair
 from smcbayes.errors import UnreliablePosteriorWarning
 from smcbayes.forward.nodes import interp_rows
+from smcbayes.posterior.active import emulator_uncertainty, fit_local, refine_stage, sample
 from smcbayes.posterior.context import RunContext, exact_log_posterior, load_run, true_log_loss
 from smcbayes.posterior.correct import correct
 from smcbayes.posterior.crossfit import LocalFit
-from smcbayes.posterior.likelihood import EmulatedPosterior, effective_points, sandwich_points
-from smcbayes.posterior.refine import check_values, quantile_shift, relevant_error, round_design
+from smcbayes.posterior.likelihood import effective_points, sandwich_points
 from smcbayes.posterior.reliability import assess
 from smcbayes.posterior.report import write_outputs
-from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
-from smcbayes.posterior.spread import SPREAD_FUNCTIONS, SPREAD_MAX, SPREAD_STEPS, emulator_spread
 from smcbayes.posterior.summary import stack_components
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import Executor
 from smcbayes.surrogate.gp import (
-    condition_surrogate,
-    fit_surrogate,
     gp_session,
     load_surrogate,
-    save_surrogate,
 )
 
 logger = logging.getLogger(__name__)
@@ -118,80 +111,6 @@ def residual_budget(ctx: RunContext, fit: LocalFit | None = None) -> dict[str, A
             "n_eff_total": total, "mse_kN2": mse}
 
 
-def sample(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
-           rng: np.random.Generator) -> tuple[EmulatedPosterior, list]:
-    """Run one emcee ensemble per mixture component."""
-    emul = EmulatedPosterior(surrogate, n_eff, settings.functions, settings.seed)
-    centre = ctx.space.to_unit(ctx.best_theta)[0]
-    sampler = SamplerSettings(walkers=settings.walkers, max_steps=settings.steps,
-                              min_steps=min(500, settings.steps))
-    chains = []
-    for c in range(emul.components):
-        comp = c if settings.functions > 0 else None
-        label = f" (function {c + 1}/{emul.components})"
-        chains.append(run_ensemble(emul.log_prob_fn(comp), ctx.space.dim, sampler, rng, centre, label))
-    return emul, chains
-
-
-CAP_NATS = 30.0
-"""Targets more than this many nats of log-likelihood above the best are capped."""
-
-
-def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int,
-              draws: Array | None = None, start: Any = None) -> Any:
-    """GP of log(loss) with targets capped at min + CAP_NATS / (N_eff / 2), its inputs
-    rotated onto the principal axes of ``draws`` ``(M, d)`` (posterior draws, unit cube)
-    when given; ``start``: a GP whose hyperparameters start the fit.
-
-    Where the true log-likelihood is CAP_NATS below the best the posterior density is
-    below e^-30 of its peak whatever the emulator says, so capping loses nothing and lets
-    the GP spend its flexibility where the posterior lives instead of on the far landscape.
-    The rotation lets the ARD lengthscales follow a ridge of the posterior (two parameters
-    that trade off, as the slip law's tau_c and m): along the axes of the cube a ridge needs
-    short lengthscales in both, and the GP then cannot extrapolate along it.  The
-    "rotoscaling" warping of PyVBMC (Acerbi 2018, 2020; Huggins et al. 2023, JOSS 8, 5428)
-    rotates its inputs likewise (and rescales them, which ARD lengthscales make unneeded
-    here).
-    """
-    cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
-    return fit_surrogate(x, np.minimum(y, cap), kernel, seed, rotation=principal_axes(draws), start=start)
-
-
-REFIT_GROWTH = 1.25
-"""The active learning refits the GP's hyperparameters (and its input rotation) once the
-training set has grown by this factor since the last fit; in between it conditions the
-fitted GP on the new points.  A fit costs tens of marginal-likelihood gradients on up to
-about 900 points, and fitting every round dominated the stage's time."""
-
-
-def update_gp(surrogate: Any, x: Array, y: Array, n_eff: float, seed: int, draws: Array,
-              fitted_at: int) -> tuple[Any, int]:
-    """The GP on the enlarged training data ``x`` ``(N, d)``, ``y`` ``(N,)`` (log loss):
-    refitted by :func:`fit_local` (rotated onto ``draws``) when N reached
-    :data:`REFIT_GROWTH` times ``fitted_at`` (the size at the last fit; 0 forces a fit) or
-    when the current GP's fit failed, else conditioned on the data with the current
-    hyperparameters (from which a refit starts).  Returns the GP and the size at its last fit."""
-    if x.shape[0] >= REFIT_GROWTH * fitted_at or not surrogate.fitted:
-        return fit_local(x, y, n_eff, surrogate.kernel, seed, draws, surrogate), int(x.shape[0])
-    cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
-    return condition_surrogate(surrogate, x, np.minimum(y, cap)), fitted_at
-
-
-def principal_axes(draws: Array | None) -> Array | None:
-    """Eigenvectors ``(d, d)`` of the covariance of ``draws`` ``(M, d)``, each signed so that
-    its largest component is positive (LAPACK may return either sign, and the sample
-    functions drawn for a seed depend on it); ``None`` in one dimension, without enough
-    draws (fewer than 2 d) or with a degenerate covariance."""
-    if draws is None or draws.ndim != 2 or draws.shape[1] < 2 or draws.shape[0] < 2 * draws.shape[1]:
-        return None
-    cov = np.cov(np.asarray(draws, dtype=float), rowvar=False)
-    if not np.all(np.isfinite(cov)) or np.trace(cov) <= 0:
-        return None
-    vectors = np.linalg.eigh(cov)[1]
-    lead = vectors[np.argmax(np.abs(vectors), axis=0), np.arange(vectors.shape[1])]
-    return vectors * np.where(lead < 0, -1.0, 1.0)
-
-
 def correct_posterior(ctx: RunContext, chains: list, n_eff: float, settings: PosteriorSettings,
                       rng: np.random.Generator, data: tuple[Array, Array]) -> Any:
     """Importance-sampling correction of the emulated posterior (see :mod:`smcbayes.posterior.correct`).
@@ -203,210 +122,6 @@ def correct_posterior(ctx: RunContext, chains: list, n_eff: float, settings: Pos
     cs = settings.correction.model_copy(update={"draws": settings.correct_draws})
     known = (data[0], -0.5 * n_eff * np.asarray(data[1], dtype=float))
     return correct(exact_log_posterior(ctx, n_eff), unit.reshape(-1, ctx.space.dim), cs, rng, known)
-
-
-STABLE_QUANTILES = 0.05
-"""Active learning stops only when no 5/50/95 % quantile of the emulated posterior moved by
-more than this share of its prior range since the previous round."""
-
-STABLE_ROUNDS = 3
-"""...and when the out-of-sample error was below the tolerance in this many consecutive
-rounds.  Each round's points reach a region the emulator misses (a flat arm of the
-posterior that the GP rates many nats too low) only by chance, and a miss shows only in
-the round whose points land there: with two rounds the synthetic accuracy benchmark was
-called reliable while a 5 % arm was missing."""
-
-
-def _log_round(out_dir: Path, rnd: int, theta: Array, vals: Array, n_rand: int, names: list[str],
-               stats: dict[str, Any]) -> None:
-    """Append one round's forward runs and its statistics to ``refine.jsonl``."""
-    with (out_dir / "refine.jsonl").open("a", encoding="utf-8") as fh:
-        for k, (row, val) in enumerate(zip(theta, vals, strict=True)):
-            rec = {"round": rnd, "kind": "draw" if k < n_rand else "design",
-                   "params": dict(zip(names, row.tolist(), strict=True)),
-                   "log_loss": None if not np.isfinite(val) else float(val)}
-            if k == len(vals) - 1:
-                rec["round_stats"] = stats
-            fh.write(json.dumps(rec) + "\n")
-
-
-TEMPER = 0.25
-"""Power of the likelihood of the tempered emulated posterior whose draws explore each round."""
-
-
-def _round_draws(ctx: RunContext, surrogate: Any, n_eff: float, quick: PosteriorSettings,
-                 rng: np.random.Generator) -> tuple[Array, Array]:
-    """Pooled draws ``(N, d)`` of the emulated posterior of the GP mean, and draws of the
-    tempered (likelihood^TEMPER) emulated posterior of one GP sample function, unit cube.
-
-    The sample function (a Thompson draw) is as high as the GP allows where it is unsure,
-    so its tempered posterior reaches regions that the mean rates a few nats too low and
-    that the mean's own tempered posterior would not visit.
-    """
-    _, chains = sample(ctx, surrogate, n_eff, quick, rng)
-    mean_draws = np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
-    explore = quick.model_copy(update={"functions": 1, "seed": int(rng.integers(2**31 - 1))})
-    _, chains = sample(ctx, surrogate, TEMPER * n_eff, explore, rng)
-    return mean_draws, np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
-
-
-def _round_error(predicted: Array, vals: Array, n_rand: int, best_log_loss: float, n_eff: float) -> float:
-    """A round's out-of-sample error (nats): the larger of the error at its ``n_rand``
-    leading random posterior draws (targets capped as in :func:`fit_local`) and
-    :func:`~smcbayes.posterior.refine.relevant_error` over all its points."""
-    cap = best_log_loss + CAP_NATS / (0.5 * n_eff)
-    err = check_values(predicted[:n_rand], np.minimum(vals[:n_rand], cap), n_eff)
-    # judged on the uncapped values: a capped far point cannot hide a missed mode
-    missed = relevant_error(predicted, vals, n_eff)
-    return max(err, missed) if np.isfinite(missed) else err
-
-
-@dataclass
-class _Progress:
-    """State of the active learning between rounds."""
-
-    remaining: int
-    rounds: int = 0
-    below: int = 0
-    quantiles: Array | None = None
-    fitted_at: int = 0  # training size at the last hyperparameter fit; 0 forces one
-    disputed: Array | None = None  # draws (M, d) of sample functions' posteriors to test
-    spread_checks: int = 0
-
-
-def _one_round(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
-               quick: PosteriorSettings, rng: np.random.Generator, out_dir: Path, state: _Progress,
-               per_round: int) -> tuple[Any, tuple[Array, Array], float, float]:
-    """One round of :func:`refine`; returns the updated surrogate and data, the round's
-    out-of-sample error (nats) and the quantile shift since the previous round."""
-    x, y = data
-    clock = [time.perf_counter()]
-    pooled, wide = _round_draws(ctx, surrogate, n_eff, quick, rng)
-    state.quantiles, shift = quantile_shift(state.quantiles, pooled)
-    if state.disputed is not None:
-        # a third of the round where GP sample functions put posterior mass the mean does not
-        wide, share = state.disputed, 3
-    else:
-        share = 6
-    pts, n_rand = round_design(pooled, surrogate, min(per_round, state.remaining), rng, n_eff, wide, share)
-    state.remaining -= max(len(pts), 1)
-    theta = ctx.space.from_unit(pts)
-    clock.append(time.perf_counter())
-    vals = true_log_loss(ctx, theta)
-    clock.append(time.perf_counter())
-    err = _round_error(surrogate.predict(pts)[0], vals, n_rand, float(np.min(y)), n_eff)
-    ok = np.isfinite(vals)
-    x_new, y_new = np.vstack([x, pts[ok]]), np.concatenate([y, vals[ok]])
-    surrogate, state.fitted_at = update_gp(surrogate, x_new, y_new, n_eff, int(rng.integers(2**31 - 1)),
-                                           pooled, state.fitted_at)
-    clock.append(time.perf_counter())
-    stats = {"training_points": int(x.shape[0]), "error_nats": err if np.isfinite(err) else None,
-             "quantile_shift": shift if np.isfinite(shift) else None, "disputed": state.disputed is not None,
-             "seconds": dict(zip(("sampling", "forward", "fit"), np.diff(clock).round(2).tolist(), strict=True))}
-    _log_round(out_dir, state.rounds, theta, vals, n_rand, ctx.space.free_names, stats)
-    return surrogate, (x_new, y_new), err, shift
-
-
-def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
-           settings: PosteriorSettings, rng: np.random.Generator,
-           out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any]]:
-    """Active learning of the log-likelihood emulator: rounds of sample the emulated
-    posterior of the GP mean and the tempered one of a GP sample function (shorter chains),
-    evaluate the forward model at fresh posterior draws (the out-of-sample check) and at
-    the points of :func:`~smcbayes.posterior.refine.round_design`, and update the GP
-    (:func:`update_gp`: refitted on inputs rotated onto the principal axes of the round's
-    posterior draws once the data grew by :data:`REFIT_GROWTH`, else conditioned).
-
-    A round is validated when its out-of-sample error (the larger of that at its random
-    posterior draws and :func:`~smcbayes.posterior.refine.relevant_error` over all its
-    points) is below ``settings.refine_tolerance_nats``.  After :data:`STABLE_ROUNDS`
-    consecutive validated rounds with no 5/50/95 % quantile moved by more than
-    :data:`STABLE_QUANTILES` of its range, the emulator's spread is measured
-    (:func:`_spread_settled`): at most :data:`~smcbayes.posterior.spread.SPREAD_MAX` stops
-    the active learning; above it, a third of the following rounds are draws of the sample
-    functions' posteriors (where they put mass the GP mean's posterior does not, the
-    simulator decides), and one more validated round triggers the next measurement.
-    Stops otherwise when ``settings.refine`` evaluations are spent.
-
-    Returns the updated surrogate, the enlarged training data ``(x_unit, log_loss)`` and
-    ``{"rounds", "converged", "error_nats", "quantile_shift", "spread", "spread_checks"}``.
-    """
-    state = _Progress(remaining=settings.refine)
-    per_round = max(9, min(30, settings.refine // 4))
-    quick = PosteriorSettings(walkers=settings.walkers, steps=min(settings.steps, 1000), functions=0,
-                              seed=int(rng.integers(2**31 - 1)))
-    status: dict[str, Any] = {"rounds": 0, "converged": False, "error_nats": None, "quantile_shift": None,
-                              "spread": None, "spread_checks": 0}
-    while state.remaining > 0:
-        surrogate, data, err, shift = _one_round(ctx, data, surrogate, n_eff, quick, rng, out_dir, state, per_round)
-        state.rounds += 1
-        state.below = state.below + 1 if err < settings.refine_tolerance_nats else 0
-        logger.info("active learning round %d: %d training points, out-of-sample error %.2f nats, "
-                    "quantiles moved by %.3f of the range", state.rounds, data[0].shape[0], err, shift)
-        status.update(rounds=state.rounds, error_nats=err if np.isfinite(err) else None,
-                      quantile_shift=shift if np.isfinite(shift) else None)
-        if state.below >= STABLE_ROUNDS and shift <= STABLE_QUANTILES:
-            spread, state.disputed = _spread_settled(ctx, surrogate, n_eff, quick, rng)
-            state.spread_checks += 1
-            status.update(spread=spread, spread_checks=state.spread_checks)
-            logger.info("emulator spread %.3f of the range after round %d", spread, state.rounds)
-            if spread <= SPREAD_MAX:
-                status["converged"] = True
-                break
-            state.below = STABLE_ROUNDS - 1
-    return surrogate, data, status
-
-
-def _emulator_uncertainty(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
-                          rng: np.random.Generator, reported_unit: Array) -> tuple[dict[str, Any], list]:
-    """The emulator's spread (:func:`~smcbayes.posterior.spread.emulator_spread`) around the
-    posterior draws ``reported_unit`` ``(N, d)``, and the chains of its GP sample functions'
-    posteriors.
-
-    The functions' chains and a control chain on the GP mean run :data:`SPREAD_STEPS` steps
-    (at most ``settings.steps``), seeded from ``rng``.
-    """
-    steps = min(SPREAD_STEPS, settings.steps)
-
-    def run(functions: int) -> list:
-        spec = settings.model_copy(update={"functions": functions, "steps": steps,
-                                           "seed": int(rng.integers(2**31 - 1))})
-        return sample(ctx, surrogate, n_eff, spec, rng)[1]
-
-    def flat(c: Any) -> Array:
-        return c.samples.reshape(-1, ctx.space.dim)
-
-    control, functions = run(0), run(SPREAD_FUNCTIONS)
-    spread = emulator_spread(reported_unit, flat(control[0]), [flat(c) for c in functions],
-                             ctx.space.free_names, steps)
-    return spread, functions
-
-
-def _spread_settled(ctx: RunContext, surrogate: Any, n_eff: float, quick: PosteriorSettings,
-                    rng: np.random.Generator) -> tuple[float, Array]:
-    """The emulator's spread for the active learning's stopping rule, from chains as short
-    as a round's: ``(largest net quantile shift, pooled draws (M, d) of the sample
-    functions' posteriors)``."""
-    _, chains = sample(ctx, surrogate, n_eff, quick.model_copy(update={"seed": int(rng.integers(2**31 - 1))}), rng)
-    spread, functions = _emulator_uncertainty(ctx, surrogate, n_eff, quick, rng,
-                                              stack_components(chains)[0].reshape(-1, ctx.space.dim))
-    return spread["max_quantile_shift"], np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in functions])
-
-
-def _refine_stage(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
-                  settings: PosteriorSettings, rng: np.random.Generator,
-                  out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any]]:
-    """Active learning with its log and the refined GP saved; returns its status with the
-    forward runs it made (``evaluations``)."""
-    if settings.refine <= 0:
-        return surrogate, data, {"enabled": False, "evaluations": 0}
-    log = out_dir / "refine.jsonl"
-    log.unlink(missing_ok=True)
-    surrogate, data, status = refine(ctx, data, surrogate, n_eff, settings, rng, out_dir)
-    save_surrogate(out_dir / "gp_refined.pt", surrogate, {"training_points": int(data[0].shape[0])})
-    with log.open(encoding="utf-8") as fh:
-        return surrogate, data, {"enabled": True, "evaluations": sum(1 for _ in fh),
-                                 "budget": settings.refine, **status}
 
 
 def _count_runs(runs: dict[str, int], refine: int, residual_budget: int) -> None:
@@ -458,7 +173,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         n_eff = budget["n_eff_total"]
         data = (calibration_gp.x_unit, calibration_gp.log_loss)
         surrogate = fit_local(*data, n_eff, calibration_gp.kernel, settings.seed)
-        surrogate, data, active = _refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
+        surrogate, data, active = refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
         t_sample = time.perf_counter()
         emul, chains = sample(ctx, surrogate, n_eff, settings, rng)
         t_correct = time.perf_counter()
@@ -467,7 +182,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         spread, pooled = None, []
         # the correction's weights judge a corrected posterior, and a noise-free one is degenerate
         if corrected is None and not ctx.noise_free:
-            spread, functions = _emulator_uncertainty(ctx, surrogate, n_eff, settings, rng,
+            spread, functions = emulator_uncertainty(ctx, surrogate, n_eff, settings, rng,
                                                       stack_components(chains)[0].reshape(-1, ctx.space.dim))
             # a mixture requested through ``functions`` already carries the GP's uncertainty
             pooled = functions if settings.pool_functions and settings.functions == 0 else []

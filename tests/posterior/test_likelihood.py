@@ -20,7 +20,7 @@ from smcbayes.posterior.likelihood import (
     sandwich_points,
 )
 from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
-from smcbayes.posterior.stage import REFIT_GROWTH, fit_local, principal_axes, update_gp
+from smcbayes.posterior.active import REFIT_GROWTH, fit_local, principal_axes, update_gp
 from smcbayes.posterior.summary import ParameterSummary, warnings_for
 from smcbayes.surrogate.gp import (
     condition_surrogate,

@@ -11,7 +11,7 @@ import pytest
 
 from smcbayes.cli import main
 from smcbayes.posterior.context import load_run
-from smcbayes.posterior.stage import STABLE_ROUNDS
+from smcbayes.posterior.active import STABLE_ROUNDS
 from smcbayes.surrogate.gp import load_surrogate
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -144,20 +144,20 @@ def test_a_large_spread_sends_the_active_learning_where_sample_functions_disagre
     """Validated rounds end the active learning only once the emulator's spread is small:
     after a large one, the next round tests draws of the sample functions' posteriors and
     one more validated round measures the spread again."""
-    import smcbayes.posterior.stage as stage
+    import smcbayes.posterior.active as active
+    from smcbayes.posterior.stage import PosteriorSettings, run_posterior
 
     rng = np.random.default_rng(4)
     disputed = np.column_stack([rng.uniform(0.6, 0.9, 400), rng.uniform(0.1, 0.3, 400)])
     spreads = iter([0.5, 0.02])
-    monkeypatch.setattr(stage, "_round_error", lambda *args: 0.1)  # every round validated
-    monkeypatch.setattr(stage, "quantile_shift", lambda previous, draws: (None, 0.0))
-    monkeypatch.setattr(stage, "_spread_settled", lambda *args: (next(spreads), disputed))
+    monkeypatch.setattr(active, "_round_error", lambda *args: 0.1)  # every round validated
+    monkeypatch.setattr(active, "quantile_shift", lambda previous, draws: (None, 0.0))
+    monkeypatch.setattr(active, "_spread_settled", lambda *args: (next(spreads), disputed))
     folder = _fresh_copy(run_dir, tmp_path / "spread")
-    settings = stage.PosteriorSettings(walkers=16, steps=300, refine=150, draws=10, seed=2)
-    info = stage.run_posterior(folder, settings)
-    active = info["active_learning"]
-    assert active["converged"] and active["spread_checks"] == 2 and active["spread"] == 0.02
-    assert active["rounds"] == STABLE_ROUNDS + 1
+    info = run_posterior(folder, PosteriorSettings(walkers=16, steps=300, refine=150, draws=10, seed=2))
+    status = info["active_learning"]
+    assert status["converged"] and status["spread_checks"] == 2 and status["spread"] == 0.02
+    assert status["rounds"] == STABLE_ROUNDS + 1
     log = [json.loads(line) for line in (folder / "posterior" / "refine.jsonl").read_text().splitlines()]
     flags = [rec["round_stats"]["disputed"] for rec in log if "round_stats" in rec]
     assert flags == [False] * STABLE_ROUNDS + [True]
