@@ -24,7 +24,7 @@ from smcbayes.posterior.context import RunContext, true_log_loss
 from smcbayes.posterior.likelihood import EmulatedPosterior
 from smcbayes.posterior.refine import check_values, quantile_shift, relevant_error, round_design
 from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
-from smcbayes.posterior.spread import SPREAD_FUNCTIONS, SPREAD_MAX, SPREAD_STEPS, emulator_spread
+from smcbayes.posterior.spread import SPREAD_FUNCTIONS, SPREAD_MAX, emulator_spread
 from smcbayes.posterior.summary import stack_components
 from smcbayes.surrogate.gp import condition_surrogate, fit_surrogate, save_surrogate
 
@@ -213,7 +213,7 @@ def _one_round(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff
 
 def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
            settings: PosteriorSettings, rng: np.random.Generator,
-           out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any]]:
+           out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any], SpreadChains | None]:
     """Active learning of the log-likelihood emulator: rounds of sample the emulated
     posterior of the GP mean and the tempered one of a GP sample function (shorter chains),
     evaluate the forward model at fresh posterior draws (the out-of-sample check) and at
@@ -232,8 +232,9 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
     simulator decides), and one more validated round triggers the next measurement.
     Stops otherwise when ``settings.refine`` evaluations are spent.
 
-    Returns the updated surrogate, the enlarged training data ``(x_unit, log_loss)`` and
-    ``{"rounds", "converged", "error_nats", "quantile_shift", "spread", "spread_checks"}``.
+    Returns the updated surrogate, the enlarged training data ``(x_unit, log_loss)``,
+    ``{"rounds", "converged", "error_nats", "quantile_shift", "spread", "spread_checks"}`` and,
+    when the spread ended it, the chains of that last measurement (on the returned GP).
     """
     state = _Progress(remaining=settings.refine)
     per_round = max(9, min(30, settings.refine // 4))
@@ -250,64 +251,84 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
         status.update(rounds=state.rounds, error_nats=err if np.isfinite(err) else None,
                       quantile_shift=shift if np.isfinite(shift) else None)
         if state.below >= STABLE_ROUNDS and shift <= STABLE_QUANTILES:
-            spread, state.disputed = _spread_settled(ctx, surrogate, n_eff, quick, rng)
+            spread, measured = _spread_settled(ctx, surrogate, n_eff, settings, rng)
             state.spread_checks += 1
             status.update(spread=spread, spread_checks=state.spread_checks)
             logger.info("emulator spread %.3f of the range after round %d", spread, state.rounds)
             if spread <= SPREAD_MAX:
                 status["converged"] = True
-                break
+                return surrogate, data, status, measured
+            state.disputed = np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in measured.functions])
             state.below = STABLE_ROUNDS - 1
-    return surrogate, data, status
+    return surrogate, data, status, None
 
 
-def emulator_uncertainty(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
-                          rng: np.random.Generator, reported_unit: Array) -> tuple[dict[str, Any], list]:
-    """The emulator's spread (:func:`~smcbayes.posterior.spread.emulator_spread`) around the
-    posterior draws ``reported_unit`` ``(N, d)``, and the chains of its GP sample functions'
-    posteriors.
+@dataclass(frozen=True)
+class SpreadChains:
+    """The chains a spread measurement needs, on one GP: ``control`` draws ``(M, d)`` of a
+    chain on the GP mean and the chains of the posteriors of the GP sample functions drawn
+    with ``seed`` (``functions``), unit cube, each of at most ``steps`` steps."""
 
-    The functions' chains and a control chain on the GP mean run :data:`SPREAD_STEPS` steps
-    (at most ``settings.steps``), seeded from ``rng``.
-    """
-    steps = min(SPREAD_STEPS, settings.steps)
+    control: Array
+    functions: list
+    steps: int
+    seed: int
 
-    def run(functions: int) -> list:
-        spec = settings.model_copy(update={"functions": functions, "steps": steps,
-                                           "seed": int(rng.integers(2**31 - 1))})
-        return sample(ctx, surrogate, n_eff, spec, rng)[1]
-
-    def flat(c: Any) -> Array:
-        return c.samples.reshape(-1, ctx.space.dim)
-
-    control, functions = run(0), run(SPREAD_FUNCTIONS)
-    spread = emulator_spread(reported_unit, flat(control[0]), [flat(c) for c in functions],
-                             ctx.space.free_names, steps)
-    return spread, functions
+    def spread(self, reported_unit: Array, names: list[str]) -> dict[str, Any]:
+        """:func:`~smcbayes.posterior.spread.emulator_spread` around ``reported_unit`` ``(N, d)``."""
+        d = reported_unit.shape[1]
+        return emulator_spread(reported_unit, self.control, [c.samples.reshape(-1, d) for c in self.functions],
+                               names, self.steps)
 
 
-def _spread_settled(ctx: RunContext, surrogate: Any, n_eff: float, quick: PosteriorSettings,
-                    rng: np.random.Generator) -> tuple[float, Array]:
-    """The emulator's spread for the active learning's stopping rule, from chains as short
-    as a round's: ``(largest net quantile shift, pooled draws (M, d) of the sample
-    functions' posteriors)``."""
-    _, chains = sample(ctx, surrogate, n_eff, quick.model_copy(update={"seed": int(rng.integers(2**31 - 1))}), rng)
-    spread, functions = emulator_uncertainty(ctx, surrogate, n_eff, quick, rng,
-                                              stack_components(chains)[0].reshape(-1, ctx.space.dim))
-    return spread["max_quantile_shift"], np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in functions])
+SPREAD_STEPS = 2000
+"""Steps of the chains of the active learning's spread measurements (quantiles to about
+0.03 of the prior range); the stage's final measurement, whose chains are pooled into the
+reported posterior, runs them as long as the GP mean's."""
+
+
+def spread_chains(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
+                  rng: np.random.Generator, seed: int | None = None) -> SpreadChains:
+    """Chains of the posteriors of :data:`~smcbayes.posterior.spread.SPREAD_FUNCTIONS` GP
+    sample functions (drawn with ``seed``, else a seed from ``rng``) and a control chain on
+    the GP mean, within ``settings.steps`` and stopped by the same autocorrelation rule as
+    the GP mean's chains: the same seed on the same GP gives the same functions, so the
+    measurement that ended the active learning is repeated with chains fit to be pooled
+    (fixed 2,000-step chains left R-hat at 1.1-1.6 where the GP mean's needed 2,250-10,000)."""
+    def run(functions: int, chosen: int) -> list:
+        return sample(ctx, surrogate, n_eff, settings.model_copy(update={"functions": functions, "seed": chosen}),
+                      rng)[1]
+
+    control = run(0, int(rng.integers(2**31 - 1)))[0].samples.reshape(-1, ctx.space.dim)
+    seed = int(rng.integers(2**31 - 1)) if seed is None else seed
+    return SpreadChains(control, run(SPREAD_FUNCTIONS, seed), settings.steps, seed)
+
+
+def _spread_settled(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
+                    rng: np.random.Generator) -> tuple[float, SpreadChains]:
+    """The emulator's spread for the active learning's stopping rule, from chains of
+    :data:`SPREAD_STEPS` around a fresh chain as long on the GP mean (with chains as short
+    as a round's, the largest of the functions' shifts stood above the threshold on noise
+    alone); returns it with the chains it was measured from."""
+    spec = settings.model_copy(update={"functions": 0, "steps": min(SPREAD_STEPS, settings.steps),
+                                       "seed": int(rng.integers(2**31 - 1))})
+    _, chains = sample(ctx, surrogate, n_eff, spec, rng)
+    measured = spread_chains(ctx, surrogate, n_eff, spec, rng)
+    reference = stack_components(chains)[0].reshape(-1, ctx.space.dim)
+    return measured.spread(reference, ctx.space.free_names)["max_quantile_shift"], measured
 
 
 def refine_stage(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
-                  settings: PosteriorSettings, rng: np.random.Generator,
-                  out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any]]:
-    """Active learning with its log and the refined GP saved; returns its status with the
-    forward runs it made (``evaluations``)."""
+                 settings: PosteriorSettings, rng: np.random.Generator,
+                 out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any], SpreadChains | None]:
+    """Active learning with its log and the refined GP saved; returns as :func:`refine`,
+    its status with the forward runs it made (``evaluations``)."""
     if settings.refine <= 0:
-        return surrogate, data, {"enabled": False, "evaluations": 0}
+        return surrogate, data, {"enabled": False, "evaluations": 0}, None
     log = out_dir / "refine.jsonl"
     log.unlink(missing_ok=True)
-    surrogate, data, status = refine(ctx, data, surrogate, n_eff, settings, rng, out_dir)
+    surrogate, data, status, measured = refine(ctx, data, surrogate, n_eff, settings, rng, out_dir)
     save_surrogate(out_dir / "gp_refined.pt", surrogate, {"training_points": int(data[0].shape[0])})
     with log.open(encoding="utf-8") as fh:
-        return surrogate, data, {"enabled": True, "evaluations": sum(1 for _ in fh),
-                                 "budget": settings.refine, **status}
+        runs = sum(1 for _ in fh)
+    return surrogate, data, {"enabled": True, "evaluations": runs, "budget": settings.refine, **status}, measured

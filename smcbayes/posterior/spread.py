@@ -26,9 +26,6 @@ Array = NDArray[np.float64]
 
 SPREAD_FUNCTIONS = 4
 """GP sample functions whose posteriors are compared with the reported one."""
-SPREAD_STEPS = 2000
-"""Steps of each sample function's chains (quantiles to about 0.03 of the prior range), or
-the stage's ``steps`` if fewer."""
 SPREAD_MAX = 0.10
 """Largest quantile shift (share of the prior range) the emulator's uncertainty may cause
 for the posterior to count as determined: the accuracy the synthetic benchmark asks of the
@@ -48,14 +45,14 @@ def quantile_shifts(reported_unit: Array, function_draws: Sequence[Array]) -> Ar
 def emulator_spread(reported_unit: Array, control_unit: Array, function_draws: Sequence[Array],
                     names: Sequence[str], steps: int) -> dict[str, Any]:
     """Quantile shifts of the posteriors of GP sample functions against the reported
-    posterior, less the shift of a control chain on the GP mean of the same length as the
+    posterior, less the shift of a control chain on the GP mean sampled like the
     functions' chains (the chains' own sampling noise).
 
     Args:
         reported_unit: the reported posterior's draws ``(N, d)``, unit cube.
-        control_unit: draws ``(M, d)`` of the GP mean's posterior from a chain of ``steps``.
+        control_unit: draws ``(M, d)`` of the GP mean's posterior from a chain of at most ``steps``.
         function_draws: one unit-cube sample ``(M_k, d)`` per GP sample function, from chains
-            of ``steps``.
+            of at most ``steps``.
         names: the free parameters' names, ``d`` of them.
 
     Returns:

@@ -30,7 +30,7 @@ from smcbayes.config import PosteriorSpec
 from smcbayes.data.loss import force_pair
 from smcbayes.errors import UnreliablePosteriorWarning
 from smcbayes.forward.nodes import interp_rows
-from smcbayes.posterior.active import emulator_uncertainty, fit_local, refine_stage, sample
+from smcbayes.posterior.active import fit_local, refine_stage, sample, spread_chains
 from smcbayes.posterior.context import RunContext, exact_log_posterior, load_run, true_log_loss
 from smcbayes.posterior.correct import correct
 from smcbayes.posterior.crossfit import LocalFit
@@ -173,7 +173,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         n_eff = budget["n_eff_total"]
         data = (calibration_gp.x_unit, calibration_gp.log_loss)
         surrogate = fit_local(*data, n_eff, calibration_gp.kernel, settings.seed)
-        surrogate, data, active = refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
+        surrogate, data, active, measured = refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
         t_sample = time.perf_counter()
         emul, chains = sample(ctx, surrogate, n_eff, settings, rng)
         t_correct = time.perf_counter()
@@ -182,10 +182,11 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         spread, pooled = None, []
         # the correction's weights judge a corrected posterior, and a noise-free one is degenerate
         if corrected is None and not ctx.noise_free:
-            spread, functions = emulator_uncertainty(ctx, surrogate, n_eff, settings, rng,
-                                                      stack_components(chains)[0].reshape(-1, ctx.space.dim))
+            # the functions that ended the active learning, so its verdict and the stage's agree
+            measured = spread_chains(ctx, surrogate, n_eff, settings, rng, measured.seed if measured else None)
+            spread = measured.spread(stack_components(chains)[0].reshape(-1, ctx.space.dim), ctx.space.free_names)
             # a mixture requested through ``functions`` already carries the GP's uncertainty
-            pooled = functions if settings.pool_functions and settings.functions == 0 else []
+            pooled = measured.functions if settings.pool_functions and settings.functions == 0 else []
         t_outputs = time.perf_counter()
         info = write_outputs(ctx, emul, chains + pooled, budget, settings, rng, out_dir, corrected, fit)
         if spread is not None:

@@ -12,6 +12,7 @@ import pytest
 
 from smcbayes import progress
 from smcbayes.errors import ConvergenceWarning, UnreliablePosteriorWarning
+from smcbayes.posterior.active import REFIT_GROWTH, fit_local, principal_axes, update_gp
 from smcbayes.posterior.emulator import NumpyGP
 from smcbayes.posterior.likelihood import (
     EmulatedPosterior,
@@ -20,7 +21,6 @@ from smcbayes.posterior.likelihood import (
     sandwich_points,
 )
 from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
-from smcbayes.posterior.active import REFIT_GROWTH, fit_local, principal_axes, update_gp
 from smcbayes.posterior.summary import ParameterSummary, warnings_for
 from smcbayes.surrogate.gp import (
     condition_surrogate,

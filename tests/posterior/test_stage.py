@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import arviz as az
 import numpy as np
 import pytest
 
 from smcbayes.cli import main
-from smcbayes.posterior.context import load_run
 from smcbayes.posterior.active import STABLE_ROUNDS
+from smcbayes.posterior.context import load_run
 from smcbayes.surrogate.gp import load_surrogate
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -145,19 +146,39 @@ def test_a_large_spread_sends_the_active_learning_where_sample_functions_disagre
     after a large one, the next round tests draws of the sample functions' posteriors and
     one more validated round measures the spread again."""
     import smcbayes.posterior.active as active
+    import smcbayes.posterior.stage as stage
     from smcbayes.posterior.stage import PosteriorSettings, run_posterior
 
     rng = np.random.default_rng(4)
     disputed = np.column_stack([rng.uniform(0.6, 0.9, 400), rng.uniform(0.1, 0.3, 400)])
-    spreads = iter([0.5, 0.02])
     monkeypatch.setattr(active, "_round_error", lambda *args: 0.1)  # every round validated
     monkeypatch.setattr(active, "quantile_shift", lambda previous, draws: (None, 0.0))
-    monkeypatch.setattr(active, "_spread_settled", lambda *args: (next(spreads), disputed))
+    real, spreads = active._spread_settled, iter([0.5, 0.02])
+
+    def settled(*args: object) -> tuple[float, active.SpreadChains]:
+        value, chains = next(spreads), real(*args)[1]
+        if value > 0.1:  # a large spread hands the next rounds these draws to test
+            chains = active.SpreadChains(chains.control, [SimpleNamespace(samples=disputed[:, None])], 10, 0)
+        return value, chains
+
+    monkeypatch.setattr(active, "_spread_settled", settled)
+    # the stage measures again the functions that ended the active learning, on longer chains
+    original, ended, repeated = active.spread_chains, [], []
+
+    def recorded(into: list) -> object:
+        def measure(*args: object) -> active.SpreadChains:
+            into.append(original(*args))
+            return into[-1]
+        return measure
+
+    monkeypatch.setattr(active, "spread_chains", recorded(ended))
+    monkeypatch.setattr(stage, "spread_chains", recorded(repeated))
     folder = _fresh_copy(run_dir, tmp_path / "spread")
     info = run_posterior(folder, PosteriorSettings(walkers=16, steps=300, refine=150, draws=10, seed=2))
     status = info["active_learning"]
     assert status["converged"] and status["spread_checks"] == 2 and status["spread"] == 0.02
     assert status["rounds"] == STABLE_ROUNDS + 1
+    assert len(ended) == 2 and len(repeated) == 1 and repeated[0].seed == ended[-1].seed
     log = [json.loads(line) for line in (folder / "posterior" / "refine.jsonl").read_text().splitlines()]
     flags = [rec["round_stats"]["disputed"] for rec in log if "round_stats" in rec]
     assert flags == [False] * STABLE_ROUNDS + [True]
