@@ -158,23 +158,24 @@ class PosteriorSpec(Strict):
     functions: int = Field(0, ge=0, le=1000,
                            description="GP sample functions whose posteriors alone make the sampled "
                                        "mixture (0: the GP mean's posterior, pooled with those of the "
-                                       "spread check's sample functions unless --no-pool-functions)")
+                                       "spread check's sample functions when pool_functions is on)")
     pool_functions: bool = Field(True, description="carry the emulator's uncertainty into the reported "
                                                    "posterior: pool the GP mean's posterior with those of "
                                                    "the spread check's GP sample functions, so that what "
-                                                   "the GP cannot rule out widens the result")
+                                                   "the GP cannot rule out widens the result (not with "
+                                                   "functions > 0, the correction or noise-free data)")
     refine: int = Field(800, ge=0, le=1_000_000,
                         description="most forward evaluations of the active learning of the emulator "
                                     "(rounds of fresh posterior draws and points where the GP is unsure "
                                     "and a tempered posterior could be large; it stops earlier once "
-                                    "validated)")
+                                    "validated and GP sample functions no longer move the posterior)")
     draws: int = Field(100, ge=1, le=1_000_000,
                        description="posterior draws through the forward model for bands and checks")
     seed: int = Field(0, ge=0, description="random seed (same seed, same posterior)")
     refine_tolerance_nats: float = Field(
         1.0, gt=0, description="active learning stops once the emulator's out-of-sample error at "
-                               "fresh posterior draws is below this (nats) in three rounds in a row and the "
-                               "quantiles are stable")
+                               "fresh posterior draws is below this (nats) in three rounds in a row, the "
+                               "quantiles are stable and the emulator's spread is at most 0.10")
     correct_draws: int = Field(
         0, ge=0, le=10_000_000,
         description="most proposal draws of an importance correction by the exact forward model "

@@ -23,7 +23,7 @@ from smcbayes.config import PosteriorSpec
 from smcbayes.posterior.context import RunContext, true_log_loss
 from smcbayes.posterior.likelihood import EmulatedPosterior
 from smcbayes.posterior.refine import check_values, quantile_shift, relevant_error, round_design
-from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
+from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
 from smcbayes.posterior.spread import SPREAD_FUNCTIONS, SPREAD_MAX, emulator_spread
 from smcbayes.posterior.summary import stack_components
 from smcbayes.surrogate.gp import condition_surrogate, fit_surrogate, save_surrogate
@@ -32,11 +32,8 @@ logger = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
 
-PosteriorSettings = PosteriorSpec
-
-
-def sample(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
-           rng: np.random.Generator) -> tuple[EmulatedPosterior, list]:
+def sample(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSpec,
+           rng: np.random.Generator) -> tuple[EmulatedPosterior, list[Chains]]:
     """Run one emcee ensemble per mixture component."""
     emul = EmulatedPosterior(surrogate, n_eff, settings.functions, settings.seed)
     centre = ctx.space.to_unit(ctx.best_theta)[0]
@@ -138,10 +135,11 @@ TEMPER = 0.25
 """Power of the likelihood of the tempered emulated posterior whose draws explore each round."""
 
 
-def _round_draws(ctx: RunContext, surrogate: Any, n_eff: float, quick: PosteriorSettings,
-                 rng: np.random.Generator) -> tuple[Array, Array]:
-    """Pooled draws ``(N, d)`` of the emulated posterior of the GP mean, and draws of the
-    tempered (likelihood^TEMPER) emulated posterior of one GP sample function, unit cube.
+def _round_draws(ctx: RunContext, surrogate: Any, n_eff: float, quick: PosteriorSpec,
+                 rng: np.random.Generator, explore: bool = True) -> tuple[Array, Array | None]:
+    """Pooled draws ``(N, d)`` of the emulated posterior of the GP mean, and (if
+    ``explore``) draws of the tempered (likelihood^TEMPER) emulated posterior of one GP
+    sample function, unit cube.
 
     The sample function (a Thompson draw) is as high as the GP allows where it is unsure,
     so its tempered posterior reaches regions that the mean rates a few nats too low and
@@ -149,8 +147,10 @@ def _round_draws(ctx: RunContext, surrogate: Any, n_eff: float, quick: Posterior
     """
     _, chains = sample(ctx, surrogate, n_eff, quick, rng)
     mean_draws = np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
-    explore = quick.model_copy(update={"functions": 1, "seed": int(rng.integers(2**31 - 1))})
-    _, chains = sample(ctx, surrogate, TEMPER * n_eff, explore, rng)
+    if not explore:
+        return mean_draws, None
+    spec = quick.model_copy(update={"functions": 1, "seed": int(rng.integers(2**31 - 1))})
+    _, chains = sample(ctx, surrogate, TEMPER * n_eff, spec, rng)
     return mean_draws, np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
 
 
@@ -179,19 +179,17 @@ class _Progress:
 
 
 def _one_round(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
-               quick: PosteriorSettings, rng: np.random.Generator, out_dir: Path, state: _Progress,
+               quick: PosteriorSpec, rng: np.random.Generator, out_dir: Path, state: _Progress,
                per_round: int) -> tuple[Any, tuple[Array, Array], float, float]:
     """One round of :func:`refine`; returns the updated surrogate and data, the round's
     out-of-sample error (nats) and the quantile shift since the previous round."""
     x, y = data
     clock = [time.perf_counter()]
-    pooled, wide = _round_draws(ctx, surrogate, n_eff, quick, rng)
+    # after a large spread, a third of the round are draws of the sample functions'
+    # posteriors (instead of the tempered one's), so the simulator judges the mass they add
+    pooled, wide = _round_draws(ctx, surrogate, n_eff, quick, rng, explore=state.disputed is None)
     state.quantiles, shift = quantile_shift(state.quantiles, pooled)
-    if state.disputed is not None:
-        # a third of the round where GP sample functions put posterior mass the mean does not
-        wide, share = state.disputed, 3
-    else:
-        share = 6
+    wide, share = (wide, 6) if state.disputed is None else (state.disputed, 3)
     pts, n_rand = round_design(pooled, surrogate, min(per_round, state.remaining), rng, n_eff, wide, share)
     state.remaining -= max(len(pts), 1)
     theta = ctx.space.from_unit(pts)
@@ -212,7 +210,7 @@ def _one_round(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff
 
 
 def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
-           settings: PosteriorSettings, rng: np.random.Generator,
+           settings: PosteriorSpec, rng: np.random.Generator,
            out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any], SpreadChains | None]:
     """Active learning of the log-likelihood emulator: rounds of sample the emulated
     posterior of the GP mean and the tempered one of a GP sample function (shorter chains),
@@ -238,7 +236,7 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
     """
     state = _Progress(remaining=settings.refine)
     per_round = max(9, min(30, settings.refine // 4))
-    quick = PosteriorSettings(walkers=settings.walkers, steps=min(settings.steps, 1000), functions=0,
+    quick = PosteriorSpec(walkers=settings.walkers, steps=min(settings.steps, 1000), functions=0,
                               seed=int(rng.integers(2**31 - 1)))
     status: dict[str, Any] = {"rounds": 0, "converged": False, "error_nats": None, "quantile_shift": None,
                               "spread": None, "spread_checks": 0}
@@ -270,7 +268,7 @@ class SpreadChains:
     with ``seed`` (``functions``), unit cube, each of at most ``steps`` steps."""
 
     control: Array
-    functions: list
+    functions: list[Chains]
     steps: int
     seed: int
 
@@ -287,7 +285,7 @@ SPREAD_STEPS = 2000
 reported posterior, runs them as long as the GP mean's."""
 
 
-def spread_chains(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
+def spread_chains(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSpec,
                   rng: np.random.Generator, seed: int | None = None) -> SpreadChains:
     """Chains of the posteriors of :data:`~smcbayes.posterior.spread.SPREAD_FUNCTIONS` GP
     sample functions (drawn with ``seed``, else a seed from ``rng``) and a control chain on
@@ -304,7 +302,7 @@ def spread_chains(ctx: RunContext, surrogate: Any, n_eff: float, settings: Poste
     return SpreadChains(control, run(SPREAD_FUNCTIONS, seed), settings.steps, seed)
 
 
-def _spread_settled(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
+def _spread_settled(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSpec,
                     rng: np.random.Generator) -> tuple[float, SpreadChains]:
     """The emulator's spread for the active learning's stopping rule, from chains of
     :data:`SPREAD_STEPS` around a fresh chain as long on the GP mean (with chains as short
@@ -319,7 +317,7 @@ def _spread_settled(ctx: RunContext, surrogate: Any, n_eff: float, settings: Pos
 
 
 def refine_stage(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
-                 settings: PosteriorSettings, rng: np.random.Generator,
+                 settings: PosteriorSpec, rng: np.random.Generator,
                  out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any], SpreadChains | None]:
     """Active learning with its log and the refined GP saved; returns as :func:`refine`,
     its status with the forward runs it made (``evaluations``)."""

@@ -60,12 +60,7 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
     out = []
     active = info.get("active_learning") or {}
     if active.get("enabled") and not active.get("converged"):
-        err = active.get("error_nats")
-        words = "not measured" if err is None else f"{err:.2g} nats"
-        out.append(f"the active learning spent its {active.get('evaluations')} forward runs before the "
-                   f"emulator was validated where the posterior lies (last out-of-sample error "
-                   f"{words}, quantiles still moving by {active.get('quantile_shift') or math.nan:.2g} "
-                   "of their range); raise --refine")
+        out.append(_budget_reason(active))
     r_hat = max((p.get("r_hat", math.nan) for p in info.get("parameters") or []), default=math.nan)
     if not r_hat <= R_HAT_MAX:
         out.append(f"the emulator chains did not converge (R-hat {r_hat:.2f} > {R_HAT_MAX}); run "
@@ -86,6 +81,21 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
                    f"of its range (> {SPREAD_MAX}), so a tail or an arm of the posterior is not pinned down "
                    f"yet; {remedy}")
     return out
+
+
+def _budget_reason(active: dict[str, Any]) -> str:
+    """Why an active learning that spent its budget did not stop by itself."""
+    runs = active.get("evaluations")
+    spread = active.get("spread")
+    if spread is not None and spread > SPREAD_MAX:
+        return (f"the active learning spent its {runs} forward runs while GP sample functions still moved "
+                f"a quantile of the posterior by {spread:.2g} of its range (> {SPREAD_MAX}) after "
+                f"{active.get('spread_checks')} measurement(s); raise --refine")
+    err = active.get("error_nats")
+    words = "not measured" if err is None else f"{err:.2g} nats"
+    return (f"the active learning spent its {runs} forward runs before the emulator was validated "
+            f"where the posterior lies (last out-of-sample error {words}, quantiles still moving by "
+            f"{active.get('quantile_shift') or math.nan:.2g} of their range); raise --refine")
 
 
 def assess(info: Mapping[str, Any], space: ParameterSpace, best_loss_kN2: float | None,

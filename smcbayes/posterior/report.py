@@ -233,7 +233,9 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     write_table(out_dir / "summary.csv", t["table"])
     if corrected is not None:
         write_table(out_dir / "summary_emulator.csv", t["raw"])
-    emu = t["emulator_unit"]
+    # the check judges the emulator that was sampled (the GP mean, or the requested mixture),
+    # not the pooled sample functions, whose disagreement the spread measures
+    emu = stack_components(chains[:emul.components])[0].reshape(-1, space.dim)
     check_unit = emu[rng.choice(emu.shape[0], size=min(settings.draws, emu.shape[0]), replace=False)]
     check = check_emulator(check_unit, lambda u: emul.log_loss(u),
                            lambda u: true_log_loss(ctx, space.from_unit(u)), emul.n_eff)

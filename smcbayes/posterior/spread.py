@@ -2,11 +2,11 @@
 
 The emulated posterior uses the GP mean of the log-likelihood.  Where the GP is unsure, a
 GP sample function (a log-likelihood the GP finds as plausible as its mean) gives another
-posterior.  If those posteriors differ from the reported one by more than the accuracy
+posterior.  If those posteriors differ from the GP mean's by more than the accuracy
 aimed at, the data spent on the emulator do not determine the posterior yet, whatever the
 error at the reported posterior's own draws says: that error cannot see a tail or an arm
 that the GP mean rates too low, while a sample function that rates it higher extends the
-posterior into it.  The check costs no forward run, only short chains on a few sample
+posterior into it.  The check costs no forward run, only chains on a few sample
 functions (the same functions as the mixture of Kandasamy, Schneider & Poczos 2017,
 "Query efficient posterior estimation in scientific experiments via Bayesian active
 learning", Artificial Intelligence 243, and of PyVBMC's posterior uncertainty,

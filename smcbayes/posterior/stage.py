@@ -4,11 +4,11 @@ Reads the run (its resolved config, GP state and best point), estimates the effe
 number of independent points from the residuals at the best point, refines the emulator
 (rounds of forward evaluations at random, most uncertain and space-filling points of the
 emulated posterior's region, stopped early once the out-of-sample error at fresh posterior
-draws is below ``refine_tolerance_nats``; see :func:`~smcbayes.posterior.active.refine` and
+draws is below ``refine_tolerance_nats`` and GP sample functions no longer move it; see :func:`~smcbayes.posterior.active.refine` and
 :mod:`smcbayes.posterior.refine`), samples the emulated posterior (of the GP mean, or a
 mixture over GP sample functions), measures how far the emulator's uncertainty moves it
 (:mod:`smcbayes.posterior.spread`) and pools the sample functions' posteriors of that check
-with the GP mean's (``pool_functions``), checks the result against the forward model at
+with the GP mean's (``pool_functions``), checks the emulator against the forward model at
 posterior draws and writes ``RUN_DIR/posterior/``:
 ``posterior.nc`` (arviz InferenceData), ``summary.json``, ``summary.csv``, figures
 (corner, correlations, predictive bands; PNG and SVG) and, after refinement,
@@ -30,13 +30,14 @@ from smcbayes.config import PosteriorSpec
 from smcbayes.data.loss import force_pair
 from smcbayes.errors import UnreliablePosteriorWarning
 from smcbayes.forward.nodes import interp_rows
-from smcbayes.posterior.active import fit_local, refine_stage, sample, spread_chains
+from smcbayes.posterior.active import SpreadChains, fit_local, refine_stage, sample, spread_chains
 from smcbayes.posterior.context import RunContext, exact_log_posterior, load_run, true_log_loss
 from smcbayes.posterior.correct import correct
 from smcbayes.posterior.crossfit import LocalFit
 from smcbayes.posterior.likelihood import effective_points, sandwich_points
 from smcbayes.posterior.reliability import assess
 from smcbayes.posterior.report import write_outputs
+from smcbayes.posterior.sampler import Chains
 from smcbayes.posterior.summary import stack_components
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import Executor
@@ -150,6 +151,20 @@ def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSetti
     return settings, out_dir
 
 
+def _spread_and_pool(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
+                     rng: np.random.Generator, chains: list[Chains],
+                     ended: SpreadChains | None) -> tuple[dict[str, Any], list[Chains]]:
+    """The emulator's spread around the GP mean's posterior ``chains`` and the sample
+    functions' chains to pool into the reported posterior (none with ``pool_functions``
+    off or a mixture requested through ``functions``, which already carries the GP's
+    uncertainty).  The functions are those of the measurement that ended the active learning
+    (``ended``), if one did, on chains as long as the GP mean's."""
+    measured = spread_chains(ctx, surrogate, n_eff, settings, rng, ended.seed if ended else None)
+    spread = measured.spread(stack_components(chains)[0].reshape(-1, ctx.space.dim), ctx.space.free_names)
+    pooled = measured.functions if settings.pool_functions and settings.functions == 0 else []
+    return spread, pooled
+
+
 def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = None,
                   executor: Executor | None = None) -> dict[str, Any]:
     """The whole stage; returns the content of ``posterior/summary.json``.
@@ -179,14 +194,9 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         t_correct = time.perf_counter()
         corrected = correct_posterior(ctx, chains, n_eff, settings, rng, data) if settings.correct_draws > 0 else None
         t_spread = time.perf_counter()
-        spread, pooled = None, []
         # the correction's weights judge a corrected posterior, and a noise-free one is degenerate
-        if corrected is None and not ctx.noise_free:
-            # the functions that ended the active learning, so its verdict and the stage's agree
-            measured = spread_chains(ctx, surrogate, n_eff, settings, rng, measured.seed if measured else None)
-            spread = measured.spread(stack_components(chains)[0].reshape(-1, ctx.space.dim), ctx.space.free_names)
-            # a mixture requested through ``functions`` already carries the GP's uncertainty
-            pooled = measured.functions if settings.pool_functions and settings.functions == 0 else []
+        spread, pooled = (None, []) if corrected is not None or ctx.noise_free else \
+            _spread_and_pool(ctx, surrogate, n_eff, settings, rng, chains, measured)
         t_outputs = time.perf_counter()
         info = write_outputs(ctx, emul, chains + pooled, budget, settings, rng, out_dir, corrected, fit)
         if spread is not None:

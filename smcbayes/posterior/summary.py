@@ -128,7 +128,8 @@ def _rows_of(unit: Array, picked: Array) -> Array:
 
 def summarise(space: ParameterSpace, chains: Sequence[Chains]) -> list[ParameterSummary]:
     """Mean, sd, 5/50/95 % quantiles (pooled), the worst per-component R-hat and the ESS
-    summed over components."""
+    summed over components, all of the draws :func:`stack_components` keeps (each
+    component cut to the shortest, so that each weighs the same)."""
     # arviz takes seconds to import; only the posterior stage needs it
     import arviz as az
 
@@ -137,8 +138,10 @@ def summarise(space: ParameterSpace, chains: Sequence[Chains]) -> list[Parameter
     theta = space.from_unit(unit.reshape(-1, d))
     rhat = np.zeros(d)
     ess = np.zeros(d)
-    for c in chains:
-        arr = np.swapaxes(c.samples, 0, 1)  # (walkers, draws, d)
+    # per component, on the (equal-length) draws that make the pooled summary
+    bounds = np.cumsum([0] + [c.samples.shape[1] for c in chains])
+    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        arr = unit[lo:hi]  # (walkers, draws, d)
         for j in range(d):
             rhat[j] = max(rhat[j], float(az.rhat(arr[..., j])))
             ess[j] += float(az.ess(arr[..., j]))

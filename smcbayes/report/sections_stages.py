@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from smcbayes.posterior.spread import SPREAD_MAX
 from smcbayes.report.collect import RunFiles
 from smcbayes.report.document import Bullets, Figure, Heading, Paragraph, Section, Table, fmt, pct
 
@@ -131,7 +132,7 @@ def _spread_paragraph(spread: dict[str, Any]) -> Paragraph | None:
     return Paragraph(
         f"Emulator spread: the posteriors of {fmt(spread.get('functions'))} GP sample functions move "
         f"a 5/50/95 % quantile by up to {fmt(spread.get('max_quantile_shift'), 2)} of its range "
-        "beyond the chains' own noise; above 0.10 the simulator runs spent on the emulator do "
+        f"beyond the chains' own noise; above {SPREAD_MAX} the simulator runs spent on the emulator do "
         f"not yet determine the posterior.{pooled}"
     )
 
@@ -150,8 +151,8 @@ def _active_words(post: dict[str, Any]) -> str:
     active = post.get("active_learning") or {}
     if not active.get("enabled"):
         return ""
-    done = ("validated: out-of-sample error below 1 nat and stable quantiles" if active.get("converged")
-            else "stopped by its budget before it was validated")
+    done = ("validated: out-of-sample error below 1 nat, stable quantiles and a small spread"
+            if active.get("converged") else "stopped by its budget before it was validated")
     return (f", trained further by active learning with {fmt(active.get('evaluations'))} forward runs in "
             f"{fmt(active.get('rounds'))} rounds ({done})")
 

@@ -373,6 +373,27 @@ def test_reliability_names_each_failed_diagnostic() -> None:
     assert len(reasons) == 1 and "--refine" not in reasons[0] and "--correct-draws" in reasons[0]
     small = {"max_quantile_shift": 0.08, "per_parameter": {"n": 0.08, "m": 0.01}}
     assert assess({**converged, "emulator_spread": small}, space, 10.0)["reliable"]
+    # a budget spent on validated rounds whose spread stayed large names the spread
+    spent = {"enabled": True, "converged": False, "evaluations": 800, "error_nats": 0.4,
+             "quantile_shift": 0.02, "spread": 0.3, "spread_checks": 4}
+    reason = assess({**converged, "active_learning": spent}, space, 10.0)["reasons"][0]
+    assert "GP sample functions still moved" in reason and "0.3 of its range" in reason and "4 measurement" in reason
+    unvalidated = {**spent, "error_nats": 2.5, "spread": None, "spread_checks": 0}
+    reason = assess({**converged, "active_learning": unvalidated}, space, 10.0)["reasons"][0]
+    assert "before the emulator was validated" in reason and "2.5 nats" in reason
+
+
+def test_sample_functions_are_fixed_by_their_seed() -> None:
+    """The spread's second measurement relies on it: the same GP and seed give the same
+    sample functions, another seed others."""
+    rng = np.random.default_rng(3)
+    x = rng.uniform(size=(40, 2))
+    gp = fit_surrogate(x, np.sin(3 * x[:, 0]) + x[:, 1] ** 2, "matern52", seed=0)
+    u = rng.uniform(size=(25, 2))
+    first, again, other = (EmulatedPosterior(gp, 50.0, 4, seed) for seed in (11, 11, 12))
+    for k in range(4):
+        np.testing.assert_array_equal(first.log_prob_fn(k)(u), again.log_prob_fn(k)(u))
+    assert not np.allclose(first.log_prob_fn(0)(u), other.log_prob_fn(0)(u))
 
 
 def test_quantile_shifts_measure_how_far_sample_function_posteriors_move() -> None:
