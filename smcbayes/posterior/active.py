@@ -211,7 +211,7 @@ def _one_round(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff
 
 def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
            settings: PosteriorSpec, rng: np.random.Generator,
-           out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any], SpreadChains | None]:
+           out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any], int | None]:
     """Active learning of the log-likelihood emulator: rounds of sample the emulated
     posterior of the GP mean and the tempered one of a GP sample function (shorter chains),
     evaluate the forward model at fresh posterior draws (the out-of-sample check) and at
@@ -232,12 +232,13 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
 
     Returns the updated surrogate, the enlarged training data ``(x_unit, log_loss)``,
     ``{"rounds", "converged", "error_nats", "quantile_shift", "spread", "spread_checks"}`` and,
-    when the spread ended it, the chains of that last measurement (on the returned GP).
+    when the spread ended it, the seed of that measurement's sample functions (drawn from
+    the returned GP).
     """
     state = _Progress(remaining=settings.refine)
     per_round = max(9, min(30, settings.refine // 4))
     quick = PosteriorSpec(walkers=settings.walkers, steps=min(settings.steps, 1000), functions=0,
-                              seed=int(rng.integers(2**31 - 1)))
+                          seed=int(rng.integers(2**31 - 1)))
     status: dict[str, Any] = {"rounds": 0, "converged": False, "error_nats": None, "quantile_shift": None,
                               "spread": None, "spread_checks": 0}
     while state.remaining > 0:
@@ -255,8 +256,8 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
             logger.info("emulator spread %.3f of the range after round %d", spread, state.rounds)
             if spread <= SPREAD_MAX:
                 status["converged"] = True
-                return surrogate, data, status, measured
-            state.disputed = np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in measured.functions])
+                return surrogate, data, status, measured.seed
+            state.disputed = np.concatenate(measured.function_draws())
             state.below = STABLE_ROUNDS - 1
     return surrogate, data, status, None
 
@@ -272,11 +273,13 @@ class SpreadChains:
     steps: int
     seed: int
 
+    def function_draws(self) -> list[Array]:
+        """Each function's posterior draws, ``(M_k, d)``."""
+        return [c.samples.reshape(-1, self.control.shape[1]) for c in self.functions]
+
     def spread(self, reported_unit: Array, names: list[str]) -> dict[str, Any]:
         """:func:`~smcbayes.posterior.spread.emulator_spread` around ``reported_unit`` ``(N, d)``."""
-        d = reported_unit.shape[1]
-        return emulator_spread(reported_unit, self.control, [c.samples.reshape(-1, d) for c in self.functions],
-                               names, self.steps)
+        return emulator_spread(reported_unit, self.control, self.function_draws(), names, self.steps)
 
 
 SPREAD_STEPS = 2000
@@ -318,15 +321,15 @@ def _spread_settled(ctx: RunContext, surrogate: Any, n_eff: float, settings: Pos
 
 def refine_stage(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: float,
                  settings: PosteriorSpec, rng: np.random.Generator,
-                 out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any], SpreadChains | None]:
+                 out_dir: Path) -> tuple[Any, tuple[Array, Array], dict[str, Any], int | None]:
     """Active learning with its log and the refined GP saved; returns as :func:`refine`,
     its status with the forward runs it made (``evaluations``)."""
     if settings.refine <= 0:
         return surrogate, data, {"enabled": False, "evaluations": 0}, None
     log = out_dir / "refine.jsonl"
     log.unlink(missing_ok=True)
-    surrogate, data, status, measured = refine(ctx, data, surrogate, n_eff, settings, rng, out_dir)
+    surrogate, data, status, ended = refine(ctx, data, surrogate, n_eff, settings, rng, out_dir)
     save_surrogate(out_dir / "gp_refined.pt", surrogate, {"training_points": int(data[0].shape[0])})
     with log.open(encoding="utf-8") as fh:
         runs = sum(1 for _ in fh)
-    return surrogate, data, {"enabled": True, "evaluations": runs, "budget": settings.refine, **status}, measured
+    return surrogate, data, {"enabled": True, "evaluations": runs, "budget": settings.refine, **status}, ended

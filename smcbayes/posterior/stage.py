@@ -30,7 +30,7 @@ from smcbayes.config import PosteriorSpec
 from smcbayes.data.loss import force_pair
 from smcbayes.errors import UnreliablePosteriorWarning
 from smcbayes.forward.nodes import interp_rows
-from smcbayes.posterior.active import SpreadChains, fit_local, refine_stage, sample, spread_chains
+from smcbayes.posterior.active import fit_local, refine_stage, sample, spread_chains
 from smcbayes.posterior.context import RunContext, exact_log_posterior, load_run, true_log_loss
 from smcbayes.posterior.correct import correct
 from smcbayes.posterior.crossfit import LocalFit
@@ -153,13 +153,13 @@ def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSetti
 
 def _spread_and_pool(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
                      rng: np.random.Generator, chains: list[Chains],
-                     ended: SpreadChains | None) -> tuple[dict[str, Any], list[Chains]]:
+                     ended: int | None) -> tuple[dict[str, Any], list[Chains]]:
     """The emulator's spread around the GP mean's posterior ``chains`` and the sample
     functions' chains to pool into the reported posterior (none with ``pool_functions``
     off or a mixture requested through ``functions``, which already carries the GP's
     uncertainty).  The functions are those of the measurement that ended the active learning
-    (``ended``), if one did, on chains as long as the GP mean's."""
-    measured = spread_chains(ctx, surrogate, n_eff, settings, rng, ended.seed if ended else None)
+    (drawn with the seed ``ended``), if one did, on chains as long as the GP mean's."""
+    measured = spread_chains(ctx, surrogate, n_eff, settings, rng, ended)
     spread = measured.spread(stack_components(chains)[0].reshape(-1, ctx.space.dim), ctx.space.free_names)
     pooled = measured.functions if settings.pool_functions and settings.functions == 0 else []
     return spread, pooled
@@ -188,7 +188,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         n_eff = budget["n_eff_total"]
         data = (calibration_gp.x_unit, calibration_gp.log_loss)
         surrogate = fit_local(*data, n_eff, calibration_gp.kernel, settings.seed)
-        surrogate, data, active, measured = refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
+        surrogate, data, active, ended = refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
         t_sample = time.perf_counter()
         emul, chains = sample(ctx, surrogate, n_eff, settings, rng)
         t_correct = time.perf_counter()
@@ -196,7 +196,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         t_spread = time.perf_counter()
         # the correction's weights judge a corrected posterior, and a noise-free one is degenerate
         spread, pooled = (None, []) if corrected is not None or ctx.noise_free else \
-            _spread_and_pool(ctx, surrogate, n_eff, settings, rng, chains, measured)
+            _spread_and_pool(ctx, surrogate, n_eff, settings, rng, chains, ended)
         t_outputs = time.perf_counter()
         info = write_outputs(ctx, emul, chains + pooled, budget, settings, rng, out_dir, corrected, fit)
         if spread is not None:
