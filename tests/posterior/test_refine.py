@@ -177,3 +177,16 @@ def test_check_emulator_of_a_shifted_exact_emulator_and_of_a_wrong_one() -> None
     assert chk.rmse == pytest.approx(np.sqrt(np.mean(err**2)))
     assert chk.max_abs_error == pytest.approx(np.max(np.abs(err)))
     assert set(chk.as_dict()) == {"points", "mean_abs_error", "rmse", "max_abs_error", "correlation"}
+
+
+@pytest.mark.parametrize("share", [6, 3])
+def test_round_design_gives_the_wide_draws_their_share(share: int) -> None:
+    """After the random posterior draws come ``count // share`` random rows of ``wide_unit``
+    (a sixth from the tempered posterior, a third from disputed sample-function draws)."""
+    x = draws()
+    wide = np.random.default_rng(8).uniform(0.8, 1.0, size=(500, 2))
+    pts, n_rand = round_design(x, DistanceStd(), 30, np.random.default_rng(6), 4.0, wide, share)
+    taken = pts[n_rand:n_rand + 30 // share]
+    assert all(np.any(np.all(wide == p, axis=1)) for p in taken)
+    # the next row is the Latin hypercube's, inside the posterior's box, not a wide draw
+    assert not np.any(np.all(wide == pts[n_rand + 30 // share], axis=1))
