@@ -4,8 +4,8 @@ Reads the run (its resolved config, GP state and best point), estimates the effe
 number of independent points from the residuals at the best point, refines the emulator
 (rounds of forward evaluations at random, most uncertain and space-filling points of the
 emulated posterior's region, stopped early once the out-of-sample error at fresh posterior
-draws is below ``refine_tolerance_nats`` and GP sample functions no longer move it; see :func:`~smcbayes.posterior.active.refine` and
-:mod:`smcbayes.posterior.refine`), samples the emulated posterior (of the GP mean, or a
+draws is below ``refine_tolerance_nats`` and GP sample functions no longer move it; see
+:func:`~smcbayes.posterior.active.refine` and :mod:`smcbayes.posterior.refine`), samples the emulated posterior (of the GP mean, or a
 mixture over GP sample functions), measures how far the emulator's uncertainty moves it
 (:mod:`smcbayes.posterior.spread`) and pools the sample functions' posteriors of that check
 with the GP mean's (``pool_functions``), checks the emulator against the forward model at
@@ -41,10 +41,7 @@ from smcbayes.posterior.sampler import Chains
 from smcbayes.posterior.summary import stack_components
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import Executor
-from smcbayes.surrogate.gp import (
-    gp_session,
-    load_surrogate,
-)
+from smcbayes.surrogate.gp import gp_session, load_surrogate
 
 logger = logging.getLogger(__name__)
 
