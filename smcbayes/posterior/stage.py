@@ -5,14 +5,14 @@ number of independent points from the residuals at the best point, refines the e
 (rounds of forward evaluations at random, most uncertain and space-filling points of the
 emulated posterior's region, stopped early once the out-of-sample error at fresh posterior
 draws is below ``refine_tolerance_nats`` and GP sample functions no longer move it; see
-:func:`~smcbayes.posterior.active.refine` and :mod:`smcbayes.posterior.refine`), samples the
-emulated posterior (of the GP mean, or a mixture over GP sample functions), measures how
-far the emulator's uncertainty moves it (:mod:`smcbayes.posterior.spread`) and pools the sample functions' posteriors of that check
-with the GP mean's (``pool_functions``), checks the emulator against the forward model at
-posterior draws and writes ``RUN_DIR/posterior/``:
-``posterior.nc`` (arviz InferenceData), ``summary.json``, ``summary.csv``, figures
-(corner, correlations, predictive bands; PNG and SVG) and, after refinement,
-``gp_refined.pt`` and ``refine.jsonl``.
+:func:`~smcbayes.posterior.active.refine` and :mod:`smcbayes.posterior.refine`), samples
+the emulated posterior (of the GP mean, or a mixture over GP sample functions), measures
+how far the emulator's uncertainty moves it (:mod:`smcbayes.posterior.spread`) and pools
+the sample functions' posteriors of that check with the GP mean's (``pool_functions``),
+checks the emulator against the forward model at posterior draws and writes
+``RUN_DIR/posterior/``: ``posterior.nc`` (arviz InferenceData), ``summary.json``,
+``summary.csv``, figures (corner, correlations, predictive bands; PNG and SVG) and, after
+refinement, ``gp_refined.pt`` and ``refine.jsonl``.
 """
 
 from __future__ import annotations
