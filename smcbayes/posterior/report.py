@@ -132,7 +132,7 @@ def _tables(ctx: RunContext, chains: list, corrected: Any, rng: np.random.Genera
     raw = summarise(space, chains)
     unit, _ = stack_components(chains)
     flat = unit.reshape(-1, unit.shape[-1])
-    out = {"raw": raw, "raw_corr": correlations(space, space.from_unit(flat)), "emulator_unit": flat}
+    out = {"raw": raw, "raw_corr": correlations(space, space.from_unit(flat))}
     if corrected is None:
         out.update(table=raw, corr=out["raw_corr"], unit=flat, resampled=None)
         return out
