@@ -34,11 +34,20 @@ Array = NDArray[np.float64]
 
 def sample(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSpec,
            rng: np.random.Generator) -> tuple[EmulatedPosterior, list[Chains]]:
-    """Run one emcee ensemble per mixture component."""
+    """Run one emcee ensemble per mixture component: differential-evolution moves on the
+    GP mean's posterior, stretch moves on a sample function's.
+
+    A sample function rises and dips by the GP's prior spread wherever the GP has no data,
+    so its posterior has spurious modes in unexplored corners of the box; differential
+    evolution's long jumps find them, and the pooled posterior then spread over the whole
+    box on a synthetic problem whose exact posterior it covered well before.  The stretch
+    move, started at the best point, explores the function's posterior around the mass
+    the GP mean's posterior has: the emulator's uncertainty there, not in every corner."""
     emul = EmulatedPosterior(surrogate, n_eff, settings.functions, settings.seed)
     centre = ctx.space.to_unit(ctx.best_theta)[0]
     sampler = SamplerSettings(walkers=settings.walkers, max_steps=settings.steps,
-                              min_steps=min(500, settings.steps))
+                              min_steps=min(500, settings.steps),
+                              moves="de" if settings.functions == 0 else "stretch")
     chains = []
     for c in range(emul.components):
         comp = c if settings.functions > 0 else None
@@ -285,7 +294,7 @@ class SpreadChains:
 SPREAD_STEPS = 2000
 """Steps of the chains of the active learning's spread measurements (quantiles to about
 0.03 of the prior range); the stage's final measurement, whose chains are pooled into the
-reported posterior, runs them as long as the GP mean's."""
+reported posterior, runs them at most as long as the GP mean's."""
 
 
 def spread_chains(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSpec,
@@ -294,8 +303,7 @@ def spread_chains(ctx: RunContext, surrogate: Any, n_eff: float, settings: Poste
     sample functions (drawn with ``seed``, else a seed from ``rng``) and a control chain on
     the GP mean, within ``settings.steps`` and stopped by the same autocorrelation rule as
     the GP mean's chains: the same seed on the same GP gives the same functions, so the
-    measurement that ended the active learning is repeated with chains fit to be pooled
-    (fixed 2,000-step chains left R-hat at 1.1-1.6 where the GP mean's needed 2,250-10,000)."""
+    measurement that ended the active learning can be repeated with chains fit to be pooled."""
     def run(functions: int, chosen: int) -> list:
         return sample(ctx, surrogate, n_eff, settings.model_copy(update={"functions": functions, "seed": chosen}),
                       rng)[1]

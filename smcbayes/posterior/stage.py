@@ -155,8 +155,12 @@ def _spread_and_pool(ctx: RunContext, surrogate: Any, n_eff: float, settings: Po
     functions' chains to pool into the reported posterior (none with ``pool_functions``
     off or a mixture requested through ``functions``, which already carries the GP's
     uncertainty).  The functions are those of the measurement that ended the active learning
-    (drawn with the seed ``ended``), if one did, on chains as long as the GP mean's."""
-    measured = spread_chains(ctx, surrogate, n_eff, settings, rng, ended)
+    (drawn with the seed ``ended``), if one did, on chains no longer than the GP mean's:
+    a sample function's posterior is rough where the GP is unsure, and its chains reached
+    the stopping rule within no affordable length (autocorrelation times of several
+    hundred steps on real data), so longer chains only cost time."""
+    steps = max(c.steps for c in chains)
+    measured = spread_chains(ctx, surrogate, n_eff, settings.model_copy(update={"steps": steps}), rng, ended)
     spread = measured.spread(stack_components(chains)[0].reshape(-1, ctx.space.dim), ctx.space.free_names)
     pooled = measured.functions if settings.pool_functions and settings.functions == 0 else []
     return spread, pooled
