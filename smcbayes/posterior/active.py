@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from smcbayes.config import PosteriorSpec
 from smcbayes.posterior.context import RunContext, true_log_loss
+from smcbayes.posterior.emulator import NumpyGP
 from smcbayes.posterior.likelihood import EmulatedPosterior
 from smcbayes.posterior.refine import check_values, quantile_shift, relevant_error, round_design
 from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
@@ -199,13 +200,15 @@ def _one_round(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff
     pooled, wide = _round_draws(ctx, surrogate, n_eff, quick, rng, explore=state.disputed is None)
     state.quantiles, shift = quantile_shift(state.quantiles, pooled)
     wide, share = (wide, 6) if state.disputed is None else (state.disputed, 3)
-    pts, n_rand = round_design(pooled, surrogate, min(per_round, state.remaining), rng, n_eff, wide, share)
+    # the NumPy copy predicts the round's thousands of candidates several times faster than torch
+    fast = NumpyGP.from_surrogate(surrogate)
+    pts, n_rand = round_design(pooled, fast, min(per_round, state.remaining), rng, n_eff, wide, share)
     state.remaining -= max(len(pts), 1)
     theta = ctx.space.from_unit(pts)
     clock.append(time.perf_counter())
     vals = true_log_loss(ctx, theta)
     clock.append(time.perf_counter())
-    err = _round_error(surrogate.predict(pts)[0], vals, n_rand, float(np.min(y)), n_eff)
+    err = _round_error(fast.mean(pts), vals, n_rand, float(np.min(y)), n_eff)
     ok = np.isfinite(vals)
     x_new, y_new = np.vstack([x, pts[ok]]), np.concatenate([y, vals[ok]])
     surrogate, state.fitted_at = update_gp(surrogate, x_new, y_new, n_eff, int(rng.integers(2**31 - 1)),

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg import solve_triangular
 
 from smcbayes.errors import SurrogateError
 from smcbayes.surrogate.gp import rotate
@@ -111,8 +112,14 @@ class NumpyGP:
     def std(self, u: Array) -> Array:
         """Posterior standard deviation of the latent log(loss), ``(W,)``."""
         k = _kernel(self.kind, self.features(u), self.x, self.lengthscale)
-        v = np.linalg.solve(self.chol, k.T)
+        v = solve_triangular(self.chol, k.T, lower=True, check_finite=False)
         return np.sqrt(np.maximum(1.0 - (v * v).sum(0), 0.0)) * self.y_std
+
+    def predict(self, u: Array) -> tuple[Array, Array]:
+        """Posterior mean and standard deviation of log(loss) at ``u`` ``(W, d)``, ``(W,)``
+        each: :meth:`smcbayes.surrogate.gp.Surrogate.predict` without torch, several times
+        faster on the thousands of candidates of an active-learning round."""
+        return self.mean(u), self.std(u)
 
     def sample_functions(self, count: int, rng: np.random.Generator, features: int = 2048) -> PathSamples:
         """``count`` posterior sample functions (pathwise conditioning)."""

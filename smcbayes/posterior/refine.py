@@ -31,14 +31,22 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import qmc
 
-from smcbayes.surrogate.gp import Surrogate
-
 Array = NDArray[np.float64]
+
+
+class Predictor(Protocol):
+    """A GP of log(loss): :class:`~smcbayes.surrogate.gp.Surrogate` or its NumPy copy
+    :class:`~smcbayes.posterior.emulator.NumpyGP`."""
+
+    def predict(self, x_unit: Array) -> tuple[Array, Array]:
+        """Posterior mean and standard deviation of log(loss) at ``x_unit`` ``(N, d)``."""
+        ...
 
 
 def acquisition_zeta(d: int) -> float:
@@ -52,7 +60,7 @@ def acquisition_zeta(d: int) -> float:
     return float(max(int(d), 1)) ** -1.1
 
 
-def log_exp_acquisition(x_unit: Array, surrogate: Surrogate, n_eff: float) -> Array:
+def log_exp_acquisition(x_unit: Array, surrogate: Predictor, n_eff: float) -> Array:
     """log of the acquisition exp(2 zeta mu(x)) sigma(x) at ``x_unit`` ``(N, d)``, up to a constant.
 
     mu and sigma are the GP's mean and standard deviation of the log-likelihood
@@ -69,7 +77,7 @@ def log_exp_acquisition(x_unit: Array, surrogate: Surrogate, n_eff: float) -> Ar
     return 2.0 * zeta * (-a * mean) + np.log(np.maximum(a * std, 1e-300))
 
 
-def acquisition_points(draws_unit: Array, surrogate: Surrogate, n_eff: float, count: int,
+def acquisition_points(draws_unit: Array, surrogate: Predictor, n_eff: float, count: int,
                        rng: np.random.Generator, min_distance: float = 0.03, pool: int = 2000) -> Array:
     """``count`` points of largest :func:`log_exp_acquisition`, spread out.
 
@@ -109,7 +117,7 @@ def local_box(draws_unit: Array, widen: float = 0.5, min_width: float = 0.02) ->
     return np.clip(lo - pad, 0.0, 1.0), np.clip(hi + pad, 0.0, 1.0)
 
 
-def round_design(draws_unit: Array, surrogate: Surrogate, count: int,
+def round_design(draws_unit: Array, surrogate: Predictor, count: int,
                  rng: np.random.Generator, n_eff: float, wide_unit: Array | None = None,
                  wide_share: int = 6) -> tuple[Array, int]:
     """Points of one refinement round: a third random posterior draws (first), a

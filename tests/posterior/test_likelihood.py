@@ -140,6 +140,9 @@ def test_numpy_gp_equals_botorch(surrogates: dict, kernel: str) -> None:
     mean, std = s.predict(u)
     np.testing.assert_allclose(g.mean(u), mean, atol=1e-7)
     np.testing.assert_allclose(g.std(u), std, rtol=1e-5)
+    fast_mean, fast_std = g.predict(u)
+    np.testing.assert_array_equal(fast_mean, g.mean(u))
+    np.testing.assert_array_equal(fast_std, g.std(u))
 
 
 @pytest.mark.parametrize("kernel", KINDS)
