@@ -24,7 +24,7 @@ from smcbayes.posterior.context import RunContext, true_log_loss
 from smcbayes.posterior.emulator import NumpyGP
 from smcbayes.posterior.likelihood import EmulatedPosterior
 from smcbayes.posterior.refine import check_values, quantile_shift, relevant_error, round_design
-from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
+from smcbayes.posterior.sampler import Chains, Moves, SamplerSettings, run_ensemble
 from smcbayes.posterior.spread import SPREAD_FUNCTIONS, SPREAD_MAX, emulator_spread
 from smcbayes.posterior.summary import stack_components
 from smcbayes.surrogate.gp import condition_surrogate, fit_surrogate, save_surrogate
@@ -34,21 +34,21 @@ logger = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 
 def sample(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSpec,
-           rng: np.random.Generator) -> tuple[EmulatedPosterior, list[Chains]]:
-    """Run one emcee ensemble per mixture component: differential-evolution moves on the
-    GP mean's posterior, stretch moves on a sample function's.
+           rng: np.random.Generator, moves: Moves | None = None) -> tuple[EmulatedPosterior, list[Chains]]:
+    """Run one emcee ensemble per mixture component, started at the best point, with
+    ``moves`` (default: differential evolution on the GP mean's posterior, stretch on
+    sample functions').
 
     A sample function rises and dips by the GP's prior spread wherever the GP has no data,
-    so its posterior has spurious modes in unexplored corners of the box; differential
-    evolution's long jumps find them, and the pooled posterior then spread over the whole
-    box on a synthetic problem whose exact posterior it covered well before.  The stretch
-    move, started at the best point, explores the function's posterior around the mass
-    the GP mean's posterior has: the emulator's uncertainty there, not in every corner."""
+    so its posterior has spurious modes in unexplored corners of the box, which
+    differential evolution's long jumps find.  The stretch move's chains stay near the
+    mass around the best point instead: they measure the emulator's uncertainty there and
+    are not a converged sample of the function's whole posterior."""
     emul = EmulatedPosterior(surrogate, n_eff, settings.functions, settings.seed)
     centre = ctx.space.to_unit(ctx.best_theta)[0]
     sampler = SamplerSettings(walkers=settings.walkers, max_steps=settings.steps,
                               min_steps=min(500, settings.steps),
-                              moves="de" if settings.functions == 0 else "stretch")
+                              moves=moves or ("de" if settings.functions == 0 else "stretch"))
     chains = []
     for c in range(emul.components):
         comp = c if settings.functions > 0 else None
@@ -200,7 +200,7 @@ def _one_round(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff
     pooled, wide = _round_draws(ctx, surrogate, n_eff, quick, rng, explore=state.disputed is None)
     state.quantiles, shift = quantile_shift(state.quantiles, pooled)
     wide, share = (wide, 6) if state.disputed is None else (state.disputed, 3)
-    # the NumPy copy predicts the round's thousands of candidates several times faster than torch
+    # the NumPy copy predicts the round's thousands of candidates faster than torch
     fast = NumpyGP.from_surrogate(surrogate)
     pts, n_rand = round_design(pooled, fast, min(per_round, state.remaining), rng, n_eff, wide, share)
     state.remaining -= max(len(pts), 1)
@@ -297,19 +297,21 @@ class SpreadChains:
 SPREAD_STEPS = 2000
 """Steps of the chains of the active learning's spread measurements (quantiles to about
 0.03 of the prior range); the stage's final measurement, whose chains are pooled into the
-reported posterior, runs them at most as long as the GP mean's."""
+reported posterior, runs them as long as the GP mean's, and at least this long."""
 
 
 def spread_chains(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSpec,
                   rng: np.random.Generator, seed: int | None = None) -> SpreadChains:
     """Chains of the posteriors of :data:`~smcbayes.posterior.spread.SPREAD_FUNCTIONS` GP
     sample functions (drawn with ``seed``, else a seed from ``rng``) and a control chain on
-    the GP mean, within ``settings.steps`` and stopped by the same autocorrelation rule as
-    the GP mean's chains: the same seed on the same GP gives the same functions, so the
-    measurement that ended the active learning can be repeated with chains fit to be pooled."""
+    the GP mean, all with the stretch move (so that the control's quantile shift is the
+    functions' chains' own sampling noise), within ``settings.steps`` and stopped by the
+    same autocorrelation rule as the GP mean's chains: the same seed on the same GP gives
+    the same functions, so the measurement that ended the active learning can be repeated
+    with chains fit to be pooled."""
     def run(functions: int, chosen: int) -> list:
         return sample(ctx, surrogate, n_eff, settings.model_copy(update={"functions": functions, "seed": chosen}),
-                      rng)[1]
+                      rng, "stretch")[1]
 
     control = run(0, int(rng.integers(2**31 - 1)))[0].samples.reshape(-1, ctx.space.dim)
     seed = int(rng.integers(2**31 - 1)) if seed is None else seed

@@ -44,7 +44,7 @@ class Predictor(Protocol):
     """A GP of log(loss): :class:`~smcbayes.surrogate.gp.Surrogate` or its NumPy copy
     :class:`~smcbayes.posterior.emulator.NumpyGP`."""
 
-    def predict(self, x_unit: Array) -> tuple[Array, Array]:
+    def predict(self, x_unit: Array, /) -> tuple[Array, Array]:
         """Posterior mean and standard deviation of log(loss) at ``x_unit`` ``(N, d)``."""
         ...
 

@@ -6,6 +6,7 @@ import logging
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
 
 import emcee
 import numpy as np
@@ -16,6 +17,7 @@ from smcbayes.progress import Progress
 logger = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
+Moves = Literal["de", "stretch"]
 
 
 @dataclass(frozen=True)
@@ -31,9 +33,9 @@ class SamplerSettings:
         tau_rtol: ... and tau changed by less than this fraction since the last check.
         moves: ``de`` (differential evolution 80 % + its snooker variant 20 %; ter Braak
             2006, Stat. Comput. 16, 239; ter Braak & Vrugt 2008, Stat. Comput. 18, 435) or
-            ``stretch`` (emcee's default; Goodman & Weare 2010).  On emulated posteriors of
-            press data with a curved ridge, differential evolution's autocorrelation times
-            were 3-4 times shorter than the stretch move's; its long jumps also reach
+            ``stretch`` (emcee's default; Goodman & Weare 2010).  Differential evolution
+            proposes along differences of walkers, so it follows curved ridges with far
+            shorter autocorrelation times than the stretch move; its long jumps also reach
             distant modes, which is unwanted on a GP sample function's posterior (see
             :func:`smcbayes.posterior.active.sample`).
     """
@@ -44,7 +46,11 @@ class SamplerSettings:
     check_every: int = 250
     tau_factor: float = 50.0
     tau_rtol: float = 0.05
-    moves: str = "de"
+    moves: Moves = "de"
+
+    def __post_init__(self) -> None:
+        if self.moves not in ("de", "stretch"):
+            raise ValueError(f"unknown emcee moves '{self.moves}'; accepted: de, stretch")
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from smcbayes.config import PosteriorSpec
 from smcbayes.data.loss import force_pair
 from smcbayes.errors import UnreliablePosteriorWarning
 from smcbayes.forward.nodes import interp_rows
-from smcbayes.posterior.active import fit_local, refine_stage, sample, spread_chains
+from smcbayes.posterior.active import SPREAD_STEPS, fit_local, refine_stage, sample, spread_chains
 from smcbayes.posterior.context import RunContext, exact_log_posterior, load_run, true_log_loss
 from smcbayes.posterior.correct import correct
 from smcbayes.posterior.crossfit import LocalFit
@@ -151,15 +151,15 @@ def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSetti
 def _spread_and_pool(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,
                      rng: np.random.Generator, chains: list[Chains],
                      ended: int | None) -> tuple[dict[str, Any], list[Chains]]:
-    """The emulator's spread around the GP mean's posterior ``chains`` and the sample
-    functions' chains to pool into the reported posterior (none with ``pool_functions``
-    off or a mixture requested through ``functions``, which already carries the GP's
-    uncertainty).  The functions are those of the measurement that ended the active learning
-    (drawn with the seed ``ended``), if one did, on chains no longer than the GP mean's:
-    a sample function's posterior is rough where the GP is unsure, and its chains reached
-    the stopping rule within no affordable length (autocorrelation times of several
-    hundred steps on real data), so longer chains only cost time."""
-    steps = max(c.steps for c in chains)
+    """The emulator's spread around the reported posterior's ``chains`` (the GP mean's, or
+    a mixture's requested through ``functions``) and the sample functions' chains to pool
+    into the reported posterior (none with ``pool_functions`` off or such a mixture, which
+    already carries the GP's uncertainty).  The functions are those of the measurement
+    that ended the active learning (drawn with the seed ``ended``), if one did, on chains
+    as long as ``chains``, at least :data:`~smcbayes.posterior.active.SPREAD_STEPS` and at
+    most ``settings.steps``: a sample function's posterior is rough where the GP is unsure,
+    and its stretch-move chains rarely meet the stopping rule at any affordable length."""
+    steps = min(settings.steps, max(SPREAD_STEPS, *(c.steps for c in chains)))
     measured = spread_chains(ctx, surrogate, n_eff, settings.model_copy(update={"steps": steps}), rng, ended)
     spread = measured.spread(stack_components(chains)[0].reshape(-1, ctx.space.dim), ctx.space.free_names)
     pooled = measured.functions if settings.pool_functions and settings.functions == 0 else []

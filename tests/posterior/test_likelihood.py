@@ -270,7 +270,8 @@ def test_principal_axes_are_signed_and_absent_in_one_dimension(monkeypatch: pyte
     assert principal_axes(draws[:, :1]) is None
 
 
-def test_sampler_recovers_a_gaussian() -> None:
+@pytest.mark.parametrize("moves", ["de", "stretch"])
+def test_sampler_recovers_a_gaussian(moves: str) -> None:
     centre, sd = np.array([0.3, 0.6]), np.array([0.05, 0.1])
 
     def log_prob(u: np.ndarray) -> np.ndarray:
@@ -278,7 +279,7 @@ def test_sampler_recovers_a_gaussian() -> None:
         lp = -0.5 * np.sum(((u - centre) / sd) ** 2, axis=1)
         return np.where(inside, lp, -np.inf)
 
-    chains = run_ensemble(log_prob, 2, SamplerSettings(walkers=16, max_steps=3000, min_steps=500),
+    chains = run_ensemble(log_prob, 2, SamplerSettings(walkers=16, max_steps=3000, min_steps=500, moves=moves),
                           np.random.default_rng(5))
     flat = chains.samples.reshape(-1, 2)
     np.testing.assert_allclose(flat.mean(0), centre, atol=0.02)
@@ -286,14 +287,20 @@ def test_sampler_recovers_a_gaussian() -> None:
     assert 0.2 < np.median(chains.acceptance) < 0.9
 
 
-def test_same_seed_same_chains() -> None:
+@pytest.mark.parametrize("moves", ["de", "stretch"])
+def test_same_seed_same_chains(moves: str) -> None:
     def log_prob(u: np.ndarray) -> np.ndarray:
         return -0.5 * np.sum(((u - 0.5) / 0.1) ** 2, axis=1)
 
-    s = SamplerSettings(walkers=8, max_steps=600, min_steps=600)
+    s = SamplerSettings(walkers=8, max_steps=600, min_steps=600, moves=moves)
     a = run_ensemble(log_prob, 2, s, np.random.default_rng(9))
     b = run_ensemble(log_prob, 2, s, np.random.default_rng(9))
     np.testing.assert_array_equal(a.samples, b.samples)
+
+
+def test_sampler_rejects_unknown_moves() -> None:
+    with pytest.raises(ValueError, match="unknown emcee moves 'walk'"):
+        SamplerSettings(moves="walk")  # type: ignore[arg-type]
 
 
 def test_likelihood_is_minus_half_n_eff_log_loss(surrogates: dict) -> None:

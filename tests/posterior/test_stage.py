@@ -162,7 +162,7 @@ def test_a_large_spread_sends_the_active_learning_where_sample_functions_disagre
         return value, chains
 
     monkeypatch.setattr(active, "_spread_settled", settled)
-    # the stage measures again the functions that ended the active learning, on longer chains
+    # the stage measures again the functions that ended the active learning, on chains fit to be pooled
     original, ended, repeated = active.spread_chains, [], []
 
     def recorded(into: list) -> object:
@@ -179,6 +179,7 @@ def test_a_large_spread_sends_the_active_learning_where_sample_functions_disagre
     assert status["converged"] and status["spread_checks"] == 2 and status["spread"] == 0.02
     assert status["rounds"] == STABLE_ROUNDS + 1
     assert len(ended) == 2 and len(repeated) == 1 and repeated[0].seed == ended[-1].seed
+    assert repeated[0].steps == 300  # the stage's step budget bounds the pooled chains
     log = [json.loads(line) for line in (folder / "posterior" / "refine.jsonl").read_text().splitlines()]
     flags = [rec["round_stats"]["disputed"] for rec in log if "round_stats" in rec]
     assert flags == [False] * STABLE_ROUNDS + [True]
