@@ -146,22 +146,22 @@ TEMPER = 0.25
 
 
 def _round_draws(ctx: RunContext, surrogate: Any, n_eff: float, quick: PosteriorSpec,
-                 rng: np.random.Generator, explore: bool = True) -> tuple[Array, Array | None]:
-    """Pooled draws ``(N, d)`` of the emulated posterior of the GP mean, and (if
-    ``explore``) draws of the tempered (likelihood^TEMPER) emulated posterior of one GP
-    sample function, unit cube.
+                 rng: np.random.Generator, explore: bool = True) -> tuple[Array, Array | None, NumpyGP]:
+    """Pooled draws ``(N, d)`` of the emulated posterior of the GP mean, (if ``explore``)
+    draws of the tempered (likelihood^TEMPER) emulated posterior of one GP sample function,
+    unit cube, and the NumPy copy of the GP they were sampled on.
 
     The sample function (a Thompson draw) is as high as the GP allows where it is unsure,
     so its tempered posterior reaches regions that the mean rates a few nats too low and
     that the mean's own tempered posterior would not visit.
     """
-    _, chains = sample(ctx, surrogate, n_eff, quick, rng)
+    emul, chains = sample(ctx, surrogate, n_eff, quick, rng)
     mean_draws = np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
     if not explore:
-        return mean_draws, None
+        return mean_draws, None, emul.gp
     spec = quick.model_copy(update={"functions": 1, "seed": int(rng.integers(2**31 - 1))})
     _, chains = sample(ctx, surrogate, TEMPER * n_eff, spec, rng)
-    return mean_draws, np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains])
+    return mean_draws, np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains]), emul.gp
 
 
 def _round_error(predicted: Array, vals: Array, n_rand: int, best_log_loss: float, n_eff: float) -> float:
@@ -197,11 +197,10 @@ def _one_round(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff
     clock = [time.perf_counter()]
     # after a large spread, a third of the round are draws of the sample functions'
     # posteriors (instead of the tempered one's), so the simulator judges the mass they add
-    pooled, wide = _round_draws(ctx, surrogate, n_eff, quick, rng, explore=state.disputed is None)
+    # the NumPy copy scores the round's thousands of candidates faster than torch
+    pooled, wide, fast = _round_draws(ctx, surrogate, n_eff, quick, rng, explore=state.disputed is None)
     state.quantiles, shift = quantile_shift(state.quantiles, pooled)
     wide, share = (wide, 6) if state.disputed is None else (state.disputed, 3)
-    # the NumPy copy predicts the round's thousands of candidates faster than torch
-    fast = NumpyGP.from_surrogate(surrogate)
     pts, n_rand = round_design(pooled, fast, min(per_round, state.remaining), rng, n_eff, wide, share)
     state.remaining -= max(len(pts), 1)
     theta = ctx.space.from_unit(pts)
