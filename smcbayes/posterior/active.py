@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from smcbayes.config import PosteriorSpec
 from smcbayes.posterior.context import RunContext, true_log_loss
 from smcbayes.posterior.emulator import NumpyGP
-from smcbayes.posterior.likelihood import EmulatedPosterior
+from smcbayes.posterior.likelihood import EmulatedPosterior, cap_nats
 from smcbayes.posterior.refine import check_values, quantile_shift, relevant_error, round_design
 from smcbayes.posterior.sampler import Chains, Moves, SamplerSettings, run_ensemble
 from smcbayes.posterior.spread import SPREAD_FUNCTIONS, SPREAD_MAX, emulator_spread
@@ -34,17 +34,21 @@ logger = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 
 def sample(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSpec,
-           rng: np.random.Generator, moves: Moves | None = None) -> tuple[EmulatedPosterior, list[Chains]]:
+           rng: np.random.Generator, moves: Moves | None = None,
+           plateau: bool = True) -> tuple[EmulatedPosterior, list[Chains]]:
     """Run one emcee ensemble per mixture component, started at the best point, with
     ``moves`` (default: differential evolution on the GP mean's posterior, stretch on
-    sample functions').
+    sample functions'); ``plateau``: the GP's targets were capped by :func:`fit_local` and
+    its plateau gets no density (``False``: the emulated likelihood at face value, as the
+    tempered exploration of the active learning wants it).
 
     A sample function rises and dips by the GP's prior spread wherever the GP has no data,
     so its posterior has spurious modes in unexplored corners of the box, which
     differential evolution's long jumps find.  The stretch move's chains stay near the
     mass around the best point instead: they measure the emulator's uncertainty there and
     are not a converged sample of the function's whole posterior."""
-    emul = EmulatedPosterior(surrogate, n_eff, settings.functions, settings.seed)
+    emul = EmulatedPosterior(surrogate, n_eff, settings.functions, settings.seed,
+                              cap_nats(ctx.space.dim) if plateau else None)
     centre = ctx.space.to_unit(ctx.best_theta)[0]
     sampler = SamplerSettings(walkers=settings.walkers, max_steps=settings.steps,
                               min_steps=min(500, settings.steps),
@@ -57,19 +61,17 @@ def sample(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSpe
     return emul, chains
 
 
-CAP_NATS = 30.0
-"""Targets more than this many nats of log-likelihood above the best are capped."""
-
-
 def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int,
               draws: Array | None = None, start: Any = None) -> Any:
-    """GP of log(loss) with targets capped at min + CAP_NATS / (N_eff / 2), its inputs
-    rotated onto the principal axes of ``draws`` ``(M, d)`` (posterior draws, unit cube)
-    when given; ``start``: a GP whose hyperparameters start the fit.
+    """GP of log(loss) with targets capped at min + :func:`cap_nats` (d) / (N_eff / 2), its
+    inputs rotated onto the principal axes of ``draws`` ``(M, d)`` (posterior draws, unit
+    cube) when given; ``start``: a GP whose hyperparameters start the fit.
 
-    Where the true log-likelihood is CAP_NATS below the best the posterior density is
-    below e^-30 of its peak whatever the emulator says, so capping loses nothing and lets
-    the GP spend its flexibility where the posterior lives instead of on the far landscape.
+    The cap lets the GP spend its flexibility where the posterior lives instead of on the
+    far landscape: the deeper the cap, the steeper the drop from the posterior to the
+    plateau that the GP has to follow, the shorter its fitted lengthscales, and the further
+    it falls below a flat arm of the posterior between its training points.  The region on
+    the plateau gets no density (:class:`~smcbayes.posterior.likelihood.EmulatedPosterior`).
     The rotation lets the ARD lengthscales follow a ridge of the posterior (two parameters
     that trade off, as the slip law's tau_c and m): along the axes of the cube a ridge needs
     short lengthscales in both, and the GP then cannot extrapolate along it.  The
@@ -77,7 +79,7 @@ def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int,
     rotates its inputs likewise (and rescales them, which ARD lengthscales make unneeded
     here).
     """
-    cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
+    cap = float(np.min(y)) + cap_nats(x.shape[1]) / (0.5 * n_eff)
     return fit_surrogate(x, np.minimum(y, cap), kernel, seed, rotation=principal_axes(draws), start=start)
 
 
@@ -97,7 +99,7 @@ def update_gp(surrogate: Any, x: Array, y: Array, n_eff: float, seed: int, draws
     hyperparameters (from which a refit starts).  Returns the GP and the size at its last fit."""
     if x.shape[0] >= REFIT_GROWTH * fitted_at or not surrogate.fitted:
         return fit_local(x, y, n_eff, surrogate.kernel, seed, draws, surrogate), int(x.shape[0])
-    cap = float(np.min(y)) + CAP_NATS / (0.5 * n_eff)
+    cap = float(np.min(y)) + cap_nats(x.shape[1]) / (0.5 * n_eff)
     return condition_surrogate(surrogate, x, np.minimum(y, cap)), fitted_at
 
 
@@ -160,15 +162,16 @@ def _round_draws(ctx: RunContext, surrogate: Any, n_eff: float, quick: Posterior
     if not explore:
         return mean_draws, None, emul.gp
     spec = quick.model_copy(update={"functions": 1, "seed": int(rng.integers(2**31 - 1))})
-    _, chains = sample(ctx, surrogate, TEMPER * n_eff, spec, rng)
+    _, chains = sample(ctx, surrogate, TEMPER * n_eff, spec, rng, plateau=False)
     return mean_draws, np.concatenate([c.samples.reshape(-1, ctx.space.dim) for c in chains]), emul.gp
 
 
-def _round_error(predicted: Array, vals: Array, n_rand: int, best_log_loss: float, n_eff: float) -> float:
+def _round_error(predicted: Array, vals: Array, n_rand: int, best_log_loss: float, n_eff: float,
+                 dim: int) -> float:
     """A round's out-of-sample error (nats): the larger of the error at its ``n_rand``
-    leading random posterior draws (targets capped as in :func:`fit_local`) and
-    :func:`~smcbayes.posterior.refine.relevant_error` over all its points."""
-    cap = best_log_loss + CAP_NATS / (0.5 * n_eff)
+    leading random posterior draws (targets capped as in :func:`fit_local` for ``dim``
+    parameters) and :func:`~smcbayes.posterior.refine.relevant_error` over all its points."""
+    cap = best_log_loss + cap_nats(dim) / (0.5 * n_eff)
     err = check_values(predicted[:n_rand], np.minimum(vals[:n_rand], cap), n_eff)
     # judged on the uncapped values: a capped far point cannot hide a missed mode
     missed = relevant_error(predicted, vals, n_eff)
@@ -207,7 +210,7 @@ def _one_round(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff
     clock.append(time.perf_counter())
     vals = true_log_loss(ctx, theta)
     clock.append(time.perf_counter())
-    err = _round_error(fast.mean(pts), vals, n_rand, float(np.min(y)), n_eff)
+    err = _round_error(fast.mean(pts), vals, n_rand, float(np.min(y)), n_eff, ctx.space.dim)
     ok = np.isfinite(vals)
     x_new, y_new = np.vstack([x, pts[ok]]), np.concatenate([y, vals[ok]])
     surrogate, state.fitted_at = update_gp(surrogate, x_new, y_new, n_eff, int(rng.integers(2**31 - 1)),

@@ -62,6 +62,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import chi2
 
 from smcbayes.errors import SurrogateError
 from smcbayes.posterior.emulator import NumpyGP
@@ -171,21 +172,57 @@ def sandwich_points(residuals: Sequence[Array], sensitivities: Sequence[Array], 
     return float(keep.sum() * len(residuals) * loss / trace)
 
 
+CAP_FLOOR_NATS = 15.0
+"""The emulator's cap lies at least this many nats below the best: with a lower cap, the
+GP's targets can drop to the plateau so close to a narrow posterior that the fitted GP
+overshoots next to the drop, down to the best's level where the true log-likelihood is
+tens of nats lower, and the emulated posterior puts its mass there."""
+PLATEAU_MASS = 1e-3
+"""Share of a Gaussian posterior's mass that may lie beyond the start of the plateau."""
+PLATEAU_MARGIN_NATS = 1.5
+"""A capped GP's plateau begins this many nats below its cap (the GP mean scatters about
+the capped value by about a nat)."""
+PLATEAU_SLOPE = 10.0
+"""Extra nats of log density per nat of emulated log-likelihood beyond the plateau's start."""
+
+
+def cap_nats(dim: int) -> float:
+    """Nats of log-likelihood below the best at which the emulator's targets are capped,
+    for ``dim`` parameters: :data:`CAP_FLOOR_NATS`, or (from 9 parameters on) more, so that
+    the plateau, which gets no density, starts beyond the drop that holds all but
+    :data:`PLATEAU_MASS` of a Gaussian posterior's mass (its log density falls by
+    chi^2_d / 2 from the mode) and truncates no more than that share of a posterior."""
+    return max(CAP_FLOOR_NATS, 0.5 * float(chi2.ppf(1.0 - PLATEAU_MASS, dim)) + PLATEAU_MARGIN_NATS)
+
+
 @dataclass
 class EmulatedPosterior:
     """Log posterior densities on the unit cube from a GP of log(loss).
+
+    A GP trained on targets capped ``cap_nats`` of log-likelihood below the best
+    (:func:`smcbayes.posterior.active.fit_local`) only knows that its plateau lies at least
+    that far below; the plateau covers most of the box, so at its face value (a density
+    e^-cap of the peak's over a volume many times the posterior's) it can hold more mass
+    than the posterior.  Where the emulated log-likelihood comes within
+    :data:`PLATEAU_MARGIN_NATS` of the cap, its log density therefore falls by
+    :data:`PLATEAU_SLOPE` per nat, as the GPry sampler gives no density to the region its
+    classifier puts below its threshold (Gammal, Schöneberg, Torrado & Fidler 2023, "Fast
+    and robust Bayesian inference using Gaussian processes with GPry", JCAP 10, 021).
 
     Attributes:
         surrogate: the fitted GP (targets: natural log of the loss).
         n_eff: effective number of independent points N_eff (global).
         functions: number S of GP sample functions in the mixture (0: the GP mean only).
         seed: seed of the sample functions.
+        cap_nats: nats of log-likelihood below the best training target at which the GP's
+            targets were capped, or ``None`` (uncapped, no plateau).
     """
 
     surrogate: Surrogate
     n_eff: float
     functions: int = 8
     seed: int = 0
+    cap_nats: float | None = None
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.n_eff) or self.n_eff <= 0:
@@ -210,13 +247,18 @@ class EmulatedPosterior:
     def log_prob_fn(self, component: int | None) -> Callable[[Array], Array]:
         """Vectorised log posterior ``(W, d) -> (W,)`` of one mixture component."""
         a = 0.5 * self.n_eff
+        start = None if self.cap_nats is None else \
+            a * float(np.min(self.surrogate.log_loss)) + self.cap_nats - PLATEAU_MARGIN_NATS
 
         def log_prob(u: Array) -> Array:
             u = np.atleast_2d(u)
             inside = np.all((u >= 0.0) & (u <= 1.0), axis=1)
             out = np.full(u.shape[0], -np.inf)
             if np.any(inside):
-                out[inside] = -a * self.log_loss(u[inside], component)
+                nats = a * self.log_loss(u[inside], component)
+                if start is not None:
+                    nats = nats + PLATEAU_SLOPE * np.maximum(nats - start, 0.0)
+                out[inside] = -nats
             return out
 
         return log_prob

@@ -15,7 +15,12 @@ from smcbayes.errors import ConvergenceWarning, UnreliablePosteriorWarning
 from smcbayes.posterior.active import REFIT_GROWTH, fit_local, principal_axes, update_gp
 from smcbayes.posterior.emulator import NumpyGP
 from smcbayes.posterior.likelihood import (
+    CAP_FLOOR_NATS,
+    PLATEAU_MARGIN_NATS,
+    PLATEAU_MASS,
+    PLATEAU_SLOPE,
     EmulatedPosterior,
+    cap_nats,
     effective_points,
     integrated_autocorr_time,
     sandwich_points,
@@ -217,17 +222,18 @@ def test_update_gp_refits_only_after_the_data_grew() -> None:
     rng = np.random.default_rng(9)
     x = rng.random((50, 2))
     y = np.log(1 + ((x - 0.5) ** 2).sum(1) * 20) + np.sin(8 * x[:, 0])
-    first = fit_local(x[:40], y[:40], 8.0, "matern52", 0)
-    same, at = update_gp(first, x[:49], y[:49], 8.0, 1, x, fitted_at=40)
+    # N_eff 2: the cap lies above every target, so the conditioned GP interpolates them all
+    first = fit_local(x[:40], y[:40], 2.0, "matern52", 0)
+    same, at = update_gp(first, x[:49], y[:49], 2.0, 1, x, fitted_at=40)
     assert at == 40 and same.x_unit.shape == (49, 2) and same.rotation is None
     assert same.model.covar_module.lengthscale.tolist() == first.model.covar_module.lengthscale.tolist()
     new_err = np.abs(same.predict(x[40:49])[0] - y[40:49]).max()
     assert new_err < 0.2 * np.abs(first.predict(x[40:49])[0] - y[40:49]).max()
-    refit, at = update_gp(first, x, y, 8.0, 1, x, fitted_at=40)
+    refit, at = update_gp(first, x, y, 2.0, 1, x, fitted_at=40)
     assert at == 50 == int(REFIT_GROWTH * 40) and refit.rotation is not None
-    assert update_gp(first, x[:41], y[:41], 8.0, 1, x, fitted_at=0)[1] == 41
+    assert update_gp(first, x[:41], y[:41], 2.0, 1, x, fitted_at=0)[1] == 41
     first.fitted = False
-    assert update_gp(first, x[:41], y[:41], 8.0, 1, x, fitted_at=40)[1] == 41
+    assert update_gp(first, x[:41], y[:41], 2.0, 1, x, fitted_at=40)[1] == 41
 
 
 def test_inputs_rotated_onto_a_ridge_extrapolate_along_it() -> None:
@@ -309,6 +315,34 @@ def test_likelihood_is_minus_half_n_eff_log_loss(surrogates: dict) -> None:
     lp = post.log_prob_fn(None)(u)
     np.testing.assert_allclose(lp[:2], -20.0 * surrogates["rbf"].predict(u[:2])[0], atol=1e-5)
     assert lp[2] == -np.inf  # outside the prior box
+
+
+def test_cap_keeps_a_gaussian_posterior_off_the_plateau() -> None:
+    # a Gaussian posterior's log density falls by chi^2_d / 2; the plateau starts beyond
+    # the drop that holds all but PLATEAU_MASS of it, and never closer than the floor
+    rng = np.random.default_rng(4)
+    for dim in (2, 5, 8, 12):
+        start = cap_nats(dim) - PLATEAU_MARGIN_NATS
+        drop = 0.5 * np.sum(rng.standard_normal((200_000, dim)) ** 2, axis=1)
+        assert np.mean(drop > start) <= PLATEAU_MASS * 1.2
+        assert cap_nats(dim) >= CAP_FLOOR_NATS
+    assert cap_nats(12) > CAP_FLOOR_NATS == cap_nats(2)
+
+
+def test_capped_emulator_gives_its_plateau_no_density(surrogates: dict) -> None:
+    """Below the plateau's start the log density is -(N_eff/2) times the GP mean; beyond it,
+    it falls by PLATEAU_SLOPE per nat more."""
+    gp = surrogates["rbf"]
+    a, cap = 20.0, 6.0
+    plain = EmulatedPosterior(gp, n_eff=2 * a, functions=0).log_prob_fn(None)
+    capped = EmulatedPosterior(gp, n_eff=2 * a, functions=0, cap_nats=cap).log_prob_fn(None)
+    u = np.random.default_rng(5).random((400, 3))
+    nats = a * (gp.predict(u)[0] - np.min(gp.log_loss))
+    excess = nats - (cap - PLATEAU_MARGIN_NATS)
+    near, far = excess <= 0, excess > 0
+    assert near.sum() > 5 and far.sum() > 5
+    np.testing.assert_allclose(capped(u)[near], plain(u)[near], rtol=1e-10)
+    np.testing.assert_allclose(capped(u)[far], plain(u)[far] - PLATEAU_SLOPE * excess[far], rtol=1e-8)
 
 
 def test_sampler_reports_progress_through_the_logger_not_stderr(capsys, caplog) -> None:
