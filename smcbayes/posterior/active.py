@@ -38,9 +38,10 @@ def sample(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSpe
            plateau: bool = True) -> tuple[EmulatedPosterior, list[Chains]]:
     """Run one emcee ensemble per mixture component, started at the best point, with
     ``moves`` (default: differential evolution on the GP mean's posterior, stretch on
-    sample functions'); ``plateau``: the GP's targets were capped by :func:`fit_local` and
-    its plateau gets no density (``False``: the emulated likelihood at face value, as the
-    tempered exploration of the active learning wants it).
+    sample functions'); ``plateau``: the GP's targets were capped by :func:`fit_local` with
+    this ``n_eff`` and its plateau gets no density (``False``, required with any other
+    ``n_eff``: the emulated likelihood at face value, as the tempered exploration of the
+    active learning wants it).
 
     A sample function rises and dips by the GP's prior spread wherever the GP has no data,
     so its posterior has spurious modes in unexplored corners of the box, which

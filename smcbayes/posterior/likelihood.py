@@ -173,10 +173,9 @@ def sandwich_points(residuals: Sequence[Array], sensitivities: Sequence[Array], 
 
 
 CAP_FLOOR_NATS = 15.0
-"""The emulator's cap lies at least this many nats below the best: with a lower cap, the
-GP's targets can drop to the plateau so close to a narrow posterior that the fitted GP
-overshoots next to the drop, down to the best's level where the true log-likelihood is
-tens of nats lower, and the emulated posterior puts its mass there."""
+"""The emulator's cap lies at least this many nats below the best: the closer the cap, the
+closer to a narrow posterior the GP's targets drop to the plateau, and a GP overshoots
+next to such a drop."""
 PLATEAU_MASS = 1e-3
 """Share of a Gaussian posterior's mass that may lie beyond the start of the plateau."""
 PLATEAU_MARGIN_NATS = 1.5
@@ -203,11 +202,13 @@ class EmulatedPosterior:
     (:func:`smcbayes.posterior.active.fit_local`) only knows that its plateau lies at least
     that far below; the plateau covers most of the box, so at its face value (a density
     e^-cap of the peak's over a volume many times the posterior's) it can hold more mass
-    than the posterior.  Where the emulated log-likelihood comes within
-    :data:`PLATEAU_MARGIN_NATS` of the cap, its log density therefore falls by
-    :data:`PLATEAU_SLOPE` per nat, as the GPry sampler gives no density to the region its
-    classifier puts below its threshold (Gammal, Schöneberg, Torrado & Fidler 2023, "Fast
-    and robust Bayesian inference using Gaussian processes with GPry", JCAP 10, 021).
+    than the posterior.  From :data:`PLATEAU_MARGIN_NATS` before the cap on, the log
+    density therefore falls by a further :data:`PLATEAU_SLOPE` per nat (the plateau ends
+    near e^-(cap + 15)), as the GPry sampler gives no density to the region its classifier
+    puts below its threshold (Gammal, Schöneberg, Torrado & Fidler 2023, "Fast and robust
+    Bayesian inference using Gaussian processes with GPry", JCAP 10, 021).  ``cap_nats``
+    is in nats at this object's ``n_eff``, which must be the N_eff the targets were capped
+    with (a tempered posterior takes ``cap_nats=None``).
 
     Attributes:
         surrogate: the fitted GP (targets: natural log of the loss).

@@ -326,7 +326,19 @@ def test_cap_keeps_a_gaussian_posterior_off_the_plateau() -> None:
         drop = 0.5 * np.sum(rng.standard_normal((200_000, dim)) ** 2, axis=1)
         assert np.mean(drop > start) <= PLATEAU_MASS * 1.2
         assert cap_nats(dim) >= CAP_FLOOR_NATS
-    assert cap_nats(12) > CAP_FLOOR_NATS == cap_nats(2)
+    assert cap_nats(12) > cap_nats(9) > CAP_FLOOR_NATS == cap_nats(8) == cap_nats(2)
+
+
+def test_local_gp_targets_are_capped_at_cap_nats() -> None:
+    rng = np.random.default_rng(2)
+    x = rng.random((40, 2))
+    y = np.log(1 + ((x - 0.5) ** 2).sum(1) * 20)
+    n_eff = 20.0  # a = 10: the cap lies cap_nats(2) / 10 above the best target
+    cap = y.min() + cap_nats(2) / 10.0
+    assert np.any(y > cap)
+    for gp in (fit_local(x, y, n_eff, "matern52", 0),
+               update_gp(fit_local(x[:35], y[:35], n_eff, "matern52", 0), x, y, n_eff, 1, x, 35)[0]):
+        np.testing.assert_allclose(gp.log_loss, np.minimum(y, cap))
 
 
 def test_capped_emulator_gives_its_plateau_no_density(surrogates: dict) -> None:

@@ -13,6 +13,7 @@ import pytest
 from smcbayes.cli import main
 from smcbayes.posterior.active import STABLE_ROUNDS
 from smcbayes.posterior.context import load_run
+from smcbayes.posterior.spread import SPREAD_MAX
 from smcbayes.surrogate.gp import load_surrogate
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -119,7 +120,7 @@ def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path
     assert idata.posterior.sizes["chain"] == (1 + spread["functions"]) * settings.walkers
     # the final spread's own reason (the active learning's budget reason may cite its last spread)
     flagged = any(r.startswith("the emulator's own uncertainty") for r in info["reliability"]["reasons"])
-    assert flagged == (spread["max_quantile_shift"] > 0.1)
+    assert flagged == (spread["max_quantile_shift"] > SPREAD_MAX)
     assert info["forward_evaluations"]["refine"] == active["evaluations"] <= 90
     assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5
     log = [json.loads(line) for line in (tmp_path / "active" / "posterior" / "refine.jsonl").read_text().splitlines()]
