@@ -62,6 +62,12 @@ def sample(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSpe
     return emul, chains
 
 
+def cap_log_loss(best_log_loss: float, n_eff: float, dim: int) -> float:
+    """The log loss at which the emulator's targets are capped: :func:`cap_nats` (``dim``)
+    of log-likelihood above ``best_log_loss``, for N_eff ``n_eff``."""
+    return best_log_loss + cap_nats(dim) / (0.5 * n_eff)
+
+
 def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int,
               draws: Array | None = None, start: Any = None) -> Any:
     """GP of log(loss) with targets capped at min + :func:`cap_nats` (d) / (N_eff / 2), its
@@ -80,7 +86,7 @@ def fit_local(x: Array, y: Array, n_eff: float, kernel: str, seed: int,
     rotates its inputs likewise (and rescales them, which ARD lengthscales make unneeded
     here).
     """
-    cap = float(np.min(y)) + cap_nats(x.shape[1]) / (0.5 * n_eff)
+    cap = cap_log_loss(float(np.min(y)), n_eff, x.shape[1])
     return fit_surrogate(x, np.minimum(y, cap), kernel, seed, rotation=principal_axes(draws), start=start)
 
 
@@ -100,7 +106,7 @@ def update_gp(surrogate: Any, x: Array, y: Array, n_eff: float, seed: int, draws
     hyperparameters (from which a refit starts).  Returns the GP and the size at its last fit."""
     if x.shape[0] >= REFIT_GROWTH * fitted_at or not surrogate.fitted:
         return fit_local(x, y, n_eff, surrogate.kernel, seed, draws, surrogate), int(x.shape[0])
-    cap = float(np.min(y)) + cap_nats(x.shape[1]) / (0.5 * n_eff)
+    cap = cap_log_loss(float(np.min(y)), n_eff, x.shape[1])
     return condition_surrogate(surrogate, x, np.minimum(y, cap)), fitted_at
 
 
@@ -172,7 +178,7 @@ def _round_error(predicted: Array, vals: Array, n_rand: int, best_log_loss: floa
     """A round's out-of-sample error (nats): the larger of the error at its ``n_rand``
     leading random posterior draws (targets capped as in :func:`fit_local` for ``dim``
     parameters) and :func:`~smcbayes.posterior.refine.relevant_error` over all its points."""
-    cap = best_log_loss + cap_nats(dim) / (0.5 * n_eff)
+    cap = cap_log_loss(best_log_loss, n_eff, dim)
     err = check_values(predicted[:n_rand], np.minimum(vals[:n_rand], cap), n_eff)
     # judged on the uncapped values: a capped far point cannot hide a missed mode
     missed = relevant_error(predicted, vals, n_eff)
