@@ -466,7 +466,9 @@ def main() -> int:
     ap.add_argument("--refine", type=int, default=PosteriorSettings().refine,
                     help="most forward evaluations of the emulator's active learning (default: the stage's)")
     ap.add_argument("--correct-draws", type=int, default=0,
-                    help="most proposal draws of the importance correction (0: the default path, none)")
+                    help="most proposal draws of the importance correction (0: the emulator alone, the "
+                         "default of an external simulator; the built-in simulator's default corrects "
+                         "with the [posterior.correction] draws)")
     ap.add_argument("--tag", default="", help="suffix of the result file (e.g. the budget)")
     ap.add_argument("--peer", choices=("none", "pyvbmc"), default="none",
                     help="also run a peer on the same target (pyvbmc: pip install -e '.[bench]')")

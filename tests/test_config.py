@@ -74,3 +74,19 @@ def test_parse_assignments() -> None:
     for bad in ("n", "=1", "n=x"):
         with pytest.raises(ConfigError, match="--set"):
             parse_assignments([bad])
+
+
+def test_posterior_defaults_depend_on_the_simulator() -> None:
+    """The built-in simulator corrects by default (with a smaller active learning before);
+    an external one reports the emulator alone; given values are kept."""
+    from smcbayes.config import PosteriorSpec
+    from smcbayes.config.settings import REFINE_CORRECTED, REFINE_EMULATED
+
+    spec = PosteriorSpec()
+    native, external = spec.resolved(external=False), spec.resolved(external=True)
+    assert native.correct_draws == spec.correction.draws > 0 and native.refine == REFINE_CORRECTED
+    assert external.correct_draws == 0 and external.refine == REFINE_EMULATED
+    assert REFINE_CORRECTED < REFINE_EMULATED
+    given = PosteriorSpec(refine=50, correct_draws=0)
+    assert given.resolved(external=False) == given.resolved(external=True) == given
+    assert PosteriorSpec(correct_draws=3000).resolved(external=True).refine == REFINE_CORRECTED

@@ -82,7 +82,7 @@ class CalibrationSpec(Strict):
 
 class CorrectionSpec(CodeBuilt):
     """Settings of the importance-sampling correction of the posterior
-    (``[posterior.correction]``; its ``draws`` is set by ``[posterior] correct_draws``).
+    (``[posterior.correction]``; ``[posterior] correct_draws``, when given, overrides its ``draws``).
 
     Attributes:
         draws: most proposal draws in total (points outside the prior box cost no forward run).
@@ -150,6 +150,13 @@ class CorrectionSpec(CodeBuilt):
                                     description="exponent T of the tempered posterior pi^T the proposals are fitted to")
 
 
+REFINE_EMULATED = 800
+"""Default budget of the active learning when the emulator's posterior is reported alone."""
+REFINE_CORRECTED = 400
+"""... and when the importance correction follows, which needs the emulator as a proposal
+that covers the posterior, not validated to a nat."""
+
+
 class PosteriorSpec(Strict):
     """Settings of ``smcbayes posterior``; CLI options override them."""
 
@@ -164,11 +171,14 @@ class PosteriorSpec(Strict):
                                                    "the spread check's GP sample functions, so that what "
                                                    "the GP cannot rule out widens the result (not with "
                                                    "functions > 0, the correction or noise-free data)")
-    refine: int = Field(800, ge=0, le=1_000_000,
-                        description="most forward evaluations of the active learning of the emulator "
-                                    "(rounds of fresh posterior draws and points where the GP is unsure "
-                                    "and a tempered posterior could be large; it stops earlier once "
-                                    "validated and GP sample functions no longer move the posterior)")
+    refine: int | None = Field(
+        None, ge=0, le=1_000_000,
+        description=f"most forward evaluations of the active learning of the emulator (rounds of "
+                    f"fresh posterior draws and points where the GP is unsure and a tempered "
+                    f"posterior could be large; it stops earlier once validated and GP sample "
+                    f"functions no longer move the posterior); default {REFINE_EMULATED}, or "
+                    f"{REFINE_CORRECTED} when the importance correction follows (it needs a "
+                    f"proposal, not a validated emulator)")
     draws: int = Field(100, ge=1, le=1_000_000,
                        description="posterior draws through the forward model for bands and checks")
     seed: int = Field(0, ge=0, description="random seed (same seed, same posterior)")
@@ -176,13 +186,27 @@ class PosteriorSpec(Strict):
         1.0, gt=0, description="active learning stops once the emulator's out-of-sample error at "
                                "fresh posterior draws is below this (nats) in three rounds in a row, the "
                                "quantiles are stable and the emulator's spread is at most 0.10")
-    correct_draws: int = Field(
-        0, ge=0, le=10_000_000,
-        description="most proposal draws of an importance correction by the exact forward model "
-                    "(each inside the prior box costs a forward run; e.g. 14000 for a cheap "
-                    "simulator, as a check); 0: the actively learned emulator's posterior")
+    correct_draws: int | None = Field(
+        None, ge=0, le=10_000_000,
+        description="most proposal draws of the importance correction by the exact forward model "
+                    "(each inside the prior box costs a forward run); default: the correction "
+                    "table's draws with the built-in simulator, whose runs cost milliseconds, and "
+                    "0 with an external one; 0: the actively learned emulator's posterior alone")
     correction: CorrectionSpec = Field(CorrectionSpec(), description="the importance correction's "
                                        "other settings ([posterior.correction])")
+
+    def resolved(self, external: bool) -> PosteriorSpec:
+        """These settings with the defaults that depend on the simulator filled in.
+
+        With the built-in simulator the stage checks and corrects the emulated posterior by
+        the exact one (a forward run costs milliseconds); with an ``external`` one (a run
+        may take minutes) it reports the emulator's posterior alone unless asked.
+        """
+        draws = self.correct_draws if self.correct_draws is not None else \
+            (0 if external else self.correction.draws)
+        refine = self.refine if self.refine is not None else \
+            (REFINE_CORRECTED if draws > 0 else REFINE_EMULATED)
+        return self.model_copy(update={"correct_draws": draws, "refine": refine})
 
 
 class DiagnoseSpec(Strict):
@@ -232,4 +256,6 @@ def default_of(spec: type[BaseModel], name: str) -> Any:
 def help_of(spec: type[BaseModel], name: str) -> str:
     """``description (default X)`` of one field, for ``--help``."""
     field = spec.model_fields[name]
-    return f"{field.description or name} (default {field.default})"
+    text = field.description or name
+    # a default of None is resolved at run time, and the description says how
+    return text if field.default is None else f"{text} (default {field.default})"

@@ -132,9 +132,14 @@ def _count_runs(runs: dict[str, int], refine: int, residual_budget: int) -> None
 
 
 def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSettings, Path]:
-    """Start the stage in the run directory; returns the settings it runs with (no active
+    """Start the stage in the run directory; returns the settings it runs with (the
+    simulator's defaults of the correction and the active learning filled in, no active
     learning on noise-free data) and its output folder."""
-    if ctx.summary.get("simulator") == "external" and settings.correct_draws > 0:
+    external = ctx.summary.get("simulator") == "external"
+    if ctx.noise_free and settings.correct_draws is None:
+        settings = settings.model_copy(update={"correct_draws": 0})  # no weights can resolve a spike
+    settings = settings.resolved(external)
+    if external and settings.correct_draws > 0:
         # each correction draw inside the box is one run of the user's solver per configuration
         logger.warning("the importance correction may run the external simulator up to %d times "
                        "on each of %d configuration(s); --correct-draws 0 reports the emulated "

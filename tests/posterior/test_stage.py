@@ -96,12 +96,12 @@ def test_correction_is_reported(run_dir: Path) -> None:
 
 
 def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path) -> None:
-    """The default path (no correction): the truth in the 90 % intervals, the slip pair's
-    correlation sign right, every round logged, and the stage's verdict consistent with its
-    stopping rule."""
+    """The emulator's path (no correction, an external simulator's default): the truth in
+    the 90 % intervals, the slip pair's correlation sign right, every round logged, and the
+    stage's verdict consistent with its stopping rule."""
     from smcbayes.posterior.stage import PosteriorSettings, run_posterior
 
-    settings = PosteriorSettings(walkers=16, steps=1500, refine=90, draws=20, seed=1)
+    settings = PosteriorSettings(walkers=16, steps=1500, refine=90, draws=20, correct_draws=0, seed=1)
     info = run_posterior(_fresh_copy(run_dir, tmp_path / "active"), settings)
     truth = {"tau_c_MPa": 0.01, "m": 1.5}
     for p in info["parameters"]:
@@ -176,7 +176,8 @@ def test_a_large_spread_sends_the_active_learning_where_sample_functions_disagre
     monkeypatch.setattr(active, "spread_chains", recorded(ended))
     monkeypatch.setattr(stage, "spread_chains", recorded(repeated))
     folder = _fresh_copy(run_dir, tmp_path / "spread")
-    info = run_posterior(folder, PosteriorSettings(walkers=16, steps=300, refine=150, draws=10, seed=2))
+    info = run_posterior(folder, PosteriorSettings(walkers=16, steps=300, refine=150, draws=10, correct_draws=0,
+                                                   seed=2))
     status = info["active_learning"]
     assert status["converged"] and status["spread_checks"] == 2 and status["spread"] == 0.02
     assert status["rounds"] == STABLE_ROUNDS + 1
@@ -299,3 +300,4 @@ def test_a_truth_check_is_named_degenerate_without_spending_runs(tmp_path: Path,
     info = json.loads((run / "posterior" / "summary.json").read_text())
     assert info["reliable"] is False and len(info["reliability"]["reasons"]) == 1
     assert info["active_learning"] == {"enabled": False, "evaluations": 0}
+    assert not info["correction"]["enabled"]  # nor an importance correction by default
