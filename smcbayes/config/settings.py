@@ -188,10 +188,11 @@ class PosteriorSpec(Strict):
                                "quantiles are stable and the emulator's spread is at most 0.10")
     correct_draws: int | None = Field(
         None, ge=0, le=10_000_000,
-        description="most proposal draws of the importance correction by the exact forward model "
-                    "(each inside the prior box costs a forward run); default: the correction "
-                    "table's draws with the built-in simulator, whose runs cost milliseconds, and "
-                    "0 with an external one; 0: the actively learned emulator's posterior alone")
+        description=f"most proposal draws of the importance correction by the exact forward model "
+                    f"(each inside the prior box costs a forward run); default: "
+                    f"{CorrectionSpec.model_fields['draws'].default} ([posterior.correction] draws) with "
+                    f"the built-in simulator, whose runs cost milliseconds, and 0 with an external "
+                    f"one; 0: the actively learned emulator's posterior alone")
     correction: CorrectionSpec = Field(CorrectionSpec(), description="the importance correction's "
                                        "other settings ([posterior.correction])")
 
