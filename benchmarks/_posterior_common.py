@@ -86,8 +86,10 @@ def calibrate_run(project_toml: Path, run_dir: Path, budget: int, init: int, see
     from smcbayes.surrogate.loop import BOSettings
 
     project = load_project(project_toml)
+    # the emulator path stands for an expensive simulator here: no local search on the model,
+    # so the calibration's evaluations are the GP's training data and the count is theirs
     settings = BOSettings(budget=budget, init=init, seed=seed, local_evaluations=local_evaluations,
-                          local_radius=local_radius)
+                          local_radius=local_radius, polish=0)
     settings.check()
     identity = RunIdentity(project.model_dump(mode="json"), None, {}, None, None,
                            settings.model_dump(mode="json", exclude={"truth"}))

@@ -6,7 +6,7 @@ Runs `smcbayes calibrate` (library path: same code as the command) on configs/th
 (force compared up to the incompressible flow-stop time, what the thesis minimised; its
 best was 18384 kN^2, a sum over the 9 configurations), with the compressibility effect,
 and with compressibility + press_compliance (the recommended set); 30 Latin hypercube + 60
-BO evaluations each.  Reports per-configuration force RMSE (kN) over the full closing, the
+BO evaluations each, then the calibration's default local search on the 1-D model.  Reports per-configuration force RMSE (kN) over the full closing, the
 loss as calibrated, the clipped loss at the best point (mean and sum over configurations),
 the parameters on a search bound, and wall time.
 

@@ -132,8 +132,9 @@ def calibrate(project: ProjectConfig | PathLike, out: PathLike, *, effects: Sequ
         fidelity: ``"1d"`` or ``"2d"`` (default: the project's solver).
         external: an external simulator instead of the native model.
         workers, scheduler: where evaluations run (process pool, Dask address).
-        resume: continue the run in ``out`` with its own settings: only ``budget`` and
-            ``tolerance`` may change them, any other setting given must agree with the run.
+        resume: continue the run in ``out`` with its own settings: only ``budget``,
+            ``tolerance`` and ``polish`` may change them, any other setting given must agree
+            with the run.
         figures: write the figures.
         **settings: fields of the ``[calibration]`` table, e.g. ``budget=60, init=20``.
     """

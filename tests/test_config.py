@@ -83,10 +83,10 @@ def test_posterior_defaults_depend_on_the_simulator() -> None:
     from smcbayes.config.settings import REFINE_CORRECTED, REFINE_EMULATED
 
     spec = PosteriorSpec()
-    native, external = spec.resolved(external=False), spec.resolved(external=True)
+    native, external = spec.resolved(slow=False), spec.resolved(slow=True)
     assert native.correct_draws == spec.correction.draws > 0 and native.refine == REFINE_CORRECTED
     assert external.correct_draws == 0 and external.refine == REFINE_EMULATED
     assert REFINE_CORRECTED < REFINE_EMULATED
     given = PosteriorSpec(refine=50, correct_draws=0)
-    assert given.resolved(external=False) == given.resolved(external=True) == given
-    assert PosteriorSpec(correct_draws=3000).resolved(external=True).refine == REFINE_CORRECTED
+    assert given.resolved(slow=False) == given.resolved(slow=True) == given
+    assert PosteriorSpec(correct_draws=3000).resolved(slow=True).refine == REFINE_CORRECTED

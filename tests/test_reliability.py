@@ -14,7 +14,7 @@ from smcbayes.errors import FixedOutsideBoxWarning
 
 REPO = Path(__file__).resolve().parents[1]
 SLIP = REPO / "configs" / "verify-slip-2d.toml"
-QUICK = ["--budget", "4", "--init", "3", "--fidelity", "1d", "--no-figures"]
+QUICK = ["--budget", "4", "--init", "3", "--polish", "0", "--fidelity", "1d", "--no-figures"]
 
 
 def one_config(tmp: Path) -> Path:
@@ -69,7 +69,7 @@ def test_bare_resume_takes_the_runs_own_settings(run: Path, capsys: pytest.Captu
     assert json.loads((run / "summary.json").read_text())["evaluations"] == 5
     assert main(["calibrate", str(config), "--out", str(run), "--resume", "--init", "4",
                  "--fidelity", "1d"]) == 2
-    assert "--resume changes only --budget and --tolerance" in error_line(capsys)
+    assert "--resume changes only --budget, --tolerance and --polish" in error_line(capsys)
 
 
 def test_an_emptied_log_is_not_silently_recomputed(run: Path, tmp_path: Path,

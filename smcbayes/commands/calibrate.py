@@ -28,8 +28,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "evaluation is logged as it finishes; --resume continues a killed run. "
                     "Settings come from the config's [calibration] table; the options below override it "
                     "(the defaults shown apply when the table does not set them). On --resume the "
-                    "settings are the run's own (config.json in RUN_DIR): only --budget and "
-                    "--tolerance change them, e.g. `smcbayes calibrate --out RUN --resume --budget 120`.")
+                    "settings are the run's own (config.json in RUN_DIR): only --budget, "
+                    "--tolerance and --polish change them, e.g. `smcbayes calibrate --out RUN --resume --budget 120`. "
+                    "With the built-in 1-D model a local search on the model itself (Powell's method, "
+                    "--polish evaluations) then refines the best point.")
     p.add_argument("config", nargs="?", default=None,
                    help="project TOML file (e.g. configs/thesis.toml); with --resume it may be left "
                         "out: the run's recorded project and data directory are used")
@@ -42,10 +44,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tolerance", type=float, default=None, help=help_of(CalibrationSpec, "tolerance"))
     p.add_argument("--patience", type=int, default=None, help=help_of(CalibrationSpec, "patience"))
     p.add_argument("--seed", type=int, default=None, help=help_of(CalibrationSpec, "seed"))
+    p.add_argument("--polish", type=int, default=None, metavar="N", help=help_of(CalibrationSpec, "polish"))
     add_executor_options(p)
     p.add_argument("--resume", action="store_true",
-                   help="continue the run in RUN_DIR with its own settings (only --budget and "
-                        "--tolerance may change them; any other option given must agree with the "
+                   help="continue the run in RUN_DIR with its own settings (only --budget, "
+                        "--tolerance and --polish may change them; any other option given must agree with the "
                         "run); CONFIG may then be left out")
     p.add_argument("--external", metavar="COMMAND", default=None,
                    help="external simulator command template with {params} {output} {config} "
@@ -89,7 +92,7 @@ def selected_effects(path: str) -> list[str]:
     return chosen
 
 
-FIELDS = ("budget", "init", "batch", "kernel", "tolerance", "patience", "seed")
+FIELDS = ("budget", "init", "batch", "kernel", "tolerance", "patience", "seed", "polish")
 
 
 def settings_from(project: ProjectConfig, args: argparse.Namespace, run_dir: RunDir) -> CalibrationSpec:
@@ -168,9 +171,11 @@ def run(args: argparse.Namespace) -> int:
                             reuse_truth=args.resume)
     executor = make_executor(args.workers, args.scheduler)
     space = problem.space
+    polish = settings.polish_evaluations(problem.fast)
+    local = f", then a local search of up to {polish} evaluations" if polish else ""
     print(f"calibrating {', '.join(space.free_names)} on {len(problem.train_ids)} configuration(s); "
           f"budget {settings.budget} ({settings.init} initial), batch {settings.batch}, "
-          f"kernel {settings.kernel}, seed {settings.seed}")
+          f"kernel {settings.kernel}, seed {settings.seed}{local}")
     info = calibrate(problem, settings, run_dir, executor, figures=not args.no_figures)
     print(f"stopped: {info['stop_reason']}; {info['evaluations']} evaluations, "
           f"{info['failures']} failed, {info['seconds_wall']:.1f} s")

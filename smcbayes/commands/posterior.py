@@ -24,8 +24,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "the posterior), sample it with emcee (without a correction, the GP mean's "
                     "posterior pooled with those of GP sample functions, so the emulator's "
                     "uncertainty widens the posterior), correct it by adaptive importance sampling with the exact "
-                    "forward model (Pareto k-hat reported; by default with the built-in simulator, "
-                    "not with an external one; --correct-draws sets or skips it), and write "
+                    "forward model (Pareto k-hat reported; by default with the built-in 1-D model, "
+                    "not with an external simulator or the 2-D solver; --correct-draws sets or skips it), and write "
                     "RUN_DIR/posterior/: posterior.nc (arviz), summary table, correlations, corner "
                     "plot, and predictive bands with coverage on the validation configurations. "
                     "Settings come from the project's [posterior] table; the options override it.")

@@ -36,6 +36,13 @@ class CodeBuilt(Strict):
                               f"{e['msg'].removeprefix('Value error, ')}") from None
 
 
+POLISH_FAST = 600
+"""Default budget of the calibration's local search with a fast simulator: about 5 s of the
+1-D model on six press trials.  With 7-8 free parameters Powell's method may need a few
+times more to meet its own tolerance, but the first few hundred evaluations make most of
+its gain (README, "Calibration")."""
+
+
 class CalibrationSpec(Strict):
     """Settings of ``smcbayes calibrate`` (Bayesian optimisation); CLI options override them."""
 
@@ -68,6 +75,19 @@ class CalibrationSpec(Strict):
         0, ge=0, description="final evaluations searched in a box around the best point")
     local_radius: float = Field(0.1, gt=0, le=0.5,
                                 description="half-width of that box in unit-cube coordinates")
+    polish: int | None = Field(
+        None, ge=0, le=100000,
+        description=f"most evaluations of a local search (Powell's method) from the best point "
+                    f"after the Bayesian optimisation, run on the forward model itself; default "
+                    f"{POLISH_FAST} with the built-in 1-D model, whose evaluations cost "
+                    f"milliseconds, and 0 with an external simulator or the 2-D solver; 0: off")
+
+    def polish_evaluations(self, fast: bool) -> int:
+        """The local search's budget: ``polish`` when given, else :data:`POLISH_FAST` for a
+        ``fast`` simulator (the built-in 1-D model) and 0 for a slow one."""
+        if self.polish is not None:
+            return self.polish
+        return POLISH_FAST if fast else 0
 
     @property
     def noise_variance(self) -> float | None:
@@ -191,20 +211,21 @@ class PosteriorSpec(Strict):
         description=f"most proposal draws of the importance correction by the exact forward model "
                     f"(each inside the prior box costs a forward run); default: "
                     f"{CorrectionSpec.model_fields['draws'].default} ([posterior.correction] draws) with "
-                    f"the built-in simulator, whose runs cost milliseconds, and 0 with an external "
-                    f"one; 0: the actively learned emulator's posterior alone")
+                    f"the built-in 1-D model, whose runs cost milliseconds, and 0 with an external "
+                    f"simulator or the 2-D solver; 0: the actively learned emulator's posterior alone")
     correction: CorrectionSpec = Field(CorrectionSpec(), description="the importance correction's "
                                        "other settings ([posterior.correction])")
 
-    def resolved(self, external: bool) -> PosteriorSpec:
+    def resolved(self, slow: bool) -> PosteriorSpec:
         """These settings with the defaults that depend on the simulator filled in.
 
-        With the built-in simulator the stage checks and corrects the emulated posterior by
-        the exact one (a forward run costs milliseconds); with an ``external`` one (a run
-        may take minutes) it reports the emulator's posterior alone unless asked.
+        With the built-in 1-D model the stage checks and corrects the emulated posterior by
+        the exact one (a forward run costs milliseconds); with a ``slow`` one (an external
+        simulator, whose run may take minutes, or the 2-D solver's seconds) it reports the
+        emulator's posterior alone unless asked.
         """
         draws = self.correct_draws if self.correct_draws is not None else \
-            (0 if external else self.correction.draws)
+            (0 if slow else self.correction.draws)
         refine = self.refine if self.refine is not None else \
             (REFINE_CORRECTED if draws > 0 else REFINE_EMULATED)
         return self.model_copy(update={"correct_draws": draws, "refine": refine})

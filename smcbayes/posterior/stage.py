@@ -135,15 +135,16 @@ def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSetti
     """Start the stage in the run directory; returns the settings it runs with (the
     simulator's defaults of the correction and the active learning filled in, no active
     learning on noise-free data) and its output folder."""
-    external = ctx.summary.get("simulator") == "external"
+    slow = not ctx.problem.fast
     if ctx.noise_free and settings.correct_draws is None:
         settings = settings.model_copy(update={"correct_draws": 0})  # no weights can resolve a spike
-    settings = settings.resolved(external)
-    if external and settings.correct_draws > 0:
+    settings = settings.resolved(slow)
+    if slow and settings.correct_draws > 0:
         # each correction draw inside the box is one run of the user's solver per configuration
-        logger.warning("the importance correction may run the external simulator up to %d times "
-                       "on each of %d configuration(s); --correct-draws 0 reports the emulated "
-                       "posterior without it", settings.correct_draws, len(ctx.problem.train_ids))
+        logger.warning("the importance correction may run the %s up to %d times on each of %d "
+                       "configuration(s); --correct-draws 0 reports the emulated posterior without it",
+                       "external simulator" if ctx.summary.get("simulator") == "external" else "2-D solver",
+                       settings.correct_draws, len(ctx.problem.train_ids))
     out_dir = ctx.run.begin_stage("posterior", settings.model_dump(mode="json"))
     if ctx.noise_free and settings.refine > 0:
         # the likelihood is a spike at the truth: simulator runs cannot make it a posterior

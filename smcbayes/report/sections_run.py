@@ -103,6 +103,16 @@ def data_section(run: RunFiles, dataset: Any, measured_png: Path | None) -> Sect
     return sec
 
 
+def _polish_row(polish: dict[str, Any] | None) -> list[tuple[str, str]]:
+    """The calibration's local search as one table row (none without a search)."""
+    if not polish:
+        return []
+    how = "converged" if polish.get("converged") else "its budget spent"
+    return [("local search (forward model)",
+             f"{fmt(polish.get('evaluations'))} evaluations ({how}), loss {fmt(polish.get('start_loss_kN2'))} "
+             f"-> {fmt(polish.get('best_loss_kN2'))} kN^2")]
+
+
 def _settings_table(cal: dict[str, Any]) -> Table:
     s = cal.get("settings") or {}
     fixed = cal.get("fixed_parameters") or {}
@@ -118,6 +128,7 @@ def _settings_table(cal: dict[str, Any]) -> Table:
         ("kernel, seed", f"{s.get('kernel', '-')}, {fmt(s.get('seed'))}"),
         ("evaluations (failed)", f"{fmt(cal.get('evaluations'))} ({fmt(cal.get('failures'))})"),
         ("stop reason", str(cal.get("stop_reason", "-"))),
+        *_polish_row(cal.get("polish")),
         ("wall time (s)", fmt(cal.get("seconds_wall"), 3)),
     ]
     loss = cal.get("loss") or {}

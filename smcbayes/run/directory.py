@@ -45,9 +45,9 @@ StageState = Literal["absent", "running", "interrupted", "complete"]
 IDENTITY_KEYS = ("project", "effects", "overrides", "fidelity", "external", "seed", "init",
                  "batch", "kernel", "failed", "restarts", "raw_samples", "noise",
                  "local_evaluations", "local_radius", "patience", "retries")
-"""Settings that must match for ``--resume`` (the budget and tolerance may change)."""
+"""Settings that must match for ``--resume`` (the budget, tolerance and local search may change)."""
 
-RESUME_CHANGES = ("budget", "tolerance")
+RESUME_CHANGES = ("budget", "tolerance", "polish")
 """The calibration settings a resumed run may change; the others are the run's own."""
 
 _MODEL_KEYS = ("project", "effects", "overrides", "fidelity", "external")
@@ -213,8 +213,9 @@ class RunDir:
                 gives ``init`` (keyword arguments of the API).
 
         Raises:
-            ConfigError: a setting other than the budget or the tolerance is given and
-                differs from the run's (one line naming it and the run's value).
+            ConfigError: a setting other than the budget, the tolerance or the local
+                search's budget is given and differs from the run's (one line naming it and
+                the run's value).
         """
         recorded = {k: v for k, v in self.identity().settings.items() if k in CalibrationSpec.model_fields}
         own = override(base, recorded, source=str(self.root / "config.json"))
@@ -225,8 +226,8 @@ class RunDir:
             if key not in CalibrationSpec.model_fields or value == getattr(own, key):
                 continue  # unknown names are reported by override() below
             raise ConfigError(f"{option}{key} {value}: the run in {self.root} was started with "
-                              f"{key} = {getattr(own, key)}; {resume} changes only {option}budget and "
-                              f"{option}tolerance (drop the option, or start a new run with another --out)")
+                              f"{key} = {getattr(own, key)}; {resume} changes only {option}budget, "
+                              f"{option}tolerance and {option}polish (drop the option, or start a new run with another --out)")
         return override(own, given, source=str(self.root))
 
     def load_problem(self) -> Problem:

@@ -3,9 +3,10 @@
 ``evaluations.jsonl`` holds two kinds of JSON lines, each written, flushed and fsynced
 before the next step:
 
-- ``{"type": "round", "round": r, "kind": "init"|"bo", "indices": [...], "unit": [[...]],
-  "params": [[...]]}``: the candidates of a round, logged before they are evaluated, so
-  that a resumed run evaluates exactly the same points;
+- ``{"type": "round", "round": r, "kind": "init"|"bo"|"polish", "indices": [...], "unit":
+  [[...]], "params": [[...]]}``: the candidates of a round (the initial design, a round of
+  the Bayesian optimisation, one evaluation of the local search), logged before they are
+  evaluated, so that a resumed run evaluates exactly the same points;
 - ``{"type": "evaluation", "index": i, "round": r, "params": {name: value}, "errors":
   {config: kN^2}, "force_mse_kN2": {...}, "displacement_mse_mm2": {...}, "loss": L,
   "status": "ok"|"failed", "reason": str|null, "seconds": s}``: one finished evaluation.

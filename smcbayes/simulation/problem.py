@@ -21,6 +21,7 @@ from smcbayes.data.dataset import Dataset, load_dataset
 from smcbayes.data.readers.csv import write_csv
 from smcbayes.errors import ConfigError, DataError, DataWarning, FixedOutsideBoxWarning, SolverError
 from smcbayes.forward.model import ForwardModel
+from smcbayes.forward.squeeze1d import Squeeze1D
 from smcbayes.simulation.executors.base import Executor
 from smcbayes.simulation.executors.external import ExternalSimulator
 from smcbayes.simulation.objective import Simulator, SimulatorObjective
@@ -61,6 +62,14 @@ class Problem:
     def simulator(self) -> Simulator:
         """The one simulator of the run (native or external)."""
         return self.objective.simulator
+
+    @property
+    def fast(self) -> bool:
+        """Whether a forward run costs milliseconds: the built-in model with the 1-D solver
+        (not an external simulator, not the 2-D solver's seconds per configuration).  The
+        stages spend forward runs freely only then (the calibration's local search, the
+        posterior's importance correction)."""
+        return self.simulator is self.model and isinstance(self.model.solver, Squeeze1D)
 
     @property
     def dataset(self) -> Dataset:

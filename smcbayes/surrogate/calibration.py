@@ -33,7 +33,8 @@ from smcbayes.surrogate.acquisition import propose
 from smcbayes.surrogate.design import round_seed
 from smcbayes.surrogate.figures import plot_convergence, plot_landscape
 from smcbayes.surrogate.gp import fit_surrogate, gp_session, save_surrogate
-from smcbayes.surrogate.loop import BayesOpt, Progress, training_data
+from smcbayes.surrogate.loop import BayesOpt, Progress, thin_polish, training_data
+from smcbayes.surrogate.polish import POLISH
 
 logger = logging.getLogger(__name__)
 
@@ -89,7 +90,9 @@ def summary(bo: BayesOpt, problem: Problem, wall_s: float) -> dict[str, Any]:
                             if r["status"] != "ok"][:50],
         "rounds": len(bo.state.rounds), "stop_reason": bo.stop_reason or "running",
         "seconds_wall": wall_s, "seconds_evaluations": float(sum(r["seconds"] for r in evals)),
-        "settings": bo.settings_dict(), "free_parameters": space.free_names,
+        "settings": {**bo.settings_dict(), "polish": bo.polish_budget},
+        "polish": bo.polish.as_dict() if bo.polish is not None else None,
+        "free_parameters": space.free_names,
         "fixed_parameters": dict(space.fixed), "search_box": search_box(problem),
         "config_ids": problem.train_ids, "validation_ids": problem.model.ids("validation"),
         "effects": list(problem.model.effects.names), "truth": problem.truth,
@@ -171,9 +174,12 @@ def finish(bo: BayesOpt, problem: Problem, run: RunDir, wall_s: float, figures: 
     info.update(_best_outputs(bo, problem, run, executor, figures))
     if figures:
         s = bo.settings
-        plot_convergence(bo.losses(), s.init, run.figures / "convergence")
+        local = np.array([bo.state.rounds[r["round"]].get("kind") == POLISH
+                          for _, r in sorted(bo.state.evaluations.items())], dtype=bool)
+        plot_convergence(bo.losses(), s.init, run.figures / "convergence", local)
         if surrogate is not None and problem.space.dim == 2:
-            recs = [r for _, r in sorted(bo.state.evaluations.items())]
+            # a local search's line searches would hide the path: its best point stands for it
+            recs = thin_polish([r for _, r in sorted(bo.state.evaluations.items())], bo.state)
             with gp_session():
                 cand, _ = propose(surrogate, 1, round_seed(s.seed, len(bo.state.rounds)), s.restarts,
                                   s.raw_samples)
@@ -222,8 +228,10 @@ def calibrate(problem: Problem, settings: CalibrationSpec, run_dir: RunDir | Pat
     def on_round(bo: BayesOpt) -> None:
         run.write_calibration_summary(summary(bo, problem, time.perf_counter() - start))
 
+    polish = settings.polish_evaluations(problem.fast)
     bo = BayesOpt(problem.objective, settings, run.evaluation_log(), executor,
-                  on_progress=progress or progress_reporter(settings.budget), on_round=on_round)
+                  on_progress=progress or progress_reporter(settings.budget + polish), on_round=on_round,
+                  polish=polish)
     bo.run()
     logger.info("calibration stopped: %s", bo.stop_reason)
     return finish(bo, problem, run, time.perf_counter() - start, figures, executor)

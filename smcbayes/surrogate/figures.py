@@ -15,20 +15,26 @@ from smcbayes.plotting import save, subplots
 Array = NDArray[np.float64]
 
 
-def plot_convergence(losses: Array, init: int, path: Path) -> list[Path]:
+def plot_convergence(losses: Array, init: int, path: Path, local: NDArray[np.bool_] | None = None) -> list[Path]:
     """Loss per evaluation and best-so-far (thesis figure 4.22); failures marked at the top.
 
     Args:
         losses: loss per evaluation in order, NaN for failures, shape ``(N,)`` (kN^2).
         init: size of the initial design (shaded).
         path: output path without suffix.
+        local: which evaluations belong to a local search, shape ``(N,)`` (drawn smaller,
+            in another colour: hundreds of them would hide the optimisation's).
     """
     fig, ax = subplots(figsize=(7, 4))
     idx = np.arange(1, losses.size + 1)
     ok = np.isfinite(losses)
+    local = np.zeros(losses.shape, dtype=bool) if local is None else local
     best = np.fmin.accumulate(np.where(ok, losses, np.inf))
     ax.axvspan(0.5, min(init, losses.size) + 0.5, color="0.92", label="initial design (LHS)")
-    ax.plot(idx[ok], losses[ok], "o", ms=4, color="tab:blue", label="evaluation")
+    ax.plot(idx[ok & ~local], losses[ok & ~local], "o", ms=4, color="tab:blue", label="evaluation")
+    if (ok & local).any():
+        ax.plot(idx[ok & local], losses[ok & local], ".", ms=2, color="tab:green",
+                label="local search (forward model)")
     ax.step(idx, np.where(np.isfinite(best), best, np.nan), where="post", color="tab:red",
             lw=1.6, label="best so far")
     if (~ok).any():

@@ -33,6 +33,7 @@ from smcbayes.simulation.executors.base import Executor
 from smcbayes.simulation.objective import Objective, Task, TaskResult, combine
 from smcbayes.simulation.runner import with_retries
 from smcbayes.surrogate.design import latin_hypercube, round_rng, round_seed
+from smcbayes.surrogate.polish import POLISH, PolishResult, phase_rounds, run_polish
 
 Array = NDArray[np.float64]
 
@@ -62,6 +63,7 @@ def training_data(state: LogState, space_to_unit: Callable[[Array], Array], name
     """
     recs = [r for i, r in sorted(state.evaluations.items())
             if before_round is None or r["round"] < before_round]
+    recs = thin_polish(recs, state)
     if not recs:
         return np.zeros((0, len(names))), np.zeros(0)
     theta = np.array([[r["params"][n] for n in names] for r in recs], dtype=float)
@@ -77,6 +79,37 @@ def training_data(state: LogState, space_to_unit: Callable[[Array], Array], name
     return space_to_unit(theta[keep]), y[keep]
 
 
+def thin_polish(recs: list[dict[str, Any]], state: LogState) -> list[dict[str, Any]]:
+    """``recs`` with the local searches' evaluations reduced to the best of each search.
+
+    Powell's line searches put hundreds of points a hair apart along a few directions:
+    as GP training data they would add nothing but ill-conditioning and cost, while the
+    best point they found is what the GP must know."""
+    phase_of = _search_starts(state)
+    kept, best = [], {}
+    for r in recs:
+        phase = phase_of.get(r["round"])
+        if phase is None:
+            kept.append(r)
+        elif r["loss"] is not None and (phase not in best or r["loss"] < best[phase]["loss"]):
+            best[phase] = r
+    return sorted(kept + list(best.values()), key=lambda r: r["index"])
+
+
+def _search_starts(state: LogState) -> dict[int, int]:
+    """Round -> the first round of its local search, for every round of a local search."""
+    out: dict[int, int] = {}
+    first = -1
+    for rnd in sorted(state.rounds):
+        if state.rounds[rnd].get("kind") != POLISH:
+            first = -1
+            continue
+        if first < 0 or rnd - 1 not in out:
+            first = rnd
+        out[rnd] = first
+    return out
+
+
 class BayesOpt:
     """One calibration run over an objective, logged in ``log``.
 
@@ -87,11 +120,13 @@ class BayesOpt:
         executor: where evaluations run (started by :meth:`run`).
         on_progress: called after every finished evaluation.
         on_round: called after each round with the loop (e.g. to write the summary).
+        polish: most evaluations of the local search from the best point once the
+            optimisation has stopped (:mod:`smcbayes.surrogate.polish`); 0: none.
     """
 
     def __init__(self, objective: Objective, settings: BOSettings, log: RunLog, executor: Executor,
                  on_progress: Callable[[Progress], None] | None = None,
-                 on_round: Callable[[BayesOpt], None] | None = None) -> None:
+                 on_round: Callable[[BayesOpt], None] | None = None, polish: int = 0) -> None:
         settings.check()
         self.objective = objective
         self.space = objective.space
@@ -106,6 +141,9 @@ class BayesOpt:
         self._evaluated_now = 0
         self.last_surrogate: Any = None
         self.last_candidate: Array | None = None
+        self.polish_budget = polish
+        self.polish: PolishResult | None = None
+        self._search_from: int | None = None
 
     # -- bookkeeping ---------------------------------------------------------------
     def losses(self) -> Array:
@@ -123,18 +161,25 @@ class BayesOpt:
         return sum(1 for r in self.state.evaluations.values() if r["status"] != "ok")
 
     def _best_after(self, rnd: int) -> float:
+        """Best loss of the optimisation's own evaluations (a local search's left out) up to
+        round ``rnd``."""
         vals = [r["loss"] for r in self.state.evaluations.values()
-                if r["round"] <= rnd and r["loss"] is not None]
+                if r["round"] <= rnd and r["loss"] is not None
+                and self.state.rounds[r["round"]].get("kind") != POLISH]
         return min(vals) if vals else math.inf
 
-    def _should_stop(self, rnd: int, proposed: int) -> bool:
+    def _should_stop(self, searched_rounds: list[int], proposed: int) -> bool:
+        """Whether the optimisation stops: ``proposed`` evaluations of its ``searched_rounds``
+        (the design's and its own rounds, in order; a local search's never count, so a rerun
+        takes the decision the first run took)."""
         s = self.settings
         if proposed >= s.budget:
             self.stop_reason = f"budget of {s.budget} evaluations reached"
             return True
-        bo_rounds = rnd - 1  # rounds completed after the initial design
+        bo_rounds = len(searched_rounds) - 1  # rounds completed after the initial design
         if s.tolerance > 0 and bo_rounds >= s.patience:
-            old, new = self._best_after(rnd - 1 - s.patience), self._best_after(rnd - 1)
+            old = self._best_after(searched_rounds[-1 - s.patience])
+            new = self._best_after(searched_rounds[-1])
             if math.isfinite(old) and old - new < s.tolerance * abs(old):
                 self.stop_reason = (f"best loss improved by less than {s.tolerance:.3g} "
                                     f"(relative) over {s.patience} rounds")
@@ -171,10 +216,14 @@ class BayesOpt:
         lo = np.clip(u - s.local_radius, 0.0, 1.0)
         return lo, np.clip(lo + 2 * s.local_radius, 0.0, 1.0)
 
-    def _log_round(self, rnd: int, proposed: int, unit: Array) -> dict[str, Any]:
+    def log_round(self, rnd: int, first_index: int, unit: Array, kind: str | None = None) -> dict[str, Any]:
+        """Log round ``rnd``'s candidates ``unit`` ``(q, d)`` (unit cube), evaluations
+        ``first_index`` on, before they run; ``kind`` defaults to ``init`` for round 0, else
+        ``bo``."""
         theta = self.space.from_unit(unit)
-        record = {"type": "round", "round": rnd, "kind": "init" if rnd == 0 else "bo",
-                  "indices": list(range(proposed, proposed + unit.shape[0])),
+        kind = kind or ("init" if rnd == 0 else "bo")
+        record = {"type": "round", "round": rnd, "kind": kind,
+                  "indices": list(range(first_index, first_index + unit.shape[0])),
                   "unit": unit.tolist(), "params": theta.tolist(),
                   "names": self.space.free_names, "seed": round_seed(self.settings.seed, rnd)}
         self.log.append(record)
@@ -210,7 +259,9 @@ class BayesOpt:
                 "loss": None if reasons else loss, "status": "failed" if reasons else "ok",
                 "reason": "; ".join(reasons) or None, "seconds": seconds}
 
-    def _evaluate_round(self, record: dict[str, Any]) -> None:
+    def evaluate_round(self, record: dict[str, Any]) -> None:
+        """Run the evaluations of a logged round that the log does not hold yet, logging each
+        as soon as all its configurations are done."""
         rnd = record["round"]
         theta_all = np.array(record["params"], dtype=float)
         rows = [(i, k) for k, i in enumerate(record["indices"]) if i not in self.state.evaluations]
@@ -231,42 +282,72 @@ class BayesOpt:
                     self._evaluated_now += 1
                     self._report()
 
-    def _report(self) -> None:
+    def _report(self, final: bool = False) -> None:
+        """Progress after an evaluation; ``final``: the run is done (a local search that
+        converged ends before its budget)."""
         if self.on_progress is None:
             return
         done = len(self.state.evaluations)
         best = self.best()
         elapsed = time.perf_counter() - self._start
         rate = elapsed / self._evaluated_now if self._evaluated_now else math.nan
-        remaining = rate * max(self.settings.budget - done, 0)
-        self.on_progress(Progress(done, self.settings.budget, best["loss"] if best else math.nan,
+        # earlier local searches (before a raised budget) count as done work
+        earlier = sum(1 for r in self.state.evaluations.values()
+                      if self.state.rounds[r["round"]].get("kind") == POLISH
+                      and (self._search_from is None or r["round"] < self._search_from))
+        total = done if final else self.settings.budget + earlier + self.polish_budget
+        remaining = rate * max(total - done, 0)
+        self.on_progress(Progress(done, total, best["loss"] if best else math.nan,
                                   elapsed, remaining, self.failures()))
 
     # -- the loop ----------------------------------------------------------------------
     def run(self) -> BayesOpt:
-        """Run (or resume) until the budget or the tolerance rule stops it."""
+        """Run (or resume) until the budget or the tolerance rule stops it, then the local
+        search from the best point (``polish``)."""
         self.state = self.log.read(repair=True)
         self._start = time.perf_counter()
         if hasattr(self.executor, "worker_timeout_s"):  # a cluster executor: the run's patience
             self.executor.worker_timeout_s = self.settings.worker_timeout_s
         self.executor.start(with_retries(self.objective, self.settings.retries))
         try:
-            rnd, proposed = 0, 0
-            while True:
-                record = self.state.rounds.get(rnd)
-                if record is None:
-                    if self._should_stop(rnd, proposed):
-                        break
-                    record = self._log_round(rnd, proposed, self._propose(rnd, proposed))
-                self.last_candidate = np.array(record["unit"], dtype=float)
-                self._evaluate_round(record)
-                proposed += len(record["indices"])
-                rnd += 1
+            rnd = self._optimise()
+            phase = phase_rounds(self.state)
+            self._search_from = phase[0] if phase else rnd
+            self.polish = run_polish(self, self.polish_budget, self._search_from,
+                                     lambda: self.on_round(self) if self.on_round is not None else None)
+            if self.polish is not None:
+                self.stop_reason += (f"; then {self.polish.evaluations} evaluations of a local search "
+                                     f"({'converged' if self.polish.converged else 'its budget spent'})")
                 if self.on_round is not None:
                     self.on_round(self)
+            self._report(final=True)
         finally:
             self.executor.close()
         return self
+
+    def _optimise(self) -> int:
+        """The design and the optimisation's rounds (those of the log first); returns the
+        number of the first round not logged.  A local search's rounds in the log are
+        completed but count neither towards the budget nor as proposals."""
+        rnd, index, searched = 0, 0, 0
+        searched_rounds: list[int] = []
+        while True:
+            record = self.state.rounds.get(rnd)
+            if record is None:
+                if self._should_stop(searched_rounds, searched):
+                    return rnd
+                record = self.log_round(rnd, index, self._propose(rnd, searched))
+            local = record.get("kind") == POLISH
+            if not local:
+                self.last_candidate = np.array(record["unit"], dtype=float)
+                searched += len(record["indices"])
+                searched_rounds.append(rnd)
+            self.evaluate_round(record)
+            index += len(record["indices"])
+            rnd += 1
+            # a logged local search is replayed by hundreds of one-point rounds: no summary each
+            if self.on_round is not None and not local:
+                self.on_round(self)
 
     def settings_dict(self) -> dict[str, Any]:
         """The settings as a plain dict (for the summary)."""

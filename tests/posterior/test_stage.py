@@ -301,3 +301,23 @@ def test_a_truth_check_is_named_degenerate_without_spending_runs(tmp_path: Path,
     assert info["reliable"] is False and len(info["reliability"]["reasons"]) == 1
     assert info["active_learning"] == {"enabled": False, "evaluations": 0}
     assert not info["correction"]["enabled"]  # nor an importance correction by default
+
+
+def test_the_correction_is_on_by_default_only_with_a_fast_simulator(tmp_path: Path) -> None:
+    """The built-in 1-D model (milliseconds a run) corrects by default; the 2-D solver and an
+    external simulator (seconds or minutes a run) do not, unless asked."""
+    from types import SimpleNamespace
+
+    from smcbayes.config import PosteriorSpec
+    from smcbayes.posterior.stage import _begin
+
+    def ctx(fast: bool, simulator: str) -> SimpleNamespace:
+        run = SimpleNamespace(begin_stage=lambda name, settings: tmp_path)
+        return SimpleNamespace(summary={"simulator": simulator}, noise_free=False, run=run,
+                               problem=SimpleNamespace(fast=fast, train_ids=["a"]))
+
+    draws = PosteriorSpec().correction.draws
+    assert _begin(ctx(True, "native"), PosteriorSpec())[0].correct_draws == draws
+    assert _begin(ctx(False, "native"), PosteriorSpec())[0].correct_draws == 0  # the 2-D solver
+    assert _begin(ctx(False, "external"), PosteriorSpec())[0].correct_draws == 0
+    assert _begin(ctx(False, "native"), PosteriorSpec(correct_draws=50))[0].correct_draws == 50

@@ -42,7 +42,7 @@ def started(tmp_path: Path) -> Path:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert main(["calibrate", str(one_config(tmp_path)), "--out", str(out), "--budget", "3",
-                     "--init", "2", "--fidelity", "1d", "--no-figures"]) == 0
+                     "--init", "2", "--polish", "0", "--fidelity", "1d", "--no-figures"]) == 0
     return out
 
 
@@ -76,7 +76,7 @@ def test_api_resume_takes_the_runs_own_settings(tmp_path: Path) -> None:
     config, out = one_config(tmp_path), tmp_path / "api"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        calibrate(config, out, fidelity="1d", figures=False, budget=3, init=2)
+        calibrate(config, out, fidelity="1d", figures=False, budget=3, init=2, polish=0)
         result = calibrate(config, out, fidelity="1d", figures=False, resume=True, budget=4)
     assert result.summary["evaluations"] == 4
     assert result.summary["settings"]["init"] == 2

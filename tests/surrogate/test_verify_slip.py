@@ -72,7 +72,7 @@ def test_failures_are_reported_in_summary(tmp_path: Path) -> None:
     project = load_project(CONFIG)
     problem = build_problem(project, tmp_path)
     problem.objective = FailSome(problem.objective)
-    info = calibrate(problem, settings(project, budget=10), tmp_path, LocalExecutor(1),
+    info = calibrate(problem, settings(project, budget=10, polish=0), tmp_path, LocalExecutor(1),
                      figures=False, progress=None)
     assert info["evaluations"] == 10 and info["failures"] == 2
     assert [f["index"] for f in info["failure_reasons"]] == [0, 5]
