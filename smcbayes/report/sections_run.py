@@ -202,7 +202,9 @@ def calibration_section(run: RunFiles, validation: dict[str, dict[str, float]]) 
         Paragraph(
             "Bayesian optimisation of the free parameters on the training configurations: "
             "a Latin hypercube design, then a Gaussian process on log(loss) proposing "
-            "new points by expected improvement."
+            "new points by expected improvement"
+            + ("; then a local search (Powell's method) on the forward model from the best point."
+               if cal.get("polish") else ".")
         )
     )
     sec.add(_settings_table(cal))
@@ -211,7 +213,8 @@ def calibration_section(run: RunFiles, validation: dict[str, dict[str, float]]) 
             Figure(
                 fig,
                 "Loss per evaluation and best so far (log scale, kN²); the shaded "
-                "part is the initial design.",
+                "part is the initial design"
+                + ("; small green points are the local search's." if cal.get("polish") else "."),
             )
         )
     if cal.get("best_params"):
