@@ -223,6 +223,30 @@ class QuadraticObjective:
                           np.zeros_like(err), status, time.perf_counter() - start)
 
 
+class InterruptingObjective:
+    """A test objective that stops the process, as Ctrl-C does, at the first run of one
+    evaluation, then passes everything to ``inner``.
+
+    Args:
+        inner: the objective that answers.
+        index: the evaluation whose first run raises :class:`KeyboardInterrupt`.
+    """
+
+    def __init__(self, inner: Objective, index: int) -> None:
+        self.inner = inner
+        self.space = inner.space
+        self.config_ids = inner.config_ids
+        self.index = index
+        self.armed = True
+
+    def evaluate(self, task: Task) -> TaskResult:
+        """``inner``'s answer, or the interruption."""
+        if self.armed and self.index in task.indices:
+            self.armed = False
+            raise KeyboardInterrupt
+        return self.inner.evaluate(task)
+
+
 class FlakyObjective:
     """A test objective that fails a share of its runs at random, reproducibly.
 

@@ -13,7 +13,7 @@ from smcbayes.forward.parameters import BASE_PARAMETERS, ParameterSpace
 from smcbayes.run.runlog import RunLog
 from smcbayes.simulation.executors.local import LocalExecutor
 from smcbayes.simulation.objective import FlakyObjective as FlakyObjectiveAttempts
-from smcbayes.simulation.objective import QuadraticObjective, Task, TaskResult
+from smcbayes.simulation.objective import InterruptingObjective, QuadraticObjective, Task, TaskResult
 from smcbayes.surrogate.loop import BayesOpt, BOSettings, training_data
 
 
@@ -120,20 +120,9 @@ def test_interrupted_flaky_run_resumes_to_the_uninterrupted_run(tmp_path: Path) 
     space = slip_space()
     flaky = FlakyObjectiveAttempts(QuadraticObjective(space, [0.02, 1.3], NINE[:3], seed=1), 0.3, seed=5)
 
-    class Interrupting:
-        """Stops the process (as Ctrl-C does) at the first run of evaluation 7."""
-
-        space, config_ids, armed = flaky.space, flaky.config_ids, True
-
-        def evaluate(self, task: Task) -> TaskResult:
-            if self.armed and 7 in task.indices:
-                self.armed = False
-                raise KeyboardInterrupt
-            return flaky.evaluate(task)
-
     kw = {"budget": 10, "init": 4, "batch": 3}
     with pytest.raises(KeyboardInterrupt):
-        run(tmp_path / "cut", Interrupting(), **kw)
+        run(tmp_path / "cut", InterruptingObjective(flaky, 7), **kw)
     run(tmp_path / "cut", flaky, **kw)
     run(tmp_path / "whole", flaky, **kw)
     strip = lambda name: [{k: v for k, v in r.items() if k != "seconds"}  # noqa: E731

@@ -14,7 +14,13 @@ from smcbayes.forward.model import ForwardModel
 from smcbayes.forward.parameters import BASE_PARAMETERS, ParameterSpace
 from smcbayes.run.runlog import RunLog
 from smcbayes.simulation.executors.local import LocalExecutor
-from smcbayes.simulation.objective import QuadraticObjective, SimulatorObjective, Task, TaskResult
+from smcbayes.simulation.objective import (
+    InterruptingObjective,
+    QuadraticObjective,
+    SimulatorObjective,
+    Task,
+    TaskResult,
+)
 from smcbayes.simulation.problem import ExternalSpec, Problem, build_problem
 from smcbayes.surrogate.loop import BayesOpt, BOSettings, training_data
 from smcbayes.surrogate.polish import POLISH
@@ -61,20 +67,8 @@ def test_the_local_search_lowers_the_loss_within_its_budget(tmp_path: Path) -> N
 
 def test_an_interrupted_local_search_resumes_to_the_uninterrupted_run(tmp_path: Path) -> None:
     inner = objective()
-
-    class Interrupting:
-        """Stops the process (as Ctrl-C does) at the first run of evaluation 14."""
-
-        space, config_ids, armed = inner.space, inner.config_ids, True
-
-        def evaluate(self, task: Task) -> TaskResult:
-            if self.armed and 14 in task.indices:
-                self.armed = False
-                raise KeyboardInterrupt
-            return inner.evaluate(task)
-
-    with pytest.raises(KeyboardInterrupt):
-        run(tmp_path / "cut", Interrupting(), polish=15)
+    with pytest.raises(KeyboardInterrupt):  # evaluation 14 is the search's sixth
+        run(tmp_path / "cut", InterruptingObjective(inner, 14), polish=15)
     assert len(records(tmp_path / "cut")) == 14
     run(tmp_path / "cut", inner, polish=15)
     run(tmp_path / "whole", inner, polish=15)
