@@ -108,6 +108,13 @@ class Progress:
         rate = (self._last_update - t0) / done
         return max(self.total - self.done, 0) * rate
 
+    def set_total(self, total: int | None) -> None:
+        """Change the units expected (work found or dropped on the way)."""
+        self.total = total
+        if self._bar is not None:
+            self._bar.total = total
+            self._bar.refresh()
+
     def elapsed_s(self) -> float:
         """Seconds since the start."""
         return self._clock() - self._start

@@ -193,14 +193,22 @@ def finish(bo: BayesOpt, problem: Problem, run: RunDir, wall_s: float, figures: 
 def progress_reporter(budget: int) -> Callable[[Progress], None]:
     """A loop callback that feeds :class:`smcbayes.progress.Progress` (one update per evaluation)."""
     bar = ProgressBar(budget, "calibration", unit="eval")
-    seen = [0]
+    seen, closed = [0], [False]
 
     def report(p: Progress) -> None:
-        best = f"best {p.best_loss:.5g} kN^2" if math.isfinite(p.best_loss) else "best -"
-        bar.update(max(p.done - seen[0], 0), note=f"{best}, {p.failures} failed")
+        if closed[0]:
+            return
+        if p.budget != bar.total:  # a local search that converged early, a resumed run
+            bar.set_total(p.budget)
+        new = max(p.done - seen[0], 0)
         seen[0] = p.done
-        if p.done >= p.budget:
+        finished = p.done >= p.budget
+        if new or finished:
+            best = f"best {p.best_loss:.5g} kN^2" if math.isfinite(p.best_loss) else "best -"
+            bar.update(new, note=f"{best}, {p.failures} failed")
+        if finished:
             bar.close()
+            closed[0] = True
 
     return report
 

@@ -291,11 +291,13 @@ class BayesOpt:
         best = self.best()
         elapsed = time.perf_counter() - self._start
         rate = elapsed / self._evaluated_now if self._evaluated_now else math.nan
-        # earlier local searches (before a raised budget) count as done work
+        # earlier local searches (before a raised budget) count as done work; a search the
+        # log ends with is the one about to be replayed, not an earlier one
+        current = self._search_from if self._search_from is not None else \
+            next(iter(phase_rounds(self.state)), math.inf)
         earlier = sum(1 for r in self.state.evaluations.values()
-                      if self.state.rounds[r["round"]].get("kind") == POLISH
-                      and (self._search_from is None or r["round"] < self._search_from))
-        total = done if final else self.settings.budget + earlier + self.polish_budget
+                      if self.state.rounds[r["round"]].get("kind") == POLISH and r["round"] < current)
+        total = done if final else max(self.settings.budget + earlier + self.polish_budget, done)
         remaining = rate * max(total - done, 0)
         self.on_progress(Progress(done, total, best["loss"] if best else math.nan,
                                   elapsed, remaining, self.failures()))
@@ -313,8 +315,11 @@ class BayesOpt:
             rnd = self._optimise()
             phase = phase_rounds(self.state)
             self._search_from = phase[0] if phase else rnd
+            # the summaries written during the search say the run is still running
+            reason, self.stop_reason = self.stop_reason, ""
             self.polish = run_polish(self, self.polish_budget, self._search_from,
                                      lambda: self.on_round(self) if self.on_round is not None else None)
+            self.stop_reason = reason
             if self.polish is not None:
                 self.stop_reason += (f"; then {self.polish.evaluations} evaluations of a local search "
                                      f"({'converged' if self.polish.converged else 'its budget spent'})")

@@ -70,6 +70,10 @@ class _BudgetSpent(Exception):
     """The local search has used its evaluations (raised to stop SciPy's loop)."""
 
 
+class _ReplayMismatch(Exception):
+    """A resumed search asks for another point than its log holds (raised to stop it)."""
+
+
 @dataclass(frozen=True)
 class PolishResult:
     """What a local search did.
@@ -164,6 +168,11 @@ def _powell(fun: Callable[[Array], float], u0: Array) -> bool:
                  options={"xtol": XTOL, "ftol": FTOL, "maxfev": 10**9})
     except _BudgetSpent:
         return False
+    except _ReplayMismatch as err:
+        # another SciPy or machine than the one that logged it: what follows in the log
+        # answers other points, so the search ends at what it has
+        logger.warning("local search: %s; it ends here, at the best point logged so far", err)
+        return False
     return True
 
 
@@ -176,7 +185,6 @@ def _evaluate(bo: SearchLog, rnd: int, u: Array) -> dict[str, Any]:
         index = max(index, 1 + max((i for r in bo.state.rounds.values() for i in r["indices"]), default=-1))
         record = bo.log_round(rnd, index, u[None, :], kind=POLISH)
     elif np.max(np.abs(np.asarray(record["unit"][0]) - u)) > REPLAY_TOL:
-        logger.warning("local search: round %d of the log is at another point than the rerun asks "
-                       "for; its logged evaluation is used", rnd)
+        raise _ReplayMismatch(f"round {rnd} of the log is at another point than the resumed search asks for")
     bo.evaluate_round(record)
     return bo.state.evaluations[record["indices"][0]]

@@ -3,6 +3,7 @@ feeds the GP only its best point, and runs by default only with a fast simulator
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +57,9 @@ def test_the_local_search_lowers_the_loss_within_its_budget(tmp_path: Path) -> N
     start = min(r["loss"] for r in bo.state.evaluations.values() if r["round"] < min(p["round"] for p in polished))
     assert bo.polish is not None and bo.polish.start_loss == start
     assert bo.polish.best_loss == bo.best()["loss"] < start
+    # the start point is answered from the log, not run again
+    start_params = bo.state.evaluations[bo.polish.start_index]["params"]
+    assert all(bo.state.evaluations[i]["params"] != start_params for p in polished for i in p["indices"])
     assert not bo.polish.converged and "its budget spent" in bo.stop_reason
     # with room to converge it stops by its own tolerance, at the minimum
     bo = run(tmp_path / "long", objective(), polish=2000)
@@ -67,7 +71,7 @@ def test_the_local_search_lowers_the_loss_within_its_budget(tmp_path: Path) -> N
 
 def test_an_interrupted_local_search_resumes_to_the_uninterrupted_run(tmp_path: Path) -> None:
     inner = objective()
-    with pytest.raises(KeyboardInterrupt):  # evaluation 14 is the search's sixth
+    with pytest.raises(KeyboardInterrupt):  # evaluation 14 is the search's seventh
         run(tmp_path / "cut", InterruptingObjective(inner, 14), polish=15)
     assert len(records(tmp_path / "cut")) == 14
     run(tmp_path / "cut", inner, polish=15)
@@ -154,3 +158,80 @@ def test_a_smaller_budget_on_resume_ends_the_search_there(tmp_path: Path) -> Non
     eight = [r["loss"] for r in bo.state.evaluations.values() if first <= r["round"] < first + 8]
     assert bo.polish.best_loss == min([bo.polish.start_loss, *eight])
     assert bo.polish.best_loss > bo.best()["loss"]  # the logged rounds past 8 found better
+
+
+def test_a_raised_budget_judges_the_optimisation_by_its_own_losses(tmp_path: Path) -> None:
+    """After a search, a resumed optimisation with the tolerance rule compares its own best
+    losses: the search's gain (rounds before the new ones) is not its progress."""
+    first = run(tmp_path, objective(), polish=10)
+    own_before = min(r["loss"] for r in first.state.evaluations.values()
+                     if first.state.rounds[r["round"]]["kind"] != POLISH)
+    assert first.polish.best_loss < 0.5 * own_before  # the search halved the loss
+    bo = run(tmp_path, objective(), polish=0, budget=30, tolerance=0.5, patience=1)
+    kinds = [r["kind"] for _, r in sorted(bo.state.rounds.items())]
+    new = [r["loss"] for r in bo.state.evaluations.values() if r["round"] == len(kinds) - 1]
+    assert min(new) > 0.5 * own_before  # the optimisation's own next point did not
+    assert kinds[-2:] == [POLISH, "bo"] and bo.stop_reason.startswith("best loss improved by less than")
+
+
+def test_summaries_during_the_search_say_running(tmp_path: Path) -> None:
+    seen: list[tuple[str, bool]] = []
+    settings = BOSettings(budget=8, init=5, restarts=2, raw_samples=32)
+    tmp_path.mkdir(exist_ok=True)
+    bo = BayesOpt(objective(), settings, RunLog(tmp_path / "log.jsonl"), LocalExecutor(1), polish=60,
+                  on_round=lambda b: seen.append((b.stop_reason, b.polish is not None)))
+    bo.run()
+    during = [s for s in seen[4:-1]]  # after the design and the 3 optimisation rounds
+    assert during and all(reason == "" and not done for reason, done in during)
+    assert seen[-1][1] and "local search" in seen[-1][0]
+
+
+def test_a_resumed_search_that_meets_another_point_ends_there(tmp_path: Path, caplog) -> None:
+    run(tmp_path, objective(), polish=12)
+    log = tmp_path / "log.jsonl"
+    lines = log.read_text().splitlines()
+    state = RunLog(log).read()
+    sixth = sorted(r for r, rec in state.rounds.items() if rec["kind"] == POLISH)[5]
+    out = []
+    for line in lines:  # move the search's sixth point: as if another machine had logged it
+        rec = json.loads(line)
+        if rec.get("type") == "round" and rec["round"] == sixth:
+            rec["unit"] = [[min(u + 0.01, 1.0) for u in rec["unit"][0]]]
+        out.append(json.dumps(rec))
+    log.write_text("\n".join(out) + "\n")
+    with caplog.at_level("WARNING", logger="smcbayes.surrogate.polish"):
+        bo = run(tmp_path, objective(), polish=12)
+    assert bo.polish.evaluations == 5 and not bo.polish.converged
+    assert sum("another point" in r.message for r in caplog.records) == 1
+
+
+def test_the_progress_total_follows_the_search(caplog) -> None:
+    """A search that converges before its budget ends the progress with one final line at
+    the evaluations made; nothing is reported after it."""
+    from smcbayes import progress
+    from smcbayes.surrogate.calibration import progress_reporter
+    from smcbayes.surrogate.loop import Progress
+
+    progress.enable(interval_s=1e9)  # plain lines only when finished
+    try:
+        with caplog.at_level("INFO", logger="smcbayes.progress"):
+            report = progress_reporter(10)
+            for done in range(1, 8):
+                report(Progress(done, 10, 1.0, 0.0, 0.0, 0))
+            report(Progress(7, 7, 1.0, 0.0, 0.0, 0))  # the search converged early: done
+            report(Progress(8, 7, 1.0, 0.0, 0.0, 0))
+    finally:
+        progress.enable(False)
+    lines = [r.message for r in caplog.records if "calibration:" in r.message]
+    # the first line, then the final one once: at 7 of 7, not 7 of 10 nor 8 of 7
+    assert len(lines) == 2 and "1/10 eval" in lines[0] and "7/7 eval" in lines[1]
+
+
+def test_the_report_states_the_search() -> None:
+    from smcbayes.report.sections_run import _polish_row
+
+    assert _polish_row(None) == []
+    [(name, text)] = _polish_row({"evaluations": 600, "converged": False, "start_loss_kN2": 41.05,
+                                  "best_loss_kN2": 12.5})
+    assert name == "local search (forward model)"
+    assert "600 evaluations (its budget spent)" in text and "41" in text and "12.5" in text
