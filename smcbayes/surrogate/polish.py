@@ -181,8 +181,8 @@ def _evaluate(bo: SearchLog, rnd: int, u: Array) -> dict[str, Any]:
     (a resumed search), else logged and run now."""
     record = bo.state.rounds.get(rnd)
     if record is None:
-        index = 1 + max(bo.state.evaluations, default=-1)
-        index = max(index, 1 + max((i for r in bo.state.rounds.values() for i in r["indices"]), default=-1))
+        # every logged evaluation belongs to a logged round: the next index follows the rounds'
+        index = 1 + max((i for r in bo.state.rounds.values() for i in r["indices"]), default=-1)
         record = bo.log_round(rnd, index, u[None, :], kind=POLISH)
     elif np.max(np.abs(np.asarray(record["unit"][0]) - u)) > REPLAY_TOL:
         raise _ReplayMismatch(f"round {rnd} of the log is at another point than the resumed search asks for")
