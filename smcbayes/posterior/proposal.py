@@ -80,12 +80,13 @@ class Proposal:
         m, d = self.centres.shape
         nu = self.nu
         const = _log_t_norm(self.chol, nu) - np.log(m)
-        inv = np.linalg.inv(self.chol)  # (M, d, d)
+        inv_t = np.linalg.inv(self.chol).transpose(0, 2, 1)  # (M, d, d): L_m^-T
+        # L_m^-1 (u - c_m) = L_m^-1 u - L_m^-1 c_m: one batched matrix product per chunk
+        shift = np.einsum("md,mde->me", self.centres, inv_t)  # (M, d)
         out = np.empty(u.shape[0])
         for s in range(0, u.shape[0], chunk):
-            diff = u[s:s + chunk, None, :] - self.centres[None, :, :]  # (n, M, d)
-            z = np.einsum("mde,nme->nmd", inv, diff)
-            maha = np.sum(z * z, axis=2)
+            z = np.matmul(u[None, s:s + chunk, :], inv_t) - shift[:, None, :]  # (M, n, d)
+            maha = np.einsum("mnd,mnd->nm", z, z)
             out[s:s + chunk] = logsumexp(const[None, :] - 0.5 * (nu + d) * np.log1p(maha / nu), axis=1)
         inside = np.all((u >= 0.0) & (u <= 1.0), axis=1)
         log_uniform = np.where(inside, 0.0, -np.inf)
