@@ -82,6 +82,7 @@ elsewhere are re-exported here.
 from __future__ import annotations
 
 import logging
+import math
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -104,8 +105,8 @@ from smcbayes.posterior.weights import (
 from smcbayes.progress import Progress
 
 __all__ = ["K_HAT_WARN", "CorrectionSettings", "ImportanceSample", "Proposal", "correct",
-           "correction_warnings", "ess_of", "fit_proposal", "pareto_smooth", "seed_weights",
-           "temper", "weighted_moments", "weighted_quantile"]
+           "correction_warnings", "draws_advice", "draws_for_target", "ess_of", "fit_proposal",
+           "pareto_smooth", "seed_weights", "temper", "weighted_moments", "weighted_quantile"]
 
 logger = logging.getLogger(__name__)
 
@@ -129,6 +130,10 @@ class ImportanceSample:
         history: per iteration: draws, evaluations, ESS and k-hat of the smoothed weights so far.
         settled: the ESS and k-hat targets were met (else the draws ran out first).
         warnings: plain-language warnings about the weights (see :func:`correction_warnings`).
+        ess_target: the ESS the correction aimed at.
+        draws_needed: when not settled, the proposal draws in all that would reach
+            ``ess_target`` at the ESS's growth over the later iterations (see
+            :func:`draws_for_target`); None when it did not grow or the sample settled.
     """
 
     unit: Array
@@ -141,6 +146,8 @@ class ImportanceSample:
     history: list[dict[str, float]] = field(default_factory=list)
     settled: bool = False
     warnings: list[str] = field(default_factory=list)
+    ess_target: float = math.inf
+    draws_needed: int | None = None
 
     @property
     def weights(self) -> Array:
@@ -258,7 +265,8 @@ def correct(log_target: Callable[[Array], Array], start: Array, settings: Correc
             if t + 1 < len(sizes):
                 proposals.append(_next_proposal(points, log_w, log_q, settings, rng, chains, proposals[-1]))
     sample = ImportanceSample(points.unit, points.target, smoothed, points.iteration, k_hat, ess_of(smoothed),
-                              points.evaluations, history, settled)
+                              points.evaluations, history, settled, ess_target=settings.ess_target)
+    sample.draws_needed = None if settled else draws_for_target(history, settings.ess_target)
     logger.info("importance correction: %d forward runs, importance ESS %.0f, k-hat %.2f%s",
                 sample.evaluations, sample.ess, sample.k_hat, "" if settled else " (not settled)")
     sample.warnings = correction_warnings(sample, stacklevel=3)
@@ -274,6 +282,41 @@ def _next_proposal(points: _Points, log_w: Array, log_q: Array, settings: Correc
         return last
     fit_w = np.where(np.isfinite(points.target), settings.fit_temperature * points.target - log_q, -np.inf)
     return fit_proposal(points.unit, fit_w, settings, rng, settings.widen, chains.position)
+
+
+def draws_for_target(history: list[dict[str, float]], target: float) -> int | None:
+    """Proposal draws in all after which the ESS would reach ``target``, rounded up to a
+    thousand; None when it did not grow or has reached ``target`` already.
+
+    With the proposals settled, the ESS of the pooled weights grows about linearly with the
+    draws; the slope is a least-squares line through (draws so far, ESS) over the later half
+    of the iterations in ``history`` (those of :class:`ImportanceSample`), at least three.
+    A rough guide: where the later proposals keep improving, the ESS grows faster than the
+    line and fewer draws suffice.
+    """
+    drawn = np.cumsum([h["draws"] for h in history], dtype=float)
+    ess = np.array([h["ess"] for h in history], dtype=float)
+    if len(history) < 3 or not math.isfinite(target) or ess[-1] >= target:
+        return None
+    late = slice(min(len(history) // 2, len(history) - 3), None)
+    slope = float(np.polyfit(drawn[late], ess[late], 1)[0])
+    if not slope > 0.0:
+        return None
+    more = max(target - ess[-1], 0.0) / slope
+    return int(math.ceil((drawn[-1] + more) / 1000.0) * 1000)
+
+
+def draws_advice(ess: float, target: float, draws_needed: int | None) -> str:
+    """What to do about a correction that did not settle (one phrase, used by the warnings
+    and by the posterior's reliability reasons): its ESS ``ess``, its target ``target`` and
+    :attr:`ImportanceSample.draws_needed`."""
+    if ess >= target:
+        return "its ESS reached the target but the weights' tail (k-hat) did not settle; raise --correct-draws"
+    if draws_needed is None:
+        return (f"its ESS ({ess:.0f}) stopped growing over the last iterations, so more draws alone "
+                "may not settle it; raise --refine for a better proposal")
+    return (f"at the ESS's growth over the last iterations, about --correct-draws {draws_needed} "
+            "would settle it")
 
 
 def correction_warnings(sample: ImportanceSample, warn: bool = True, stacklevel: int = 2) -> list[str]:
@@ -296,8 +339,9 @@ def correction_warnings(sample: ImportanceSample, warn: bool = True, stacklevel:
                     "raise --correct-draws or --refine", UnreliablePosteriorWarning))
     elif not sample.settled:
         out.append((f"importance correction did not settle within --correct-draws (importance ESS "
-                    f"{sample.ess:.0f}, k-hat {sample.k_hat:.2f}): the corrected numbers are indicative; "
-                    "raise --correct-draws or --refine", ConvergenceWarning))
+                    f"{sample.ess:.0f} of {sample.ess_target:.0f}, k-hat {sample.k_hat:.2f}): the corrected "
+                    f"numbers are indicative; {draws_advice(sample.ess, sample.ess_target, sample.draws_needed)}",
+                    ConvergenceWarning))
     if warn:
         for msg, kind in out:
             warnings.warn(msg, kind, stacklevel=stacklevel)

@@ -20,7 +20,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from smcbayes.forward.parameters import ParameterSpace
-from smcbayes.posterior.correct import K_HAT_WARN
+from smcbayes.posterior.correct import K_HAT_WARN, draws_advice
 from smcbayes.posterior.spread import SPREAD_MAX
 
 R_HAT_MAX = 1.05
@@ -54,8 +54,12 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
                     f"{K_HAT_WARN}): the emulated posterior misses part of the exact one; raise "
                     "--correct-draws or --refine"]
         if not corr.get("settled", False):
-            return [f"the importance correction did not settle (ESS {corr.get('ess', 0):.0f}); raise "
-                    "--correct-draws"]
+            ess, target = corr.get("ess", 0.0), corr.get("ess_target")
+            # summaries written before the estimate of the draws needed give the plain remedy
+            advice = ("raise --correct-draws" if target is None else
+                      draws_advice(ess, target, corr.get("draws_needed")))
+            of = "" if target is None else f" of {target:.0f}"
+            return [f"the importance correction did not settle (ESS {ess:.0f}{of}); {advice}"]
         return []
     out = []
     active = info.get("active_learning") or {}

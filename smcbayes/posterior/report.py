@@ -107,23 +107,9 @@ def correction_info(corrected: Any, settings: Any) -> dict[str, Any]:
         return {"enabled": False, "draws": 0, "evaluations": 0}
     return {"enabled": True, "draws": settings.correct_draws, "evaluations": corrected.evaluations,
             "k_hat": corrected.k_hat, "ess": corrected.ess, "reliable": bool(corrected.k_hat <= K_HAT_WARN),
-            "settled": corrected.settled, "points": int(corrected.unit.shape[0]), "history": corrected.history}
-
-
-def correction_warnings(corrected: Any) -> list[str]:
-    """Plain-language warnings about the importance weights."""
-    if corrected is None:
-        return []
-    out = []
-    if not corrected.k_hat <= K_HAT_WARN:
-        out.append(f"importance correction: Pareto k-hat {corrected.k_hat:.2f} > {K_HAT_WARN}: the emulated "
-                   "posterior misses part of the exact one and the corrected numbers are unreliable; "
-                   "raise --correct-draws or --refine")
-    elif not corrected.settled:
-        out.append(f"importance correction did not settle within --correct-draws (importance ESS "
-                   f"{corrected.ess:.0f}, k-hat {corrected.k_hat:.2f}): the corrected numbers are indicative; "
-                   "raise --correct-draws or --refine")
-    return out
+            "settled": corrected.settled, "ess_target": corrected.ess_target,
+            "draws_needed": corrected.draws_needed, "points": int(corrected.unit.shape[0]),
+            "history": corrected.history}
 
 
 def _tables(ctx: RunContext, chains: list, corrected: Any, rng: np.random.Generator) -> dict[str, Any]:
@@ -223,7 +209,7 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     if corrected is not None:
         # the reported numbers are the corrected ones; the chains only shaped the proposal
         warns = [f"emulator chains (proposal of the correction): {w}" for w in warns]
-    warns += correction_warnings(corrected)
+    warns += [] if corrected is None else list(corrected.warnings)
     attrs = {"n_eff": budget["n_eff_total"], "functions": emul.functions,
              "pooled_functions": len(chains) - emul.components,
              "method": "emulator + importance correction" if corrected is not None else "emulator"}

@@ -18,6 +18,8 @@ from smcbayes.posterior.correct import (
     Proposal,
     correct,
     correction_warnings,
+    draws_advice,
+    draws_for_target,
     ess_of,
     fit_proposal,
     seed_weights,
@@ -284,3 +286,28 @@ def test_unsettled_correction_warns_once_by_class_and_prints_nothing(capsys, cap
     lines = [r.getMessage() for r in caplog.records if r.name == "smcbayes.progress"]
     assert lines and lines[-1].startswith("importance correction: 400/400 draw")
     assert "forward runs" in lines[-1] and "k-hat" in lines[-1]
+
+
+def test_draws_for_target_extrapolates_the_later_growth_of_the_ess() -> None:
+    """Linear growth of 0.1 effective points a draw after a slow start: 2000 need 20,000
+    draws; no growth, a reached target or too short a history give no estimate."""
+    slow = [{"draws": 500, "ess": 5.0 * t} for t in range(4)]
+    linear = [{"draws": 500, "ess": 0.1 * 500 * (t + 1)} for t in range(4, 12)]
+    assert draws_for_target(slow + linear, 2000.0) == 20000
+    assert draws_for_target([{"draws": 500, "ess": 300.0 - t} for t in range(10)], 2000.0) is None
+    assert draws_for_target(linear, 100.0) is None
+    assert draws_for_target(linear[:2], 2000.0) is None
+    assert "--correct-draws 20000" in draws_advice(600.0, 2000.0, 20000)
+    assert "stopped growing" in draws_advice(300.0, 2000.0, None)
+    assert "k-hat" in draws_advice(2100.0, 2000.0, None)
+
+
+def test_an_unsettled_correction_says_how_many_draws_would_settle_it() -> None:
+    rng = np.random.default_rng(5)
+    settings = CorrectionSettings(draws=2500, per_iteration=500, ess_target=1e5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = correct(log_target, biased_start(rng), settings, rng)
+    assert not res.settled and res.ess_target == 1e5
+    assert res.draws_needed is not None and res.draws_needed > 2500
+    assert f"--correct-draws {res.draws_needed}" in res.warnings[0]

@@ -413,6 +413,15 @@ def test_reliability_names_each_failed_diagnostic() -> None:
     assert assess(good, space, 10.0) == {"reliable": True, "reasons": [], "notes": []}
     bad_k = {**good, "correction": {"enabled": True, "k_hat": 0.9, "ess": 20, "settled": False}}
     assert "k-hat 0.90" in assess(bad_k, space, 10.0)["reasons"][0]
+    # a correction short of its ESS says how many draws would settle it, or that more would not
+    short = {"enabled": True, "k_hat": 0.4, "ess": 400.0, "settled": False, "ess_target": 2000.0,
+             "draws_needed": 72000}
+    reason = assess({**good, "correction": short}, space, 10.0)["reasons"][0]
+    assert "ESS 400 of 2000" in reason and "--correct-draws 72000" in reason
+    flat = assess({**good, "correction": {**short, "draws_needed": None}}, space, 10.0)["reasons"][0]
+    assert "stopped growing" in flat and "--refine" in flat
+    older = {k: v for k, v in short.items() if k not in ("ess_target", "draws_needed")}
+    assert assess({**good, "correction": older}, space, 10.0)["reasons"][0].endswith("raise --correct-draws")
     emulator_only = {"parameters": [{**r, "r_hat": 1.2} for r in narrow],
                      "emulator_check": {"mean_abs_error": 3.0}}
     reasons = assess(emulator_only, space, 10.0)["reasons"]
