@@ -113,6 +113,8 @@ logger = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 K_HAT_WARN = 0.7
 """Pareto k-hat above which the corrected estimates are unreliable."""
+DRAWS_FACTOR_MAX = 10.0
+"""Beyond this many times the draws so far, an extrapolated ESS growth is no guide."""
 
 @dataclass
 class ImportanceSample:
@@ -132,8 +134,8 @@ class ImportanceSample:
         warnings: plain-language warnings about the weights (see :func:`correction_warnings`).
         ess_target: the ESS the correction aimed at.
         draws_needed: when not settled, the proposal draws in all that would reach
-            ``ess_target`` at the ESS's growth over the later iterations (see
-            :func:`draws_for_target`); None when it did not grow or the sample settled.
+            ``ess_target`` at the ESS's growth over the later iterations; None when the
+            sample settled or :func:`draws_for_target` has no estimate.
     """
 
     unit: Array
@@ -286,37 +288,51 @@ def _next_proposal(points: _Points, log_w: Array, log_q: Array, settings: Correc
 
 def draws_for_target(history: list[dict[str, float]], target: float) -> int | None:
     """Proposal draws in all after which the ESS would reach ``target``, rounded up to a
-    thousand; None when it did not grow or has reached ``target`` already.
+    thousand.
 
     With the proposals settled, the ESS of the pooled weights grows about linearly with the
     draws; the slope is a least-squares line through (draws so far, ESS) over the later half
     of the iterations in ``history`` (those of :class:`ImportanceSample`), at least three.
     A rough guide: where the later proposals keep improving, the ESS grows faster than the
-    line and fewer draws suffice.
+    line and fewer draws suffice.  None when there is nothing to extrapolate (fewer than
+    three iterations, an infinite ``target``, the target reached) or when the line does not
+    rise, or would need more than :data:`DRAWS_FACTOR_MAX` times the draws so far.
     """
     drawn = np.cumsum([h["draws"] for h in history], dtype=float)
     ess = np.array([h["ess"] for h in history], dtype=float)
-    if len(history) < 3 or not math.isfinite(target) or ess[-1] >= target:
+    if len(history) < 3 or not math.isfinite(target) or not ess[-1] < target:
         return None
     late = slice(min(len(history) // 2, len(history) - 3), None)
     slope = float(np.polyfit(drawn[late], ess[late], 1)[0])
     if not slope > 0.0:
         return None
-    more = max(target - ess[-1], 0.0) / slope
-    return int(math.ceil((drawn[-1] + more) / 1000.0) * 1000)
+    needed = drawn[-1] + (target - ess[-1]) / slope
+    if not needed <= DRAWS_FACTOR_MAX * drawn[-1]:
+        return None
+    # the small offset keeps round-off from lifting an exact multiple by another thousand
+    return int(math.ceil(needed / 1000.0 - 1e-9) * 1000)
 
 
-def draws_advice(ess: float, target: float, draws_needed: int | None) -> str:
-    """What to do about a correction that did not settle (one phrase, used by the warnings
-    and by the posterior's reliability reasons): its ESS ``ess``, its target ``target`` and
-    :attr:`ImportanceSample.draws_needed`."""
+def draws_advice(ess: float, target: float, draws_needed: int | None, iterations: int) -> str:
+    """What to do about a correction that did not settle, in one phrase (the warning, the
+    posterior's reliability reasons and its report use it).
+
+    Args:
+        ess: the correction's importance ESS.
+        target: the ESS it aimed at (``ess_target``).
+        draws_needed: :attr:`ImportanceSample.draws_needed`.
+        iterations: the AMIS iterations run (too few, and the growth cannot be measured).
+    """
+    if not math.isfinite(target) or iterations < 3:
+        return "raise --correct-draws"
     if ess >= target:
-        return "its ESS reached the target but the weights' tail (k-hat) did not settle; raise --correct-draws"
+        return ("its ESS reached the target but the weights' tail (k-hat) did not settle; "
+                "raise --correct-draws")
     if draws_needed is None:
-        return (f"its ESS ({ess:.0f}) stopped growing over the last iterations, so more draws alone "
-                "may not settle it; raise --refine for a better proposal")
+        return (f"its ESS ({ess:.0f}) grew too little over the last iterations for more draws alone to "
+                "reach the target; raise --refine for a better proposal")
     return (f"at the ESS's growth over the last iterations, about --correct-draws {draws_needed} "
-            "would settle it")
+            "would reach the ESS target")
 
 
 def correction_warnings(sample: ImportanceSample, warn: bool = True, stacklevel: int = 2) -> list[str]:
@@ -338,10 +354,11 @@ def correction_warnings(sample: ImportanceSample, warn: bool = True, stacklevel:
                     "posterior misses part of the exact one and the corrected numbers are unreliable; "
                     "raise --correct-draws or --refine", UnreliablePosteriorWarning))
     elif not sample.settled:
+        advice = draws_advice(sample.ess, sample.ess_target, sample.draws_needed, len(sample.history))
+        of = f" of {sample.ess_target:.0f}" if math.isfinite(sample.ess_target) else ""
         out.append((f"importance correction did not settle within --correct-draws (importance ESS "
-                    f"{sample.ess:.0f} of {sample.ess_target:.0f}, k-hat {sample.k_hat:.2f}): the corrected "
-                    f"numbers are indicative; {draws_advice(sample.ess, sample.ess_target, sample.draws_needed)}",
-                    ConvergenceWarning))
+                    f"{sample.ess:.0f}{of}, k-hat {sample.k_hat:.2f}): the corrected numbers are "
+                    f"indicative; {advice}", ConvergenceWarning))
     if warn:
         for msg, kind in out:
             warnings.warn(msg, kind, stacklevel=stacklevel)

@@ -75,7 +75,7 @@ class Proposal:
 
     def log_pdf(self, u: Array, chunk: int = 1000) -> Array:
         """Log density ``(N,)`` at the points ``u`` ``(N, d)``; ``chunk`` points at a time
-        bound the ``(chunk, M, d)`` temporary."""
+        bound the ``(M, chunk, d)`` temporary."""
         u = np.atleast_2d(u)
         m, d = self.centres.shape
         nu = self.nu

@@ -54,11 +54,13 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
                     f"{K_HAT_WARN}): the emulated posterior misses part of the exact one; raise "
                     "--correct-draws or --refine"]
         if not corr.get("settled", False):
-            ess, target = corr.get("ess", 0.0), corr.get("ess_target")
-            # summaries written before the estimate of the draws needed give the plain remedy
-            advice = ("raise --correct-draws" if target is None else
-                      draws_advice(ess, target, corr.get("draws_needed")))
-            of = "" if target is None else f" of {target:.0f}"
+            ess = corr.get("ess", 0.0)
+            # summaries written before the estimate of the draws needed, and an infinite
+            # target (written as null), give the plain remedy
+            target = corr.get("ess_target")
+            target = math.inf if target is None else target
+            advice = draws_advice(ess, target, corr.get("draws_needed"), len(corr.get("history") or []))
+            of = f" of {target:.0f}" if math.isfinite(target) else ""
             return [f"the importance correction did not settle (ESS {ess:.0f}{of}); {advice}"]
         return []
     out = []

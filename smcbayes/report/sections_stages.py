@@ -10,7 +10,6 @@ from typing import Any
 
 import numpy as np
 
-from smcbayes.posterior.correct import draws_advice
 from smcbayes.posterior.spread import SPREAD_MAX
 from smcbayes.report.collect import RunFiles
 from smcbayes.report.document import Bullets, Figure, Heading, Paragraph, Section, Table, fmt, pct
@@ -51,8 +50,6 @@ def _correction_paragraph(corr: dict[str, Any], r_hat: float) -> Paragraph:
     else:
         verdict = ("the correction did not settle within its draws: treat the numbers as "
                    "indicative")
-        if corr.get("ess_target") is not None:
-            verdict += "; " + draws_advice(_num(corr.get("ess")), _num(corr["ess_target"]), corr.get("draws_needed"))
     return Paragraph(
         f"The emulated posterior was corrected by importance sampling with the forward model: "
         f"{fmt(corr.get('evaluations'))} forward runs, Pareto k-hat {fmt(k_hat, 2)}, importance "

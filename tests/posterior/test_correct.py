@@ -290,24 +290,53 @@ def test_unsettled_correction_warns_once_by_class_and_prints_nothing(capsys, cap
 
 def test_draws_for_target_extrapolates_the_later_growth_of_the_ess() -> None:
     """Linear growth of 0.1 effective points a draw after a slow start: 2000 need 20,000
-    draws; no growth, a reached target or too short a history give no estimate."""
+    draws (and 1,000 effective points 10,000, an exact multiple); no growth, growth too
+    slow to be a guide, a reached or infinite target or too short a history give none."""
     slow = [{"draws": 500, "ess": 5.0 * t} for t in range(4)]
     linear = [{"draws": 500, "ess": 0.1 * 500 * (t + 1)} for t in range(4, 12)]
     assert draws_for_target(slow + linear, 2000.0) == 20000
+    assert draws_for_target(slow + linear, 1000.0) == 10000
+    # the later half of 4-6 iterations is their last 3
+    short = slow[:1] + [{"draws": 500, "ess": 0.1 * 500 * (t + 2)} for t in range(3)]
+    assert draws_for_target(short, 2000.0) == 20000
     assert draws_for_target([{"draws": 500, "ess": 300.0 - t} for t in range(10)], 2000.0) is None
+    creeping = [{"draws": 500, "ess": 300.0 + 0.01 * t} for t in range(10)]
+    assert draws_for_target(creeping, 2000.0) is None
     assert draws_for_target(linear, 100.0) is None
+    assert draws_for_target(linear, np.inf) is None
     assert draws_for_target(linear[:2], 2000.0) is None
-    assert "--correct-draws 20000" in draws_advice(600.0, 2000.0, 20000)
-    assert "stopped growing" in draws_advice(300.0, 2000.0, None)
-    assert "k-hat" in draws_advice(2100.0, 2000.0, None)
+    assert draws_for_target([{"draws": 500, "ess": np.nan}] * 5, 2000.0) is None
+
+
+def test_draws_advice_names_the_remedy_each_case_calls_for() -> None:
+    assert "--correct-draws 20000 would reach the ESS target" in draws_advice(600.0, 2000.0, 20000, 12)
+    assert "grew too little" in draws_advice(300.0, 2000.0, None, 12)
+    assert "k-hat" in draws_advice(2100.0, 2000.0, None, 12)
+    # too few iterations to measure a growth, or no finite target: the plain remedy
+    assert draws_advice(300.0, 2000.0, None, 2) == "raise --correct-draws"
+    assert draws_advice(300.0, np.inf, None, 12) == "raise --correct-draws"
 
 
 def test_an_unsettled_correction_says_how_many_draws_would_settle_it() -> None:
     rng = np.random.default_rng(5)
-    settings = CorrectionSettings(draws=2500, per_iteration=500, ess_target=1e5)
+    settings = CorrectionSettings(draws=2500, per_iteration=500, ess_target=3000.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = correct(log_target, biased_start(rng), settings, rng)
-    assert not res.settled and res.ess_target == 1e5
+    assert not res.settled and res.ess_target == 3000.0
     assert res.draws_needed is not None and res.draws_needed > 2500
     assert f"--correct-draws {res.draws_needed}" in res.warnings[0]
+    assert "of 3000" in res.warnings[0]
+
+
+def test_proposal_density_of_several_kernels_across_chunks() -> None:
+    """The batched density against scipy's, with chunk boundaries inside the points."""
+    rng = np.random.default_rng(8)
+    centres = rng.random((3, 2))
+    a = rng.normal(size=(3, 2, 2)) * 0.1
+    scales = a @ a.transpose(0, 2, 1) + 0.002 * np.eye(2)
+    q = Proposal(centres, np.linalg.cholesky(scales), nu=5.0, defensive=0.3)
+    u = rng.random((50, 2))
+    mix = np.mean([multivariate_t(c, sc, df=5.0).pdf(u)
+                   for c, sc in zip(centres, scales, strict=True)], axis=0)
+    np.testing.assert_allclose(q.log_pdf(u, chunk=7), np.log(0.7 * mix + 0.3), rtol=1e-10)

@@ -415,13 +415,17 @@ def test_reliability_names_each_failed_diagnostic() -> None:
     assert "k-hat 0.90" in assess(bad_k, space, 10.0)["reasons"][0]
     # a correction short of its ESS says how many draws would settle it, or that more would not
     short = {"enabled": True, "k_hat": 0.4, "ess": 400.0, "settled": False, "ess_target": 2000.0,
-             "draws_needed": 72000}
+             "draws_needed": 72000, "history": [{"draws": 500}] * 28}
     reason = assess({**good, "correction": short}, space, 10.0)["reasons"][0]
     assert "ESS 400 of 2000" in reason and "--correct-draws 72000" in reason
     flat = assess({**good, "correction": {**short, "draws_needed": None}}, space, 10.0)["reasons"][0]
-    assert "stopped growing" in flat and "--refine" in flat
+    assert "grew too little" in flat and "--refine" in flat
     older = {k: v for k, v in short.items() if k not in ("ess_target", "draws_needed")}
-    assert assess({**good, "correction": older}, space, 10.0)["reasons"][0].endswith("raise --correct-draws")
+    plain = "(ESS 400); raise --correct-draws"
+    assert assess({**good, "correction": older}, space, 10.0)["reasons"][0].endswith(plain)
+    # an infinite target is written as null: no "of", the plain remedy
+    endless = {**short, "ess_target": None, "draws_needed": None}
+    assert assess({**good, "correction": endless}, space, 10.0)["reasons"][0].endswith(plain)
     emulator_only = {"parameters": [{**r, "r_hat": 1.2} for r in narrow],
                      "emulator_check": {"mean_abs_error": 3.0}}
     reasons = assess(emulator_only, space, 10.0)["reasons"]

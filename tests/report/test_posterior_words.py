@@ -70,11 +70,3 @@ def test_a_posterior_as_wide_as_the_prior_is_called_the_prior(tmp_path: Path) ->
     narrow = report_text(tmp_path / "b", NARROW, GOOD_WEIGHTS)
     assert "essentially the prior" not in narrow and "the data identify the parameters" in narrow
 
-
-def test_an_unsettled_correction_says_how_many_draws_would_settle_it(tmp_path: Path) -> None:
-    short = dict(GOOD_WEIGHTS, settled=False, ess=400.0, ess_target=2000.0, draws_needed=72000)
-    text = report_text(tmp_path, NARROW, short)
-    assert "did not settle within its draws" in text and "about --correct-draws 72000" in text
-    older = {k: v for k, v in short.items() if k not in ("ess_target", "draws_needed")}
-    text = report_text(tmp_path / "b", NARROW, older)
-    assert "did not settle within its draws" in text and "--correct-draws" not in text
