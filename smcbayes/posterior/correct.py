@@ -314,8 +314,8 @@ def draws_for_target(history: list[dict[str, float]], target: float) -> int | No
 
 
 def draws_advice(ess: float, target: float, draws_needed: int | None, iterations: int) -> str:
-    """What to do about a correction that did not settle, in one phrase (the warning, the
-    posterior's reliability reasons and its report use it).
+    """What to do about a correction that did not settle, in one phrase: the warning's
+    and the posterior's reliability reason's (which the terminal and the report show).
 
     Args:
         ess: the correction's importance ESS.

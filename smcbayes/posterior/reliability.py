@@ -54,7 +54,7 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
                     f"{K_HAT_WARN}): the emulated posterior misses part of the exact one; raise "
                     "--correct-draws or --refine"]
         if not corr.get("settled", False):
-            ess = corr.get("ess", 0.0)
+            ess = float(corr.get("ess") or 0.0)
             # summaries written before the estimate of the draws needed, and an infinite
             # target (written as null), give the plain remedy
             target = corr.get("ess_target")
