@@ -34,7 +34,7 @@ from smcbayes.surrogate.design import round_seed
 from smcbayes.surrogate.figures import plot_convergence, plot_landscape
 from smcbayes.surrogate.gp import fit_surrogate, gp_session, save_surrogate
 from smcbayes.surrogate.loop import BayesOpt, Progress, thin_polish, training_data
-from smcbayes.surrogate.polish import POLISH
+from smcbayes.surrogate.polish import is_search
 
 logger = logging.getLogger(__name__)
 
@@ -174,8 +174,8 @@ def finish(bo: BayesOpt, problem: Problem, run: RunDir, wall_s: float, figures: 
     info.update(_best_outputs(bo, problem, run, executor, figures))
     if figures:
         s = bo.settings
-        local = np.array([bo.state.rounds[r["round"]].get("kind") == POLISH
-                          for _, r in sorted(bo.state.evaluations.items())], dtype=bool)
+        local = np.array([is_search(bo.state, r["round"]) for _, r in sorted(bo.state.evaluations.items())],
+                         dtype=bool)
         plot_convergence(bo.losses(), s.init, run.figures / "convergence", local)
         if surrogate is not None and problem.space.dim == 2:
             # a local search's line searches would hide the path: its best point stands for it

@@ -33,7 +33,7 @@ from smcbayes.simulation.executors.base import Executor
 from smcbayes.simulation.objective import Objective, Task, TaskResult, combine
 from smcbayes.simulation.runner import with_retries
 from smcbayes.surrogate.design import latin_hypercube, round_rng, round_seed
-from smcbayes.surrogate.polish import POLISH, PolishResult, phase_rounds, run_polish
+from smcbayes.surrogate.polish import POLISH, PolishResult, is_search, phase_rounds, run_polish
 
 Array = NDArray[np.float64]
 
@@ -101,7 +101,7 @@ def _search_starts(state: LogState) -> dict[int, int]:
     out: dict[int, int] = {}
     first = -1
     for rnd in sorted(state.rounds):
-        if state.rounds[rnd].get("kind") != POLISH:
+        if not is_search(state, rnd):
             first = -1
             continue
         if first < 0 or rnd - 1 not in out:
@@ -165,7 +165,7 @@ class BayesOpt:
         round ``rnd``."""
         vals = [r["loss"] for r in self.state.evaluations.values()
                 if r["round"] <= rnd and r["loss"] is not None
-                and self.state.rounds[r["round"]].get("kind") != POLISH]
+                and not is_search(self.state, r["round"])]
         return min(vals) if vals else math.inf
 
     def _should_stop(self, searched_rounds: list[int], proposed: int) -> bool:
@@ -296,7 +296,7 @@ class BayesOpt:
         current = self._search_from if self._search_from is not None else \
             next(iter(phase_rounds(self.state)), math.inf)
         earlier = sum(1 for r in self.state.evaluations.values()
-                      if self.state.rounds[r["round"]].get("kind") == POLISH and r["round"] < current)
+                      if is_search(self.state, r["round"]) and r["round"] < current)
         total = done if final else max(self.settings.budget + earlier + self.polish_budget, done)
         remaining = rate * max(total - done, 0)
         self.on_progress(Progress(done, total, best["loss"] if best else math.nan,

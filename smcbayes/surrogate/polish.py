@@ -98,12 +98,17 @@ class PolishResult:
                 "converged": self.converged}
 
 
+def is_search(state: LogState, rnd: int) -> bool:
+    """Whether logged round ``rnd`` is an evaluation of a local search."""
+    return state.rounds[rnd].get("kind") == POLISH
+
+
 def phase_rounds(state: LogState) -> list[int]:
     """The rounds of the last local search, in order: the polish rounds after the last round
     of another kind (empty when the log ends with a round of the optimisation)."""
     out: list[int] = []
     for rnd in sorted(state.rounds, reverse=True):
-        if state.rounds[rnd].get("kind") != POLISH:
+        if not is_search(state, rnd):
             break
         out.append(rnd)
     return out[::-1]
