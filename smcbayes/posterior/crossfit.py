@@ -1,4 +1,5 @@
-"""Leave-one-configuration-out residuals for the error model of the predictive bands.
+"""Out-of-sample residuals for the error model of the predictive bands: refits that leave
+one configuration, or a group of them, out.
 
 Residuals at the calibrated point understate the error on a configuration the fit has not
 seen: the calibration has bent its parameters towards every training curve, and with a
@@ -17,6 +18,12 @@ is taken at the scale among :data:`SCALES` whose force MSE on the other configur
 lowest, so a misleading linearisation never makes the refit worse than the calibrated
 point (scale 0 keeps it).  Configuration ``k``'s residuals at its refit point are then
 out-of-sample residuals.
+
+Leaving a whole group out (every trial at one closing speed, or of one charge) gives the
+residuals of trials predicted across a gap in the training set, as a trial at a new speed
+or with a new charge is: the cross-validation that matches the prediction task (leave-
+group-out, Roberts et al. 2017, "Cross-validation strategies for data with temporal,
+spatial, hierarchical, or phylogenetic structure", Ecography 40:913-929).
 """
 
 from __future__ import annotations
@@ -69,8 +76,19 @@ class LocalFit:
     usable: bool = True
 
 
-def leave_one_out_steps(fit: LocalFit) -> Array:
-    """Damped Gauss-Newton steps ``(K, d)`` (unit cube) that refit all but one configuration.
+Groups = Sequence[Sequence[int]]
+"""Sets of training configurations (indices into :attr:`LocalFit.config_ids`) left out
+together; one refit per set."""
+
+
+def singletons(k: int) -> list[tuple[int, ...]]:
+    """The leave-one-out groups of ``k`` configurations."""
+    return [(i,) for i in range(k)]
+
+
+def leave_out_steps(fit: LocalFit, groups: Groups | None = None) -> Array:
+    """Damped Gauss-Newton steps ``(G, d)`` (unit cube) that refit all configurations but
+    those of each group (default: one group per configuration, leave-one-out).
 
     Each configuration weighs ``1 / N_k``, as in the loss (the mean over configurations of
     each one's mean squared force error).  A step longer than :data:`MAX_STEP` in any
@@ -80,9 +98,11 @@ def leave_one_out_steps(fit: LocalFit) -> Array:
     grams = [s.T @ s / max(len(r), 1) for r, s in zip(fit.residuals_kN, fit.sensitivities, strict=True)]
     grads = [s.T @ r / max(len(r), 1) for r, s in zip(fit.residuals_kN, fit.sensitivities, strict=True)]
     h_all, g_all = np.sum(grams, axis=0), np.sum(grads, axis=0)
-    steps = np.zeros((len(grams), d))
-    for k in range(len(grams)):
-        h, g = h_all - grams[k], g_all - grads[k]
+    groups = singletons(len(grams)) if groups is None else groups
+    steps = np.zeros((len(groups), d))
+    for k, group in enumerate(groups):
+        h = h_all - sum((grams[i] for i in group), np.zeros((d, d)))
+        g = g_all - sum((grads[i] for i in group), np.zeros(d))
         diag = np.diag(h).copy()
         scale = float(np.max(diag)) if np.max(diag) > 0 else 1.0
         damped = h + DAMPING * np.diag(np.maximum(diag, 1e-9 * scale))
@@ -93,29 +113,32 @@ def leave_one_out_steps(fit: LocalFit) -> Array:
 
 
 def candidate_rows(u0: Array, steps: Array) -> Array:
-    """Rows ``(1 + K * S, d)``: ``u0`` first, then, configuration-major, ``u0 + scale * step``
-    for the nonzero :data:`SCALES`, clipped to the cube."""
+    """Rows ``(1 + G * S, d)``: ``u0`` first, then, step-major (one step per group),
+    ``u0 + scale * step`` for the nonzero :data:`SCALES`, clipped to the cube."""
     scales = np.asarray([s for s in SCALES if s > 0])
     moved = u0[None, None, :] + scales[None, :, None] * steps[:, None, :]
     return np.vstack([u0[None, :], np.clip(moved, 0.0, 1.0).reshape(-1, u0.size)])
 
 
-def pick_rows(mse: Mapping[str, Array], config_ids: Sequence[str]) -> list[int]:
-    """For each configuration ``k``, the candidate row (index into :func:`candidate_rows`)
-    with the lowest mean force MSE over the other configurations (row 0, the calibrated
-    point, wins ties).
+def pick_rows(mse: Mapping[str, Array], config_ids: Sequence[str], groups: Groups | None = None) -> list[int]:
+    """For each group, the candidate row (index into :func:`candidate_rows`) with the lowest
+    mean force MSE over the configurations outside the group (row 0, the calibrated point,
+    wins ties).
 
     Args:
-        mse: per configuration, the force MSE (kN^2) of every candidate row ``(1 + K * S,)``
+        mse: per configuration, the force MSE (kN^2) of every candidate row ``(1 + G * S,)``
             (NaN or inf where a run failed).
-        config_ids: the ``K`` configurations in the order of :func:`candidate_rows`'s steps.
+        config_ids: the ``K`` configurations the group indices refer to.
+        groups: the groups in the order of :func:`candidate_rows`'s steps (default: one per
+            configuration).
     """
     ids = list(config_ids)
+    groups = singletons(len(ids)) if groups is None else groups
     s = sum(1 for x in SCALES if x > 0)
     picks = []
-    for k, cid in enumerate(ids):
+    for k, group in enumerate(groups):
         own = np.concatenate(([0], 1 + k * s + np.arange(s)))
-        others = [np.asarray(mse[c], dtype=float)[own] for c in ids if c != cid]
+        others = [np.asarray(mse[c], dtype=float)[own] for i, c in enumerate(ids) if i not in group]
         if not others:
             picks.append(0)
             continue
@@ -131,32 +154,40 @@ def scale_of(row: int) -> float:
     return 0.0 if row == 0 else moved[(row - 1) % len(moved)]
 
 
-def leave_one_out_residuals(model: Simulator, space: ParameterSpace, fit: LocalFit,
-                            measurements: Mapping[str, Measurement], loss: LossSpec) -> tuple[list[ResidualCurve], int]:
-    """Residual curves of each training configuration at its leave-one-out refit point.
+def leave_out_residuals(model: Simulator, space: ParameterSpace, fit: LocalFit,
+                        measurements: Mapping[str, Measurement], loss: LossSpec,
+                        groups: Groups | None = None) -> tuple[list[list[ResidualCurve]], int]:
+    """Residual curves of each group's configurations at the refit that left the group out.
 
     One batch: every candidate row of :func:`candidate_rows` on every configuration of
-    ``fit`` (``(1 + S K) K`` forward runs, ``S = 3`` nonzero :data:`SCALES`).  The residuals
-    are read at the measured times, as
+    ``fit`` (``(1 + S G) K`` forward runs for ``G`` groups, ``S = 3`` nonzero
+    :data:`SCALES`).  The residuals are read at the measured times, as
     :func:`~smcbayes.posterior.discrepancy.training_residuals` does at the calibrated point;
     a configuration whose refit run failed is left out.
 
-    Returns the curves and the forward runs made.
+    Args:
+        groups: configurations left out together (default: one group per configuration).
+
+    Returns:
+        per group, the curves of its configurations; and the forward runs made.
     """
     ids = list(fit.config_ids)
-    rows = candidate_rows(fit.u0, leave_one_out_steps(fit))
+    groups = singletons(len(ids)) if groups is None else groups
+    rows = candidate_rows(fit.u0, leave_out_steps(fit, groups))
     results = model.simulate(space.from_unit(rows), ids)
     mse = {}
     for cid in ids:
         pair = force_pair(results[cid], measurements[cid], loss)
         err = np.mean((pair.sim_kN - pair.meas_kN) ** 2, axis=1)
         mse[cid] = np.where(pair.ok, err, np.inf)
-    picks = pick_rows(mse, ids)
-    curves = []
-    for cid, row in zip(ids, picks, strict=True):
-        force = measurements[cid].force
-        if force is None or not bool(np.asarray(results[cid].ok)[row]):
-            continue
-        curves.append(residual_curve(cid, results[cid], row, force.time_s, force.values))
-    logger.info("leave-one-out refits: step scales %s", [scale_of(p) for p in picks])
-    return curves, rows.shape[0] * len(ids)
+    picks = pick_rows(mse, ids, groups)
+    out = []
+    for group, row in zip(groups, picks, strict=True):
+        curves = []
+        for cid in (ids[i] for i in group):
+            force = measurements[cid].force
+            if force is not None and bool(np.asarray(results[cid].ok)[row]):
+                curves.append(residual_curve(cid, results[cid], row, force.time_s, force.values))
+        out.append(curves)
+    logger.info("leave-out refits of %d group(s): step scales %s", len(groups), [scale_of(p) for p in picks])
+    return out, rows.shape[0] * len(ids)

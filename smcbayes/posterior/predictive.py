@@ -124,22 +124,25 @@ def _scores(grid: Array, median: Array, qpred: Array, levels: Array,
 def predictive_bands(model: Simulator, theta: Array, config_ids: Sequence[str],
                      measured: Mapping[str, tuple[Array, Array]], noise_kN: Mapping[str, float],
                      rng: np.random.Generator, grid_points: int = 300,
-                     discrepancy: PhaseDiscrepancy | None = None,
+                     discrepancy: PhaseDiscrepancy | Mapping[str, PhaseDiscrepancy | None] | None = None,
                      force_limit_kN: Mapping[str, float] | None = None) -> dict[str, Band]:
     """Bands on ``config_ids`` from posterior draws ``theta`` ``(D, d)`` (user units).
 
     Args:
         noise_kN: white-noise sd per configuration, used without ``discrepancy`` (for
             configurations not listed, the mean of the others).
-        discrepancy: the error model (replaces the white noise).
+        discrepancy: the error model (replaces the white noise), one for every
+            configuration or one per configuration (a configuration mapped to None, or not
+            listed, takes the white noise).
         force_limit_kN: upper clip per configuration (default: no upper clip).
     """
     results = model.simulate(theta, config_ids)
     fallback = float(np.mean(list(noise_kN.values()))) if noise_kN else 0.0
     levels = np.concatenate((QUANTILES, CRPS_LEVELS))
-    kind = "white noise" if discrepancy is None else "discrepancy"
     bands = {}
     for cid, res in results.items():
+        disc = discrepancy.get(cid) if isinstance(discrepancy, Mapping) else discrepancy
+        kind = "white noise" if disc is None else "discrepancy"
         ok = res.ok
         t_end = np.nanmax(res.switch_time_s[ok]) * 1.1 if np.any(ok) else 1.0
         if cid in measured:
@@ -157,7 +160,7 @@ def predictive_bands(model: Simulator, theta: Array, config_ids: Sequence[str],
         travel = np.array([np.interp(s, t, v) for s, t, v in zip(switch, res.time_s[ok], res.displacement_mm[ok],
                                                                      strict=True)])
         limit = float((force_limit_kN or {}).get(cid, np.inf))
-        draws, scale = _predictive_draws(force, grid, switch, travel, sigma, discrepancy, limit, rng)
+        draws, scale = _predictive_draws(force, grid, switch, travel, sigma, disc, limit, rng)
         qpred = np.quantile(draws, levels, axis=0)
         model_q = np.quantile(force, QUANTILES, axis=0)
         scores = (_scores(grid, model_q[2], qpred, levels, measured[cid]) if cid in measured else

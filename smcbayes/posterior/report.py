@@ -11,11 +11,11 @@ from typing import Any
 
 import numpy as np
 
-from smcbayes.config.project import ConfigurationSpec, ProjectConfig
 from smcbayes.posterior.context import RunContext, true_log_loss
 from smcbayes.posterior.correct import K_HAT_WARN
-from smcbayes.posterior.crossfit import LocalFit, leave_one_out_residuals
-from smcbayes.posterior.discrepancy import PhaseDiscrepancy, fit_discrepancy, training_residuals
+from smcbayes.posterior.crossfit import LocalFit
+from smcbayes.posterior.error_models import BandErrorModels, band_error_models
+from smcbayes.posterior.extrapolation import extrapolation_notes
 from smcbayes.posterior.likelihood import EmulatedPosterior
 from smcbayes.posterior.plots import bands_plot, corner_plot, correlation_plot
 from smcbayes.posterior.predictive import Band, predictive_bands
@@ -49,47 +49,12 @@ def band_record(band: Band, role: str) -> dict[str, Any]:
             "error_model": band.error_model, "draws": band.draws, "role": role}
 
 
-SPEED_TOLERANCE = 0.01
-"""Relative margin by which a set speed may lie outside the training speeds' range and
-still count as inside it."""
-
-
-def _charge_key(cfg: ConfigurationSpec) -> tuple[Any, ...]:
-    """What makes two charges alike for the bands: shape, size and the mould they fill."""
-    c, m = cfg.charge, cfg.mould
-    pieces = tuple(tuple(sorted(piece.model_dump().items())) for piece in c.pieces or [])
-    return (c.shape, c.coverage_pct, c.length_mm, c.width_mm, pieces, m.length_mm, m.width_mm)
-
-
-def extrapolation_notes(project: ProjectConfig, train_ids: Sequence[str],
-                        band_ids: Sequence[str]) -> dict[str, list[str]]:
-    """Why each band configuration lies outside what the training configurations span.
-
-    The bands' error model is learnt from the training configurations' residuals, so it
-    stands for trials like them.  Two plain checks: a set closing speed outside the range of
-    the training speeds (by more than :data:`SPEED_TOLERANCE`), and a charge (shape, size,
-    mould) that no training configuration has.  A trial that extrapolates can err more
-    than any training trial, and its band then under-covers.
-
-    Returns:
-        per band configuration, the reasons in words (empty where it interpolates).
-    """
-    train = [project.get(c) for c in train_ids]
-    if not train:
-        return {cid: [] for cid in band_ids}
-    speeds = [c.press.speed_mm_s for c in train]
-    lo, hi = min(speeds), max(speeds)
-    charges = {_charge_key(c) for c in train}
-    notes: dict[str, list[str]] = {}
-    for cid in band_ids:
-        cfg, why = project.get(cid), []
-        v = cfg.press.speed_mm_s
-        if v < lo * (1 - SPEED_TOLERANCE) or v > hi * (1 + SPEED_TOLERANCE):
-            why.append(f"set speed {v:g} mm/s outside the fitted {lo:g}-{hi:g} mm/s")
-        if _charge_key(cfg) not in charges:
-            why.append("a charge none of the fitted trials has")
-        notes[cid] = why
-    return notes
+def extrapolation_warning(cid: str, why: Sequence[str], source: str) -> str:
+    """The warning of a band configuration outside the training set, with its error model's residuals."""
+    if source.startswith("leave-group-out"):
+        return (f"{cid}: {'; '.join(why)}: its band extrapolates from the training trials; its error "
+                f"model is learnt from {source.split(': ', 1)[-1]}, and it may still under-cover")
+    return f"{cid}: {'; '.join(why)}: its band extrapolates from the training trials and may under-cover"
 
 
 def write_table(path: Path, rows: list) -> None:
@@ -136,40 +101,17 @@ def _corr_block(corr: tuple) -> dict[str, Any]:
     return {"labels": labels, "matrix": matrix.tolist(), "strongest": [{"a": a, "b": b, "r": r} for a, b, r in pairs]}
 
 
-def _error_model(ctx: RunContext, fit: LocalFit | None) -> tuple[PhaseDiscrepancy | None, str, int]:
-    """The bands' discrepancy model, the residuals it was learnt from and the runs it took.
-
-    Leave-one-configuration-out residuals (:mod:`smcbayes.posterior.crossfit`) where the
-    local fit is usable and there are at least two training configurations; otherwise, or
-    where fewer than two refits ran, the residuals at the calibrated point (one run per
-    training configuration, counted beside any refits already made).
-    """
-    p = ctx.problem
-    runs = 0
-    if fit is not None and not fit.usable:
-        logger.info("a perturbed run at the best point failed: the bands' error model uses the "
-                    "residuals at the calibrated point")
-    if fit is not None and fit.usable and len(fit.config_ids) >= 2:
-        curves, runs = leave_one_out_residuals(ctx.runner, ctx.space, fit, p.dataset.measurements, p.project.loss)
-        if len(curves) >= 2:
-            return fit_discrepancy(curves), "leave-one-configuration-out refits", runs
-        logger.warning("only %d leave-one-out refit(s) ran; the bands' error model uses the residuals "
-                       "at the calibrated point, which understate the error on an unseen trial", len(curves))
-    curves = training_residuals(ctx.runner, ctx.best_theta, p.train_ids, p.measured_force(p.train_ids))
-    return fit_discrepancy(curves), "calibrated point", runs + len(p.train_ids)
-
-
 def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any], settings: Any,
                        rng: np.random.Generator, out_dir: Path,
-                       fit: LocalFit | None = None) -> tuple[dict, int, list[str], dict[str, Any] | None]:
+                       fit: LocalFit | None = None) -> tuple[dict, int, list[str], BandErrorModels]:
     """Predictive bands from the reported draws, corner, correlation and band figures.
 
     The bands' error term is the discrepancy model learnt from out-of-sample training
-    residuals (:func:`_error_model`, :mod:`smcbayes.posterior.discrepancy`), or the
+    residuals (:mod:`smcbayes.posterior.error_models`: leave-one-out refits, or leave-group-out
+    ones for a configuration outside the training set), or the
     per-configuration white noise when no residual is usable.
 
-    Returns the bands, the forward runs they took, the validation ids and the error model's
-    summary.
+    Returns the bands, the forward runs they took, the validation ids and the error models.
     """
     space, p, unit = ctx.space, ctx.problem, t["unit"]
     draw_unit = unit[rng.choice(unit.shape[0], size=min(settings.draws, unit.shape[0]), replace=False)]
@@ -177,10 +119,10 @@ def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any
     band_ids = val_ids or p.train_ids
     measured = p.measured_force(band_ids)
     noise = {cid: float(np.sqrt(v)) for cid, v in budget["mse_kN2"].items()}
-    discrepancy, source, error_runs = _error_model(ctx, fit)
+    errors = band_error_models(ctx, fit, band_ids)
     limits = {cid: float(p.project.get(cid).press.force_limit_kN) for cid in band_ids}
     bands = predictive_bands(ctx.runner, space.from_unit(draw_unit), band_ids, measured, noise, rng,
-                             discrepancy=discrepancy, force_limit_kN=limits)
+                             discrepancy=errors.models, force_limit_kN=limits)
     fig = out_dir / "figures"
     corner_unit = unit[rng.choice(unit.shape[0], min(20000, unit.shape[0]), replace=False)]
     corner_plot(space, space.from_unit(corner_unit), fig / "corner", p.truth)
@@ -188,9 +130,8 @@ def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any
         correlation_plot(t["corr"][0], t["corr"][1], fig / "correlations")
     kind = "validation" if val_ids else "training (no validation configuration)"
     bands_plot(bands, fig / "bands", f"posterior predictive bands on {kind} configurations")
-    runs = int(draw_unit.shape[0]) * len(band_ids) + error_runs
-    info = None if discrepancy is None else {**discrepancy.as_dict(), "residuals": source}
-    return bands, runs, val_ids, info
+    runs = int(draw_unit.shape[0]) * len(band_ids) + errors.runs
+    return bands, runs, val_ids, errors
 
 
 def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget: dict[str, Any],
@@ -225,11 +166,10 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     check_unit = emu[rng.choice(emu.shape[0], size=min(settings.draws, emu.shape[0]), replace=False)]
     check = check_emulator(check_unit, lambda u: emul.log_loss(u),
                            lambda u: true_log_loss(ctx, space.from_unit(u)), emul.n_eff)
-    bands, band_runs, val_ids, discrepancy = _bands_and_figures(ctx, t, budget, settings, rng, out_dir, fit)
+    bands, band_runs, val_ids, errors = _bands_and_figures(ctx, t, budget, settings, rng, out_dir, fit)
     corr_info = correction_info(corrected, settings)
     notes = extrapolation_notes(ctx.problem.project, ctx.problem.train_ids, list(bands))
-    warns += [f"{cid}: {'; '.join(why)}: its band extrapolates from the training trials and may "
-              "under-cover" for cid, why in notes.items() if why]
+    warns += [extrapolation_warning(cid, why, errors.sources.get(cid, "")) for cid, why in notes.items() if why]
     return {
         "method": attrs["method"],
         "parameters": [asdict(s) for s in t["table"]], "warnings": warns,
@@ -242,9 +182,9 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
         "sampler": [{"steps": c.steps, "burn": c.burn, "thin": c.thin, "converged": c.converged,
                      "tau_max": float(np.max(c.tau)), "acceptance_median": float(np.median(c.acceptance))}
                     for c in chains],
-        "bands": {cid: {**band_record(b, "validation" if val_ids else "train"), "extrapolates": notes[cid]}
-                  for cid, b in bands.items()},
-        "discrepancy": discrepancy,
+        "bands": {cid: {**band_record(b, "validation" if val_ids else "train"), "extrapolates": notes[cid],
+                        "error_residuals": errors.sources.get(cid)} for cid, b in bands.items()},
+        "discrepancy": errors.summary(),
         "truth": ctx.problem.truth,
         "shape": shape_notes(space, t["unit"]),
     }

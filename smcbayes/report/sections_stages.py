@@ -373,16 +373,13 @@ def bands_section(run: RunFiles) -> Section | None:
     )
     disc = post.get("discrepancy")
     if disc and disc.get("bins"):
-        sec.add(Table(
-            ("remaining travel (mm)", "points", "configurations", "error 5 % (kN)", "median (kN)",
-             "error 95 % (kN)"),
-            tuple((_travel_range(b), fmt(b.get("points")), fmt(b.get("configurations")),
-                   fmt(b.get("q05_kN"), 3), fmt(b.get("q50_kN"), 3), fmt(b.get("q95_kN"), 3))
-                  for b in disc["bins"]),
-            caption="error model: measured minus simulated force of the training configurations (see "
-                    "above for the parameter points), by remaining ram travel to the simulated end of "
-                    "closing",
-            numeric=(1, 2, 3, 4, 5)))
+        sec.add(_error_table(disc["bins"], "error model: measured minus simulated force of the training "
+                             "configurations (see above for the parameter points), by remaining ram travel "
+                             "to the simulated end of closing"))
+        for extra in disc.get("extrapolation") or []:
+            sec.add(_error_table(extra.get("bins") or [], "error model of "
+                                 f"{', '.join(extra.get('configurations') or [])}, outside the training set: "
+                                 f"residuals of {extra.get('residuals', '')}"))
     if (fig := run.figure("posterior", "figures", "bands")) is not None:
         sec.add(
             Figure(
@@ -391,6 +388,16 @@ def bands_section(run: RunFiles) -> Section | None:
             )
         )
     return sec
+
+
+def _error_table(bins: list[dict], caption: str) -> Table:
+    """One error model's bins: remaining travel, counts and the 5/50/95 % errors."""
+    return Table(
+        ("remaining travel (mm)", "points", "configurations", "error 5 % (kN)", "median (kN)",
+         "error 95 % (kN)"),
+        tuple((_travel_range(b), fmt(b.get("points")), fmt(b.get("configurations")),
+               fmt(b.get("q05_kN"), 3), fmt(b.get("q50_kN"), 3), fmt(b.get("q95_kN"), 3)) for b in bins),
+        caption=caption, numeric=(1, 2, 3, 4, 5))
 
 
 def _bands_text(kind: str, discrepancy: dict | None) -> str:
@@ -402,7 +409,9 @@ def _bands_text(kind: str, discrepancy: dict | None) -> str:
         f"plus an error drawn from the training configurations' residuals ({where}) at the same "
         "stage of the closing (remaining ram travel to the simulated end of closing; table "
         "below), so the bands widen where the model misses the press, such as the end of "
-        "closing"
+        "closing; a configuration at a speed outside the fitted range or with a charge no "
+        "training configuration has takes the residuals of training configurations left out "
+        "as a group across the same kind of gap"
         if discrepancy
         else "plus white noise with each configuration's residual standard deviation"
     )

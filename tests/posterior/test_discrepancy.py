@@ -94,6 +94,25 @@ def test_bands_stay_within_zero_and_the_force_limit() -> None:
     assert np.mean(width[late]) > 5 * np.mean(width[early & (b.time_s > 1.0)])
 
 
+def curves_of(rng: np.random.Generator, sd_kN: float) -> list[ResidualCurve]:
+    """Two residual curves of constant spread ``sd_kN`` over the closing."""
+    t = np.linspace(0.0, T_END, 300)
+    return [ResidualCurve(cid, t, sd_kN * rng.standard_normal(t.size), T_END, TRAVEL) for cid in ("a", "b")]
+
+
+def test_bands_take_each_configurations_own_error_model() -> None:
+    rng = np.random.default_rng(1)
+    narrow = fit_discrepancy(curves_of(rng, 5.0))
+    wide = fit_discrepancy(curves_of(rng, 60.0))
+    theta = np.column_stack([np.full(40, 100.0), np.ones(40)])
+    bands = predictive_bands(RampModel(), theta, ["n", "w", "x"], {}, {"n": 1.0, "w": 1.0, "x": 1.0},
+                             np.random.default_rng(2), discrepancy={"n": narrow, "w": wide, "x": None})
+    width = {cid: float(np.mean(b.force_pred_kN[4] - b.force_pred_kN[0])) for cid, b in bands.items()}
+    assert width["w"] > 5 * width["n"]
+    assert bands["n"].error_model == bands["w"].error_model == "discrepancy"
+    assert bands["x"].error_model == "white noise"
+
+
 def test_a_well_specified_case_keeps_about_nominal_coverage() -> None:
     """Measured = model + errors of the law the training residuals came from."""
     rng = np.random.default_rng(4)

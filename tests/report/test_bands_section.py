@@ -42,11 +42,15 @@ def test_bands_section_reports_sharpness_and_the_error_model(tmp_path: Path) -> 
                       "q50_kN": -20.0, "q95_kN": 40.0},
                      {"from_mm": 0.0, "to_mm": None, "points": 300, "configurations": 3, "q05_kN": -12.0,
                       "q50_kN": 1.0, "q95_kN": 15.0}]}
+    disc["extrapolation"] = [{"bins": [{**disc["bins"][0], "q05_kN": -555.0}], "configurations": ["bar-07"],
+                              "residuals": "the 0.3 mm/s trials predicted from the faster ones"}]
     run = make_run(tmp_path, disc)
     write_report(run, formats=("md",))
     md = (run / "report.md").read_text(encoding="utf-8")
     for words in ("CRPS (kN)", "17.2", "123", "211", "41.5", "remaining ram travel to the simulated end of closing",
-                  "below 0", "above 0", "-310", "clipped to 0 kN and the press's force limit"):
+                  "below 0", "above 0", "-310", "clipped to 0 kN and the press's force limit",
+                  "error model of bar-07, outside the training set", "-555",
+                  "the 0.3 mm/s trials predicted from the faster ones"):
         assert words in md, words
 
 
