@@ -13,7 +13,9 @@ the parameters on a search bound, and wall time.
 With compressibility the bulk viscosity is fixed at 0 (calibrated, it goes to 0); the
 ``compressibility`` variant also fixes the solid density at 1.5 g/cm3 (the consolidated
 CF-epoxy SMC, README of the data), ``compressibility+compliance`` calibrates it (the model
-keeps the 4-9 % of the mass lost as flash) with the frame stiffness.
+keeps the 4-9 % of the mass lost as flash) with the frame stiffness.  The ``+heating``
+variants add the charge's through-thickness heating (a slower closing leaves the charge more
+time to warm and thin), the one candidate that could bend the force's speed dependence.
 
 ``--holdout speed07`` calibrates on the six trials at 0.3 and 1.1 mm/s and predicts the three
 at 0.7 mm/s; ``--holdout center60`` leaves out the three 60 % centre charges.  The left-out
@@ -62,6 +64,10 @@ VARIANTS = {
     "compressibility": (["compressibility"], {"rho_solid_g_cm3": 1.5, "bulk_viscosity_MPa_s": 0.0}, "none"),
     "compressibility+compliance": (["compressibility", "press_compliance"], {"bulk_viscosity_MPa_s": 0.0},
                                    "none"),
+    "compressibility+heating": (["compressibility", "heating"], {"rho_solid_g_cm3": 1.5, "bulk_viscosity_MPa_s": 0.0},
+                                "none"),
+    "compressibility+heating+compliance": (["compressibility", "heating", "press_compliance"],
+                                           {"bulk_viscosity_MPa_s": 0.0}, "none"),
 }
 HOLDOUTS = {"speed07": lambda cid: cid.endswith("-07"), "center60": lambda cid: cid.startswith("60-center")}
 
