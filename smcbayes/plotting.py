@@ -70,7 +70,7 @@ def grid_shape(count: int, cols: int = 3) -> tuple[int, int]:
 
 def plot_simulation(results: Mapping[str, SimulationResult],
                     measured: Mapping[str, tuple[Array, Array]], path: str | Path,
-                    title: str, row: int = 0) -> list[Path]:
+                    title: str, row: int = 0, delays_s: Mapping[str, float] | None = None) -> list[Path]:
     """Force and ram displacement vs time per configuration over the closing phase.
 
     Args:
@@ -78,6 +78,8 @@ def plot_simulation(results: Mapping[str, SimulationResult],
         measured: measured force curve per configuration, ``(time_s, force_kN)``.
         path: output path without suffix.
         title: figure title (e.g. parameters and effects that were on).
+        delays_s: per configuration, a delay (s) of the simulated closing (a contact
+            offset over the set speed), drawn and named in the panel's title.
     """
     ids = list(results)
     nrows, ncols = grid_shape(len(ids))
@@ -86,8 +88,10 @@ def plot_simulation(results: Mapping[str, SimulationResult],
     for k, cid in enumerate(ids):
         ax = axes[k // ncols][k % ncols]
         res = results[cid]
-        t, f, d = res.time_s[row], res.force_kN[row], res.displacement_mm[row]
-        t_end = res.switch_time_s[row] * 1.15 if np.isfinite(res.switch_time_s[row]) else t[-1]
+        delay = float((delays_s or {}).get(cid, 0.0))
+        t, f, d = res.time_s[row] + delay, res.force_kN[row], res.displacement_mm[row]
+        switch = res.switch_time_s[row] + delay
+        t_end = switch * 1.15 if np.isfinite(switch) else t[-1]
         if cid in measured:
             tm, fm = measured[cid]
             ax.plot(tm, fm, color=MEASURED, lw=1.2, label="measured force")
@@ -95,7 +99,7 @@ def plot_simulation(results: Mapping[str, SimulationResult],
         mask = t <= t_end
         ax.plot(t[mask], f[mask], color=colours(0), lw=1.5, label="simulated force")
         ax.set_xlim(0, t_end)
-        ax.set_title(cid, fontsize=10)
+        ax.set_title(cid if delays_s is None else f"{cid} (contact offset: closing {delay:+.2f} s later)", fontsize=10)
         ax.set_xlabel("time (s)")
         ax.set_ylabel("force (kN)")
         ax2 = ax.twinx()

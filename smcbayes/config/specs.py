@@ -53,9 +53,16 @@ class LossSpec(_Strict):
             ``flow_stop``: over [0, t_flow_stop] (the thesis's clipped loss);
             ``force_limit``: both curves cut where they first reach the force limit and
             their values capped at the limit.
+        contact_offset_mm: how far (mm of ram travel) a trial's contact may lie from the
+            nominal stack height (hand-cut charges differ from trial to trial).  Above 0,
+            each configuration is compared at its best contact offset within +- this
+            (a nuisance parameter per trial, profiled out of the loss), and a
+            configuration outside the loss is predicted across the training trials'
+            offsets.  0 (default) compares every trial at its nominal contact.
     """
 
     w_force: float = Field(1.0, ge=0)
     w_displacement: float = Field(0.0, ge=0)
     grid_points: int = Field(400, ge=2, le=100000)
     clip: ClipMode = "none"
+    contact_offset_mm: float = Field(0.0, ge=0, le=2.0)

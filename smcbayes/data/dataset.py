@@ -50,6 +50,7 @@ class Measurement:
         force_limit_kN: the configuration's force limit (kN).
         flow_stop_s: time (s) from contact at which the ram reaches the incompressible
             flow-stop gap (thesis eq. 4.1) at the set speed.
+        speed_mm_s: the set closing speed (mm/s), which turns a contact offset into a delay.
     """
 
     config_id: str
@@ -59,6 +60,7 @@ class Measurement:
     steps: list[str] = field(default_factory=list)
     force_limit_kN: float = 1400.0
     flow_stop_s: float | None = None
+    speed_mm_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -230,10 +232,11 @@ def load_measurement(spec: ConfigurationSpec, root: Path | None, pre: Preprocess
     else:
         force, hold = _from_files(root, spec, pre, steps)
     flow_stop = flow_stop_time_s(spec, base_dir)
-    m = Measurement(spec.id, spec.role, force, hold, steps, limit, flow_stop)
+    speed = spec.press.speed_mm_s
+    m = Measurement(spec.id, spec.role, force, hold, steps, limit, flow_stop, speed)
     _check_units(m, spec.charge.stack_height_mm)
     force, hold = _optional_steps(force, hold, pre, limit, flow_stop, steps)
-    return Measurement(spec.id, spec.role, force, hold, steps, limit, flow_stop)
+    return Measurement(spec.id, spec.role, force, hold, steps, limit, flow_stop, speed)
 
 
 def load_dataset(project: ProjectConfig, ids: Sequence[str] | None = None,

@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.config.specs import LossSpec
+from smcbayes.data.curve import Curve
 from smcbayes.data.dataset import Dataset, Measurement
 from smcbayes.data.preprocess import crossing_time
 from smcbayes.errors import DataError
@@ -36,7 +37,8 @@ from smcbayes.forward.result import PHASE_FORCE, SimulationResult
 
 Array = NDArray[np.float64]
 
-__all__ = ["LossSpec", "LossResult", "evaluate_loss", "ForcePair", "force_pair", "interp_rows"]
+__all__ = ["LossSpec", "LossResult", "evaluate_loss", "ForcePair", "force_pair", "best_offsets_mm",
+           "contact_offsets_mm", "interp_rows"]
 
 
 @dataclass(frozen=True)
@@ -99,6 +101,8 @@ class ForcePair:
         sim_kN, meas_kN: forces on the grid, shape ``(P, N)``.
         phase: the simulation's phase code at each grid time, shape ``(P, N)``.
         ok: rows with a usable simulation, shape ``(P,)``.
+        offset_mm: each row's contact offset (mm; the simulated closing delayed by offset /
+            set speed), shape ``(P,)``: zeros unless the loss profiles it or it was given.
     """
 
     time_s: Array
@@ -106,18 +110,59 @@ class ForcePair:
     meas_kN: Array
     phase: NDArray[np.int8]
     ok: NDArray[np.bool_]
+    offset_mm: Array
 
 
-def force_pair(res: SimulationResult, m: Measurement, spec: LossSpec) -> ForcePair:
-    """Resample simulated and measured closing force onto the comparison window's grid."""
+OFFSET_STEPS = 9
+"""Contact offsets tried per row when the loss profiles them (evenly over
++-``contact_offset_mm``); the best is refined by the parabola through it and its neighbours."""
+
+
+def force_pair(res: SimulationResult, m: Measurement, spec: LossSpec,
+               offset_mm: Array | float | None = None) -> ForcePair:
+    """Resample simulated and measured closing force onto the comparison window's grid.
+
+    Args:
+        offset_mm: contact offset (mm) of every row, or one per row ``(P,)``: a charge that
+            much thicker than nominal meets the ram earlier, and since the data's clock
+            starts at first contact the simulated closing comes offset / set speed later
+            (to first order).  None: each row's best offset within
+            +-``spec.contact_offset_mm`` (:func:`best_offsets_mm`), or none when that is 0.
+    """
     if m.force is None:
         raise DataError(f"configuration '{m.config_id}' has no measured force curve; "
                         "leave it out of the loss or add data.force")
-    t, f, _, ok = _safe(res)
-    ts = _switch(res, t, ok)
-    tm, fm = m.force.time_s, m.force.values
+    if offset_mm is None:
+        offset_mm = best_offsets_mm(res, m, spec) if spec.contact_offset_mm > 0 else 0.0
+    offsets = np.broadcast_to(np.asarray(offset_mm, dtype=float), (res.rows,)).copy()
+    t0, f, _, ok = _safe(res)
+    delay = _delay_s(m, offsets)
+    ts = _switch(res, t0, ok) + delay
+    t = t0 + delay[:, None]
+    grid, meas = _window(m.force, m, spec, ts)
+    sim = _sim_on_grid(grid, t, f, ts, m, spec)
+    idx = np.clip((interp_rows(grid, t, np.broadcast_to(np.arange(t.shape[1], dtype=float), t.shape))
+                   + 1e-9).astype(int), 0, t.shape[1] - 1)
+    phase = np.take_along_axis(res.phase.astype(np.int8), idx, axis=1)
+    phase = np.where(grid > ts[:, None], np.int8(PHASE_FORCE), phase).astype(np.int8)
+    return ForcePair(grid, sim, meas, phase, ok, offsets)
+
+
+def _delay_s(m: Measurement, offsets_mm: Array) -> Array:
+    """The delay (s) of the simulated closing for each contact offset (mm)."""
+    if not np.any(offsets_mm):
+        return np.zeros_like(offsets_mm)
+    if not m.speed_mm_s:
+        raise DataError(f"configuration '{m.config_id}': a contact offset needs the set closing speed")
+    return offsets_mm / m.speed_mm_s
+
+
+def _window(force: Curve, m: Measurement, spec: LossSpec, ts: Array) -> tuple[Array, Array]:
+    """The comparison grid ``(P, N)`` for switch times ``ts`` ``(P,)`` and the measured
+    ``force`` on it."""
+    tm, fm = force.time_s, force.values
     if spec.clip == "force_limit":
-        t_lim = crossing_time(m.force, m.force_limit_kN)
+        t_lim = crossing_time(force, m.force_limit_kN)
         if t_lim is not None:
             tm, fm = np.append(tm[tm < t_lim], t_lim), np.append(fm[tm < t_lim], m.force_limit_kN)
     if spec.clip == "flow_stop":
@@ -127,15 +172,66 @@ def force_pair(res: SimulationResult, m: Measurement, spec: LossSpec) -> ForcePa
     else:
         end = np.maximum(ts, tm[-1])
     grid = end[:, None] * np.linspace(0.0, 1.0, spec.grid_points)[None, :]
+    return grid, np.interp(grid, tm, fm)
+
+
+def _sim_on_grid(grid: Array, t: Array, f: Array, ts: Array, m: Measurement, spec: LossSpec) -> Array:
+    """The simulated force on the grid, held at its switch value beyond the switch."""
     sim = interp_rows(np.minimum(grid, ts[:, None]), t, f)
-    if spec.clip == "force_limit":
-        sim = np.minimum(sim, m.force_limit_kN)
-    meas = np.interp(grid, tm, fm)
-    idx = np.clip((interp_rows(grid, t, np.broadcast_to(np.arange(t.shape[1], dtype=float), t.shape))
-                   + 1e-9).astype(int), 0, t.shape[1] - 1)
-    phase = np.take_along_axis(res.phase.astype(np.int8), idx, axis=1)
-    phase = np.where(grid > ts[:, None], np.int8(PHASE_FORCE), phase).astype(np.int8)
-    return ForcePair(grid, sim, meas, phase, ok)
+    return np.minimum(sim, m.force_limit_kN) if spec.clip == "force_limit" else sim
+
+
+def _mse_at(res: SimulationResult, m: Measurement, spec: LossSpec, offsets_mm: Array) -> Array:
+    """Force MSE (kN^2) of every row at its contact offset ``(P,)``; inf where a run failed."""
+    if m.force is None:
+        raise DataError(f"configuration '{m.config_id}' has no measured force curve")
+    t, f, _, ok = _safe(res)
+    delay = _delay_s(m, offsets_mm)
+    ts = _switch(res, t, ok) + delay
+    grid, meas = _window(m.force, m, spec, ts)
+    sim = _sim_on_grid(grid, t + delay[:, None], f, ts, m, spec)
+    return np.where(ok, np.mean((sim - meas) ** 2, axis=1), np.inf)
+
+
+def best_offsets_mm(res: SimulationResult, m: Measurement, spec: LossSpec) -> Array:
+    """Each row's contact offset (mm) within +-``spec.contact_offset_mm`` of least force MSE,
+    shape ``(P,)``: the profile of a per-trial nuisance parameter (Murphy & van der Vaart
+    2000, "On profile likelihood", J. Am. Stat. Assoc. 95:449-465).
+
+    :data:`OFFSET_STEPS` offsets on an even grid, then the vertex of the parabola through the
+    best and its two neighbours where that fits better (so the offset, and the residuals
+    at it, move continuously with the parameters); 0 for a failed row.
+    """
+    width = spec.contact_offset_mm
+    cand = np.linspace(-width, width, OFFSET_STEPS)
+    err = np.stack([_mse_at(res, m, spec, np.full(res.rows, c)) for c in cand], axis=1)  # (P, S)
+    j = np.argmin(err, axis=1)
+    rows = np.arange(res.rows)
+    inner = (j > 0) & (j < OFFSET_STEPS - 1) & np.all(np.isfinite(err), axis=1)
+    jl, jr = np.clip(j - 1, 0, OFFSET_STEPS - 1), np.clip(j + 1, 0, OFFSET_STEPS - 1)
+    e0, el, er = err[rows, j], err[rows, jl], err[rows, jr]
+    curv = np.where(inner, er - 2 * e0 + el, 1.0)
+    h = cand[1] - cand[0] if OFFSET_STEPS > 1 else 0.0
+    vertex = cand[j] - np.where(inner & (curv > 0), 0.5 * h * (er - el) / np.where(curv > 0, curv, 1.0), 0.0)
+    vertex = np.clip(vertex, cand[jl], cand[jr])
+    refined = _mse_at(res, m, spec, vertex)
+    best = np.where(refined <= e0, vertex, cand[j])
+    return np.where(np.isfinite(e0), best, 0.0)
+
+
+def contact_offsets_mm(results: Mapping[str, SimulationResult], dataset: Dataset, spec: LossSpec,
+                       ids: Sequence[str], row: int = 0) -> dict[str, float]:
+    """Each configuration's profiled contact offset (mm) at row ``row``: those of ``ids`` with
+    a measured force and a usable run; empty when the loss does not profile offsets."""
+    if spec.contact_offset_mm <= 0:
+        return {}
+    out = {}
+    for cid in ids:
+        m = dataset.measurements.get(cid)
+        if m is None or m.force is None or cid not in results or not bool(np.asarray(results[cid].ok)[row]):
+            continue
+        out[cid] = float(best_offsets_mm(results[cid], m, spec)[row])
+    return out
 
 
 def displacement_mse(res: SimulationResult, m: Measurement, spec: LossSpec) -> Array:

@@ -175,11 +175,13 @@ def leave_out_residuals(model: Simulator, space: ParameterSpace, fit: LocalFit,
     groups = singletons(len(ids)) if groups is None else groups
     rows = candidate_rows(fit.u0, leave_out_steps(fit, groups))
     results = model.simulate(space.from_unit(rows), ids)
-    mse = {}
+    mse, delays = {}, {}
     for cid in ids:
         pair = force_pair(results[cid], measurements[cid], loss)
         err = np.mean((pair.sim_kN - pair.meas_kN) ** 2, axis=1)
         mse[cid] = np.where(pair.ok, err, np.inf)
+        speed = measurements[cid].speed_mm_s
+        delays[cid] = pair.offset_mm / speed if speed else np.zeros_like(pair.offset_mm)
     picks = pick_rows(mse, ids, groups)
     out = []
     for group, row in zip(groups, picks, strict=True):
@@ -187,7 +189,10 @@ def leave_out_residuals(model: Simulator, space: ParameterSpace, fit: LocalFit,
         for cid in (ids[i] for i in group):
             force = measurements[cid].force
             if force is not None and bool(np.asarray(results[cid].ok)[row]):
-                curves.append(residual_curve(cid, results[cid], row, force.time_s, force.values))
+                # each trial at its own contact offset, profiled at its refit point: the residual
+                # left once the trial's own offset is known; the bands draw offsets separately
+                curves.append(residual_curve(cid, results[cid], row, force.time_s, force.values,
+                                             float(delays[cid][row])))
         out.append(curves)
     logger.info("leave-out refits of %d group(s): step scales %s", len(groups), [scale_of(p) for p in picks])
     return out, rows.shape[0] * len(ids)

@@ -222,27 +222,31 @@ def fit_discrepancy(curves: Sequence[ResidualCurve]) -> PhaseDiscrepancy | None:
 
 
 def residual_curve(config_id: str, res: SimulationResult, row: int, time_s: Array,
-                   force_kN: Array) -> ResidualCurve:
+                   force_kN: Array, delay_s: float = 0.0) -> ResidualCurve:
     """Residuals of row ``row`` of one configuration's simulation result at the measured
     ``time_s`` ``(N,)`` with measured ``force_kN`` ``(N,)`` (the simulated force held at its
-    last value beyond its record)."""
-    t, f, disp = res.time_s[row], res.force_kN[row], res.displacement_mm[row]
-    ts = float(res.switch_time_s[row])
+    last value beyond its record), the simulated closing delayed by ``delay_s`` (a contact
+    offset over the set speed; :func:`smcbayes.data.loss.force_pair`)."""
+    t, f, disp = res.time_s[row] + delay_s, res.force_kN[row], res.displacement_mm[row]
+    ts = float(res.switch_time_s[row]) + delay_s
     tm = np.asarray(time_s, float)
     return ResidualCurve(config_id, tm, np.asarray(force_kN, float) - np.interp(tm, t, f),
                          ts, float(np.interp(ts, t, disp)))
 
 
 def training_residuals(model: Simulator, theta: Array, config_ids: Sequence[str],
-                       measured: Mapping[str, tuple[Array, Array]]) -> list[ResidualCurve]:
+                       measured: Mapping[str, tuple[Array, Array]],
+                       delays_s: Mapping[str, float] | None = None) -> list[ResidualCurve]:
     """Residuals of ``config_ids`` at one parameter vector ``theta`` ``(1, d)`` (user units).
 
     The simulated force is read at the measured times (held at its last value beyond the
-    simulated record); a configuration whose run fails is left out.
+    simulated record), each configuration's closing delayed by its ``delays_s`` entry (s;
+    default none); a configuration whose run fails is left out.
     """
     ids = [c for c in config_ids if c in measured]
     if not ids:
         return []
     results = model.simulate(np.atleast_2d(theta), ids)
-    return [residual_curve(cid, results[cid], 0, *measured[cid]) for cid in ids
+    delays = delays_s or {}
+    return [residual_curve(cid, results[cid], 0, *measured[cid], delay_s=delays.get(cid, 0.0)) for cid in ids
             if bool(np.asarray(results[cid].ok)[0])]

@@ -4,16 +4,21 @@ A band configuration that the training set spans takes the error model learnt fr
 leave-one-configuration-out residuals (:mod:`smcbayes.posterior.crossfit`); one that lies
 outside it (a new speed or charge: :mod:`smcbayes.posterior.extrapolation`) takes the one
 learnt from leave-group-out residuals that put training trials across the same kind of gap.
-Every refit runs in one batch of the forward model.
+Every refit runs in one batch of the forward model.  Where the loss profiles each trial's
+contact offset, the residuals are taken at each trial's own offset and the training trials'
+offsets at the calibrated point are kept for the bands to mix over.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
+import numpy as np
+
+from smcbayes.data.loss import contact_offsets_mm
 from smcbayes.posterior.context import RunContext
 from smcbayes.posterior.crossfit import LocalFit, leave_out_residuals, singletons
 from smcbayes.posterior.discrepancy import (
@@ -40,8 +45,10 @@ class BandErrorModels:
         base: the model learnt from the leave-one-out residuals (or those at the calibrated
             point), the one of configurations inside the training set.
         base_source: its residuals, in words.
-        runs: forward runs made for the residuals.
+        runs: forward runs made for the residuals (and the contact offsets).
         extra: summary blocks of the leave-group-out models (with the configurations using each).
+        offsets_mm: each training configuration's contact offset at the calibrated point
+            (mm; empty unless the loss profiles them): the scatter a new trial's bands mix over.
     """
 
     models: dict[str, PhaseDiscrepancy | None]
@@ -50,12 +57,26 @@ class BandErrorModels:
     base_source: str
     runs: int
     extra: list[dict[str, Any]] = field(default_factory=list)
+    offsets_mm: dict[str, float] = field(default_factory=dict)
 
     def summary(self) -> dict[str, Any] | None:
         """The ``discrepancy`` block of ``posterior/summary.json``."""
         if self.base is None:
             return None
-        return {**self.base.as_dict(), "residuals": self.base_source, "extrapolation": self.extra}
+        out = {**self.base.as_dict(), "residuals": self.base_source, "extrapolation": self.extra}
+        if self.offsets_mm:
+            out["contact_offsets_mm"] = self.offsets_mm
+        return out
+
+
+def training_offsets_mm(ctx: RunContext) -> dict[str, float]:
+    """Each training configuration's best contact offset (mm) at the calibrated point, where
+    the loss profiles them (``[loss] contact_offset_mm``; else empty)."""
+    p = ctx.problem
+    if p.project.loss.contact_offset_mm <= 0:
+        return {}
+    results = ctx.runner.simulate(np.atleast_2d(ctx.best_theta), p.train_ids)
+    return contact_offsets_mm(results, p.dataset, p.project.loss, p.train_ids)
 
 
 def _group_plans(ctx: RunContext, band_ids: Sequence[str]) -> dict[str, tuple[list[Group], str]]:
@@ -77,7 +98,8 @@ def band_error_models(ctx: RunContext, fit: LocalFit | None, band_ids: Sequence[
     training configuration, counted beside any refits already made).
     """
     p = ctx.problem
-    runs = 0
+    offsets = training_offsets_mm(ctx)
+    runs = len(p.train_ids) if p.project.loss.contact_offset_mm > 0 else 0
     if fit is not None and not fit.usable:
         logger.info("a perturbed run at the best point failed: the bands' error model uses the "
                     "residuals at the calibrated point")
@@ -85,17 +107,21 @@ def band_error_models(ctx: RunContext, fit: LocalFit | None, band_ids: Sequence[
         plans = _group_plans(ctx, band_ids)
         extra = list(dict.fromkeys(g for gs, _ in plans.values() for g in gs))
         k = len(fit.config_ids)
-        per_group, runs = leave_out_residuals(ctx.runner, ctx.space, fit, p.dataset.measurements,
-                                              p.project.loss, singletons(k) + extra)
+        per_group, refit_runs = leave_out_residuals(ctx.runner, ctx.space, fit, p.dataset.measurements,
+                                                    p.project.loss, singletons(k) + extra)
+        runs += refit_runs
         loo = _pooled(per_group[:k])
         if len(loo) >= 2:
-            return assemble(fit_discrepancy(loo), plans, dict(zip(extra, per_group[k:], strict=True)), runs)
+            models = assemble(fit_discrepancy(loo), plans, dict(zip(extra, per_group[k:], strict=True)), runs)
+            return replace(models, offsets_mm=offsets)
         logger.warning("only %d leave-one-out refit(s) ran; the bands' error model uses the residuals "
                        "at the calibrated point, which understate the error on an unseen trial", len(loo))
-    curves = training_residuals(ctx.runner, ctx.best_theta, p.train_ids, p.measured_force(p.train_ids))
+    delays = {c: o / p.dataset.measurements[c].speed_mm_s for c, o in offsets.items()
+              if p.dataset.measurements[c].speed_mm_s}
+    curves = training_residuals(ctx.runner, ctx.best_theta, p.train_ids, p.measured_force(p.train_ids), delays)
     base = fit_discrepancy(curves)
     return BandErrorModels({cid: base for cid in band_ids}, {cid: "calibrated point" for cid in band_ids},
-                           base, "calibrated point", runs + len(p.train_ids))
+                           base, "calibrated point", runs + len(p.train_ids), offsets_mm=offsets)
 
 
 def assemble(base: PhaseDiscrepancy | None, plans: dict[str, tuple[list[Group], str]],

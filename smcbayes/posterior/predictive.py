@@ -4,9 +4,11 @@ For each configuration, the draws' force and ram-displacement curves are resampl
 common time grid and summarised by their 5/25/50/75/95 % quantiles ("model" bands:
 parameter uncertainty only).  The *predictive* bands add the error of the model against
 the press: with a :class:`~smcbayes.posterior.discrepancy.PhaseDiscrepancy` (learnt from
-the training residuals at the calibrated point) an error drawn from the distribution of
-the point's phase of the closing, otherwise white Gaussian noise of one standard deviation
-per configuration.  Predictive draws are clipped to ``[0, F_limit]``: the press neither
+the training residuals) an error drawn from the distribution of the point's phase of the
+closing, otherwise white Gaussian noise of one standard deviation per configuration.  Where
+the loss profiles each trial's contact offset, every draw is also taken at each training
+trial's offset (its closing delayed by offset / set speed), so both bands carry the
+trial-to-trial scatter of the contact that a new trial's unknown offset brings.  Predictive draws are clipped to ``[0, F_limit]``: the press neither
 pulls nor exceeds its force limit during the closing.
 
 Scores against a measured curve, at its points inside the band grid: coverage of the 50 %
@@ -27,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from smcbayes.forward.nodes import interp_rows
 from smcbayes.posterior.discrepancy import PhaseDiscrepancy, remaining_travel_mm
 from smcbayes.simulation.objective import Simulator
 
@@ -121,11 +124,25 @@ def _scores(grid: Array, median: Array, qpred: Array, levels: Array,
             "crps_kN": float(2 * np.mean(pin)), "interval_score90_kN": float(np.mean(interval))}
 
 
+def _delayed(grid: Array, force: Array, disp: Array, switch_s: Array, travel_mm: Array,
+             delays_s: Array) -> tuple[Array, Array, Array, Array]:
+    """Every draw's curves ``(D, G)`` at every contact delay ``(S,)``: ``(D * S, G)`` curves
+    (draw-major), each ``F(t - delay)`` on ``grid`` (the value at 0 before it), with its
+    switch time delayed alike and its travel repeated."""
+    s = delays_s.size
+    shifted = grid[None, :] - np.tile(delays_s, force.shape[0])[:, None]
+    rows = np.repeat(np.arange(force.shape[0]), s)
+    base = np.broadcast_to(grid, (rows.size, grid.size))
+    return (interp_rows(shifted, base, force[rows]), interp_rows(shifted, base, disp[rows]),
+            np.repeat(switch_s, s) + np.tile(delays_s, switch_s.size), np.repeat(travel_mm, s))
+
+
 def predictive_bands(model: Simulator, theta: Array, config_ids: Sequence[str],
                      measured: Mapping[str, tuple[Array, Array]], noise_kN: Mapping[str, float],
                      rng: np.random.Generator, grid_points: int = 300,
                      discrepancy: PhaseDiscrepancy | Mapping[str, PhaseDiscrepancy | None] | None = None,
-                     force_limit_kN: Mapping[str, float] | None = None) -> dict[str, Band]:
+                     force_limit_kN: Mapping[str, float] | None = None,
+                     delays_s: Mapping[str, Array] | None = None) -> dict[str, Band]:
     """Bands on ``config_ids`` from posterior draws ``theta`` ``(D, d)`` (user units).
 
     Args:
@@ -135,6 +152,9 @@ def predictive_bands(model: Simulator, theta: Array, config_ids: Sequence[str],
             configuration or one per configuration (a configuration mapped to None, or not
             listed, takes the white noise).
         force_limit_kN: upper clip per configuration (default: no upper clip).
+        delays_s: per configuration, the delays (s) of its closing to mix over (contact
+            offsets over its set speed): every draw is taken at each of them, so the model
+            and predictive bands carry the trial-to-trial scatter of the contact.
     """
     results = model.simulate(theta, config_ids)
     fallback = float(np.mean(list(noise_kN.values()))) if noise_kN else 0.0
@@ -159,6 +179,9 @@ def predictive_bands(model: Simulator, theta: Array, config_ids: Sequence[str],
         switch = res.switch_time_s[ok]
         travel = np.array([np.interp(s, t, v) for s, t, v in zip(switch, res.time_s[ok], res.displacement_mm[ok],
                                                                      strict=True)])
+        if delays_s is not None and np.size(delays_s.get(cid, ())):
+            force, disp, switch, travel = _delayed(grid, force, disp, switch, travel,
+                                                   np.asarray(delays_s[cid], dtype=float))
         limit = float((force_limit_kN or {}).get(cid, np.inf))
         draws, scale = _predictive_draws(force, grid, switch, travel, sigma, disc, limit, rng)
         qpred = np.quantile(draws, levels, axis=0)

@@ -121,8 +121,10 @@ def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any
     noise = {cid: float(np.sqrt(v)) for cid, v in budget["mse_kN2"].items()}
     errors = band_error_models(ctx, fit, band_ids)
     limits = {cid: float(p.project.get(cid).press.force_limit_kN) for cid in band_ids}
+    offsets = np.asarray(list(errors.offsets_mm.values()), dtype=float)
+    delays = {cid: offsets / p.project.get(cid).press.speed_mm_s for cid in band_ids} if offsets.size else None
     bands = predictive_bands(ctx.runner, space.from_unit(draw_unit), band_ids, measured, noise, rng,
-                             discrepancy=errors.models, force_limit_kN=limits)
+                             discrepancy=errors.models, force_limit_kN=limits, delays_s=delays)
     fig = out_dir / "figures"
     corner_unit = unit[rng.choice(unit.shape[0], min(20000, unit.shape[0]), replace=False)]
     corner_plot(space, space.from_unit(corner_unit), fig / "corner", p.truth)

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from smcbayes.config import CalibrationSpec
-from smcbayes.data.loss import evaluate_loss
+from smcbayes.data.loss import contact_offsets_mm, force_pair
 from smcbayes.data.readers.csv import write_curves
 from smcbayes.errors import ParameterOnBoundWarning
 from smcbayes.forward.ranges import PHYSICAL_RANGES
@@ -118,19 +118,17 @@ def _save_gp(bo: BayesOpt, problem: Problem, run: RunDir) -> Any:
     return surrogate
 
 
-def validation_errors(problem: Problem, results: dict[str, SimulationResult]) -> dict[str, dict[str, float]]:
-    """Force MSE (kN^2) and RMSE (kN) of the best point on validation configurations with data."""
+def validation_errors(problem: Problem, results: dict[str, SimulationResult],
+                      offset_mm: float = 0.0) -> dict[str, dict[str, float]]:
+    """Force MSE (kN^2) and RMSE (kN) of the best point on validation configurations with
+    data, each at contact offset ``offset_mm`` (a validation trial's own offset is not fitted)."""
 
     ids = [cid for cid in problem.model.ids("validation") if cid in problem.dataset.measurements
            and problem.dataset.measurements[cid].force is not None and cid in results]
-    if not ids:
-        return {}
-    # the force alone: a validation trial need not have a measured hold
-    force_only = problem.project.loss.model_copy(update={"w_displacement": 0.0})
-    loss = evaluate_loss(results, problem.dataset, force_only, ids=ids)
     out = {}
-    for k, cid in enumerate(ids):
-        mse = float(loss.force_mse_kN2[0, k])
+    for cid in ids:
+        pair = force_pair(results[cid], problem.dataset.measurements[cid], problem.project.loss, offset_mm=offset_mm)
+        mse = float(np.mean((pair.sim_kN[0] - pair.meas_kN[0]) ** 2)) if bool(pair.ok[0]) else float("nan")
         out[cid] = {"mse_kN2": mse, "rmse_kN": math.sqrt(mse) if math.isfinite(mse) else float("nan")}
     return out
 
@@ -151,11 +149,18 @@ def _best_outputs(bo: BayesOpt, problem: Problem, run: RunDir, executor: Executo
         path = run.best_curves_path(cid)
         path.parent.mkdir(exist_ok=True)
         write_curves(res, 0, path)
+    offsets = contact_offsets_mm(results, problem.dataset, problem.project.loss, problem.train_ids)
+    mean_offset = float(np.mean(list(offsets.values()))) if offsets else 0.0
     if figures:
         label = ", ".join(f"{k}={v:.4g}" for k, v in best["params"].items())
+        delays = {c: offsets.get(c, mean_offset) / problem.project.get(c).press.speed_mm_s for c in ids} \
+            if offsets else None
         plot_simulation(results, problem.measured_force(ids), run.figures / "best_curves",
-                        f"best point (loss {best['loss']:.4g} kN$^2$): {label}")
-    return {"validation_errors": validation_errors(problem, results)}
+                        f"best point (loss {best['loss']:.4g} kN$^2$): {label}", delays_s=delays)
+    out: dict[str, Any] = {"validation_errors": validation_errors(problem, results, mean_offset)}
+    if offsets:
+        out["contact_offsets_mm"] = offsets
+    return out
 
 
 def warn_on_bounds(info: dict[str, Any]) -> None:

@@ -138,3 +138,60 @@ def test_breakdown_sums_to_force_mse(dh, tmp_path: Path) -> None:
     np.testing.assert_allclose(total, res.force_mse_kN2, rtol=1e-10)
     np.testing.assert_allclose(np.nansum(bd.phase_share, axis=2), 1.0)
     assert bd.phases[3] == "force_control" and bd.phase_share[0, 0, 3] > 0
+
+
+def _cubic_case(dh, tmp_path: Path, delay_s: float, rows: int = 1):
+    """A measured cubic rise to the limit delayed by ``delay_s`` against the undelayed
+    simulation of the same curve (speed 4 mm/s: a delay of 0.05 s is a 0.2 mm offset)."""
+    t = np.linspace(0, 5, 400)
+    f = 300 * (t / 5) ** 3
+    tm = np.linspace(0, 5 + delay_s, 400)
+    fm = 300 * (np.clip(tm - delay_s, 0, 5) / 5) ** 3
+    body = "\n".join(f"{a:.17g},{b:.17g}" for a, b in zip(tm, fm, strict=True))
+    dh.write_text(tmp_path / "force" / "c1.csv", "time_s,force_kN\n" + body + "\n")
+    ds = load_dataset(dh.project(tmp_path, [dh.config(data={"force": "force/c1.csv"})]))
+    sim = dh.sim_result("c1", np.tile(np.append(t, 505.0), (rows, 1)), np.append(f, 300.0), [5.0] * rows)
+    return ds["c1"], sim
+
+
+def test_a_profiled_contact_offset_recovers_a_delayed_trial(dh, tmp_path: Path) -> None:
+    """The measured curve comes 0.2 mm / 4 mm/s = 0.05 s later than the simulated one: the
+    profiled offset finds 0.2 mm and the error vanishes; at the nominal contact it does not."""
+    from smcbayes.data.loss import force_pair
+
+    m, sim = _cubic_case(dh, tmp_path, 0.05, rows=2)
+    assert m.speed_mm_s == 4.0
+    nominal = force_pair(sim, m, LossSpec())
+    assert np.all(nominal.offset_mm == 0.0)
+    assert np.mean((nominal.sim_kN[0] - nominal.meas_kN[0]) ** 2) > 10.0
+    profiled = force_pair(sim, m, LossSpec(contact_offset_mm=0.3))
+    np.testing.assert_allclose(profiled.offset_mm, 0.2, atol=0.005)
+    assert np.mean((profiled.sim_kN[0] - profiled.meas_kN[0]) ** 2) < 0.01
+    # the same offset given explicitly gives the same pair; the loss sees the profiled one
+    given = force_pair(sim, m, LossSpec(), offset_mm=profiled.offset_mm)
+    np.testing.assert_allclose(given.sim_kN, profiled.sim_kN)
+    ds = load_dataset(dh.project(tmp_path, [dh.config(data={"force": "force/c1.csv"})]))
+    loss = evaluate_loss({"c1": sim}, ds, LossSpec(contact_offset_mm=0.3)).total
+    assert np.all(loss < 0.01) and evaluate_loss({"c1": sim}, ds, LossSpec()).total[0] > 10.0
+
+
+def test_a_contact_offset_beyond_the_range_stops_at_its_end(dh, tmp_path: Path) -> None:
+    from smcbayes.data.loss import force_pair
+
+    m, sim = _cubic_case(dh, tmp_path, 0.2)  # 0.8 mm later
+    pair = force_pair(sim, m, LossSpec(contact_offset_mm=0.3))
+    assert pair.offset_mm[0] == pytest.approx(0.3)
+    m_early, sim_early = _cubic_case(dh, tmp_path, -0.2)  # the measured curve 0.8 mm earlier
+    assert force_pair(sim_early, m_early, LossSpec(contact_offset_mm=0.3)).offset_mm[0] == pytest.approx(-0.3)
+
+
+def test_a_contact_offset_needs_the_closing_speed(dh, tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from smcbayes.data.loss import force_pair
+
+    m, sim = _cubic_case(dh, tmp_path, 0.05)
+    with pytest.raises(DataError, match="set closing speed"):
+        force_pair(sim, replace(m, speed_mm_s=None), LossSpec(contact_offset_mm=0.3))
+    with pytest.raises(ValueError):
+        LossSpec(contact_offset_mm=-0.1)

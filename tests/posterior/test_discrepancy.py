@@ -151,3 +151,32 @@ def test_training_residuals_are_measured_minus_simulated_at_the_measured_times()
     assert [r.config_id for r in res] == ["a"]
     np.testing.assert_allclose(res[0].residual_kN, 3.0, atol=1e-9)
     assert res[0].switch_s == T_END and res[0].travel_mm == pytest.approx(TRAVEL)
+
+
+def test_bands_mix_over_the_contact_delays() -> None:
+    """A single zero delay changes nothing; delays of -1, 0 and 1 s spread the model band of a
+    ramp of 100 kN/s by about +-100 kN and delay the switch with them."""
+    theta = np.column_stack([np.full(30, 100.0), np.ones(30)])
+    plain = predictive_bands(RampModel(), theta, ["c"], {}, {"c": 1.0}, np.random.default_rng(4))["c"]
+    zero = predictive_bands(RampModel(), theta, ["c"], {}, {"c": 1.0}, np.random.default_rng(4),
+                            delays_s={"c": np.array([0.0])})["c"]
+    np.testing.assert_allclose(zero.force_kN, plain.force_kN)
+    np.testing.assert_allclose(zero.force_pred_kN, plain.force_pred_kN)
+    mixed = predictive_bands(RampModel(), theta, ["c"], {}, {"c": 1.0}, np.random.default_rng(4),
+                             delays_s={"c": np.array([-1.0, 0.0, 1.0])})["c"]
+    mid = np.argmin(np.abs(mixed.time_s - 5.0))
+    assert plain.force_kN[4, mid] - plain.force_kN[0, mid] < 1e-6
+    assert mixed.force_kN[4, mid] - mixed.force_kN[0, mid] == pytest.approx(200.0, rel=0.02)
+    assert mixed.force_kN[2, mid] == pytest.approx(500.0, rel=0.02)
+    assert mixed.draws == 30
+
+
+def test_residuals_of_a_delayed_closing() -> None:
+    from smcbayes.posterior.discrepancy import residual_curve
+
+    res = RampModel().simulate(np.array([[100.0, 1.0]]), ["a"])["a"]
+    tm = np.linspace(0.0, 12.0, 50)
+    measured = 100.0 * np.clip(tm - 0.5, 0.0, T_END)
+    curve = residual_curve("a", res, 0, tm, measured, delay_s=0.5)
+    np.testing.assert_allclose(curve.residual_kN, 0.0, atol=1e-9)
+    assert curve.switch_s == pytest.approx(T_END + 0.5)
