@@ -49,7 +49,7 @@ from scipy.stats import qmc
 
 from smcbayes.config import DiagnoseSpec, ProjectConfig
 from smcbayes.data.dataset import Dataset, Measurement
-from smcbayes.data.loss import interp_rows
+from smcbayes.data.loss import best_offsets_mm, interp_rows
 from smcbayes.data.preprocess import crossing_time
 from smcbayes.errors import ConfigError
 from smcbayes.forward.model import ForwardModel
@@ -234,28 +234,30 @@ class DiagnosisContext:
         return self.runner(extra).simulate(theta, ids)
 
 
-def window_end(res: SimulationResult, m: Measurement, clip: str) -> Array:
-    """End (s) of the loss's comparison window per row, shape ``(P,)``; NaN where failed."""
+def window_end(res: SimulationResult, m: Measurement, clip: str, delay_s: float = 0.0) -> Array:
+    """End (s) of the loss's comparison window per row, shape ``(P,)``, with the simulated
+    closing delayed by ``delay_s`` (a contact offset); NaN where failed."""
     if clip == "flow_stop" and m.flow_stop_s is not None:
         return np.where(res.ok, m.flow_stop_s, np.nan)
     ts = np.where(np.isfinite(res.switch_time_s) & (res.switch_time_s > 0),
-                  res.switch_time_s, res.time_s[:, -1])
+                  res.switch_time_s, res.time_s[:, -1]) + delay_s
     return np.where(res.ok, np.maximum(ts, m.force.time_s[-1]), np.nan)
 
 
 def residuals_on(res: SimulationResult, m: Measurement, clip: str, end_s: float,
-                 points: int) -> tuple[Array, Array]:
-    """Measured minus simulated force on the grid ``[0, end_s]`` like the loss compares them.
+                 points: int, delay_s: float = 0.0) -> tuple[Array, Array]:
+    """Measured minus simulated force on the grid ``[0, end_s]`` like the loss compares them,
+    the simulated closing delayed by ``delay_s`` (s).
 
     Returns:
         ``(grid_s (N,), residual_kN (P, N))``; rows of failed simulations are NaN.
     """
     grid = np.linspace(0.0, end_s, points)
     ok = res.ok & np.all(np.isfinite(res.force_kN), axis=1)
-    t = np.where(ok[:, None], res.time_s, np.arange(res.time_s.shape[1])[None, :])
+    t = np.where(ok[:, None], res.time_s, np.arange(res.time_s.shape[1])[None, :]) + delay_s
     f = np.where(ok[:, None], res.force_kN, 0.0)
     switched = np.isfinite(res.switch_time_s) & (res.switch_time_s > 0)
-    ts = np.where(switched, res.switch_time_s, t[:, -1])
+    ts = np.where(switched, res.switch_time_s, t[:, -1] - delay_s) + delay_s
     sim = interp_rows(np.minimum(grid[None, :], ts[:, None]), t, f)
     tm, fm = m.force.time_s, m.force.values
     if clip == "force_limit":
@@ -387,16 +389,24 @@ class _Tally:
 def residual_stack(ctx: DiagnosisContext, extra: Sequence[str], theta: Array, ids: Sequence[str],
                    ends: Mapping[str, float] | None = None
                    ) -> tuple[dict[str, Array], dict[str, float]]:
-    """Residuals ``(P, N)`` per configuration on fixed windows (row 0's window by default)."""
+    """Residuals ``(P, N)`` per configuration on fixed windows (row 0's window by default).
+
+    Where the loss profiles each trial's contact offset, every row is taken at row 0's best
+    offset: at that optimum the loss's slope in the offset is zero, so residuals at the
+    fixed offset give the profiled loss's Gauss-Newton model."""
     results = ctx.simulate(extra, theta, ids)
-    clip, points = ctx.project.loss.clip, ctx.project.loss.grid_points
+    spec = ctx.project.loss
+    clip, points = spec.clip, spec.grid_points
     out, used = {}, {}
     for cid in ids:
         m = ctx.dataset[cid]
-        end = ends[cid] if ends else float(window_end(results[cid], m, clip)[0])
+        delay = 0.0
+        if spec.contact_offset_mm > 0 and m.speed_mm_s and bool(results[cid].ok[0]):
+            delay = float(best_offsets_mm(results[cid], m, spec)[0]) / m.speed_mm_s
+        end = ends[cid] if ends else float(window_end(results[cid], m, clip, delay)[0])
         if not np.isfinite(end):
             end = float(m.force.time_s[-1])
-        out[cid] = residuals_on(results[cid], m, clip, end, points)[1]
+        out[cid] = residuals_on(results[cid], m, clip, end, points, delay)[1]
         used[cid] = end
     return out, used
 

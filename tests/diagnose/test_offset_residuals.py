@@ -1,0 +1,31 @@
+"""The diagnosis's Gauss-Newton residuals follow the loss's contact offset: with the
+simulated closing delayed by the offset, a delayed measurement leaves no residual."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from smcbayes.data.curve import Curve
+from smcbayes.data.dataset import Measurement
+from smcbayes.diagnose.fit import residuals_on, window_end
+from smcbayes.forward.result import SimulationResult
+
+
+def test_residuals_at_the_delay_of_a_contact_offset() -> None:
+    t = np.linspace(0.0, 5.0, 300)
+    f = 300.0 * (t / 5.0) ** 3
+    ones = np.ones((1, t.size))
+    res = SimulationResult("c", t[None, :], ones, ones, f[None, :], ones, ones,
+                           np.ones((1, t.size), dtype=np.int8), np.array([5.0]), ["ok"])
+    delay = 0.25
+    tm = np.linspace(0.0, 5.0 + delay, 400)
+    fm = 300.0 * (np.clip(tm - delay, 0.0, 5.0) / 5.0) ** 3
+    m = Measurement("c", "train", Curve(tm, fm, "force", "kN", Path("c.csv")), None, speed_mm_s=1.0)
+    end = float(window_end(res, m, "none", delay)[0])
+    assert end == np.float64(5.0 + delay)
+    _, resid = residuals_on(res, m, "none", end, 200, delay)
+    assert np.max(np.abs(resid)) < 0.5
+    _, plain = residuals_on(res, m, "none", end, 200)
+    assert np.max(np.abs(plain)) > 20.0
