@@ -26,17 +26,18 @@ contact height (stack height, nominally 8 mm) is moved within 7.4-8.8 mm: the pa
 error a per-trial timing offset explains (a diagnostic of the data, not a fit).
 
     python benchmarks/calibration_real.py [--budget 90] [--init 30] [--keep DIR] [--only base]
-        [--holdout speed07|center60] [--contact-scan] [--de GENERATIONS [--profile-offset MM]]
+        [--holdout speed07|center60] [--contact-scan] [--de GENERATIONS] [--profile-offset MM]
 
 ``--de 120`` replaces the BO calibration by a seeded differential evolution (about 15,000
 evaluations on the 9 trials, 2-3 minutes with the compiled kernel): the optimum the model
 can reach in its box, to tell the physics' error from the BO budget's.
 
-``--profile-offset 0.3`` (with ``--de``) fits with each training trial's contact offset
-profiled out of the loss (the best of 25 offsets within +-0.3 mm, applied as a delay of the
-simulated curve by offset / speed; the printed loss is this profiled one), then reports each
-trial's best offset at the optimum, their mean over the training trials, and every trial's
-force RMSE at that mean: the prediction for a trial whose own offset is unknown.  The
+``--profile-offset 0.3`` fits with the loss's ``contact_offset_mm = 0.3``
+(each training trial at its best contact offset within +-0.3 mm; the printed loss is this
+profiled one), then reports each training trial's offset at the optimum, their mean, and
+every trial's force RMSE at that mean: the prediction for a trial whose own offset is
+unknown.  The force RMSE column then holds a training trial's RMSE at its own offset and a
+held-out trial's at the mean.  The
 per-trial offset is a nuisance parameter of each pressed charge (hand-cut stacks); profiling
 it keeps it from bending the shared parameters (profile likelihood: Murphy & van der Vaart
 2000, "On profile likelihood", J. Am. Stat. Assoc. 95:449-465).
@@ -109,63 +110,31 @@ def contact_scan(problem, effects: list[str], fixed: dict, best: dict, ids: list
     return out
 
 
-OFFSET_STEPS = 25
-"""Contact offsets tried per configuration by the profiled loss (evenly over +-max)."""
+def offset_report(problem, theta: np.ndarray, ids: list[str]) -> dict:
+    """At one vector, where the loss profiles contact offsets: each training configuration's
+    offset, their mean, and every configuration's force RMSE (kN) at that mean (the
+    prediction for a trial whose own offset is unknown) and at its own offset (training)."""
+    from smcbayes.data.loss import contact_offsets_mm, force_pair
 
-
-def offset_errors(res, meas, speed_mm_s: float, offsets_mm: np.ndarray, points: int) -> np.ndarray:
-    """Force MSE (kN^2) of every row of ``res`` with its closing delayed by each contact
-    offset, ``(P, S)`` for ``S`` offsets (mm; inf where a run failed).
-
-    A charge ``h`` mm thicker than nominal meets the ram ``h`` mm earlier; the data's clock
-    starts at first contact, so to first order the whole simulated curve comes ``h / v``
-    later (the slightly lower initial density of the thicker charge is neglected).  The
-    window is the full loss's, [0, max(simulated switch, last measured time)], ``points``
-    points.
-    """
-    tm, fm = meas.force.time_s, meas.force.values
-    ok = np.asarray(res.ok, dtype=bool)
-    out = np.full((res.force_kN.shape[0], offsets_mm.size), np.inf)
-    for i in np.flatnonzero(ok):
-        grid = np.linspace(0.0, max(float(res.switch_time_s[i]), tm[-1]), points)
-        shifted = np.interp(grid[None, :] - offsets_mm[:, None] / speed_mm_s, res.time_s[i], res.force_kN[i], left=0.0)
-        out[i] = np.mean((shifted - np.interp(grid, tm, fm)[None, :]) ** 2, axis=1)
-    return out
-
-
-def profiled_errors(problem, theta: np.ndarray, ids: list[str], max_mm: float) -> dict[str, np.ndarray]:
-    """Per configuration, the force MSE (kN^2) of each row ``(P,)`` at its best contact offset
-    within +-``max_mm``: the offset profiled out, as for a per-trial nuisance parameter."""
-    offsets = np.linspace(-max_mm, max_mm, OFFSET_STEPS)
-    res = problem.model.simulate(theta, ids)
-    return {c: np.min(offset_errors(res[c], problem.objective.dataset.measurements[c],
-                                    problem.project.get(c).press.speed_mm_s, offsets,
-                                    problem.project.loss.grid_points), axis=1) for c in ids}
-
-
-def offset_report(problem, theta: np.ndarray, ids: list[str], max_mm: float) -> dict:
-    """At one vector: each configuration's best contact offset (mm, 0.01 mm steps within
-    +-``max_mm``), the mean over the training configurations, and every configuration's
-    force RMSE (kN) at that mean offset: a prediction for a trial whose own offset is unknown."""
-    offsets = np.round(np.linspace(-max_mm, max_mm, int(round(200 * max_mm)) + 1), 4)
+    spec = problem.project.loss.model_copy(update={"clip": "none"})
     res = problem.model.simulate(theta[None, :], ids)
+    own = contact_offsets_mm(res, problem.dataset, spec, problem.train_ids)
+    mean = float(np.mean(list(own.values()))) if own else 0.0
 
-    def errors(cid: str, at: np.ndarray) -> np.ndarray:
-        return offset_errors(res[cid], problem.objective.dataset.measurements[cid],
-                             problem.project.get(cid).press.speed_mm_s, at, problem.project.loss.grid_points)[0]
+    def rmse(cid: str, offset: float) -> float:
+        pair = force_pair(res[cid], problem.dataset.measurements[cid], spec, offset_mm=offset)
+        return float(np.sqrt(np.mean((pair.sim_kN[0] - pair.meas_kN[0]) ** 2)))
 
-    best = {c: float(offsets[int(np.argmin(errors(c, offsets)))]) for c in ids}
-    mean = float(np.mean([best[c] for c in problem.train_ids]))
-    at_mean = {c: float(np.sqrt(errors(c, np.array([mean]))[0])) for c in ids}
-    return {"max_mm": max_mm, "offsets_mm": best, "mean_train_mm": mean, "rmse_at_mean_kN": at_mean}
+    return {"max_mm": spec.contact_offset_mm, "offsets_mm": own, "mean_train_mm": mean,
+            "rmse_at_mean_kN": {c: rmse(c, mean) for c in ids},
+            "rmse_own_kN": {c: rmse(c, own[c]) for c in own}}
 
 
-def evolve(problem, generations: int, offset_mm: float = 0.0) -> dict:
+def evolve(problem, generations: int) -> dict:
     """Reference optimum without the surrogate: seeded differential evolution over the unit
     cube (population 12 d, batched forward runs), then Nelder-Mead from its best point.
     Tens of thousands of evaluations: what the model can reach, not what the BO budget does.
-    With ``offset_mm`` > 0 the loss takes each training configuration at its best contact
-    offset within +-``offset_mm`` (:func:`profiled_errors`)."""
+    The loss is the project's (with contact offsets profiled where it asks for them)."""
     from scipy.optimize import differential_evolution, minimize
 
     space, obj = problem.model.space, problem.objective
@@ -175,11 +144,7 @@ def evolve(problem, generations: int, offset_mm: float = 0.0) -> dict:
         u = np.clip(np.atleast_2d(u), 0.0, 1.0)
         count[0] += u.shape[0]
         theta = space.from_unit(u)
-        if offset_mm > 0:
-            e = np.mean(list(profiled_errors(problem, theta, problem.train_ids, offset_mm).values()), axis=0)
-        else:
-            e = np.mean([obj.evaluate(Task(tuple(range(len(theta))), theta, c)).error
-                         for c in problem.train_ids], axis=0)
+        e = np.mean([obj.evaluate(Task(tuple(range(len(theta))), theta, c)).error for c in problem.train_ids], axis=0)
         return np.where(np.isfinite(e), e, 1e9)
 
     de = differential_evolution(lambda x: loss(x.T), [(0.0, 1.0)] * space.dim, vectorized=True, popsize=12,
@@ -199,7 +164,8 @@ def run_variant(name: str, run_dir: Path, budget: int, init: int, holdout: str |
                 scan: bool = False, de: int = 0, offset_mm: float = 0.0) -> dict:
     effects, fixed, clip = VARIANTS[name]
     project = load_project(ROOT / "configs" / "thesis.toml", DATA.resolve())
-    project = project.model_copy(update={"loss": project.loss.model_copy(update={"clip": clip})})
+    project = project.model_copy(update={"loss": project.loss.model_copy(
+        update={"clip": clip, "contact_offset_mm": offset_mm})})
     if holdout is not None:
         left_out = HOLDOUTS[holdout]
         project = project.model_copy(update={"configuration": [
@@ -211,16 +177,19 @@ def run_variant(name: str, run_dir: Path, budget: int, init: int, holdout: str |
                                         settings.model_dump(mode="json", exclude={"truth"})), resume=False)
     problem = build_problem(project, run_dir, effects, fixed)
     start = time.perf_counter()
-    info = evolve(problem, de, offset_mm) if de else calibrate(problem, settings, run_dir, LocalExecutor(1),
-                                                                progress=None)
+    info = evolve(problem, de) if de else calibrate(problem, settings, run_dir, LocalExecutor(1), progress=None)
     wall = time.perf_counter() - start
     space = problem.model.space
     best = {k: v["value"] for k, v in info["best_params"].items()}
     theta = np.array([best[n] for n in space.free_names])
     with_data = [c.id for c in project.configuration if c.data is not None and c.data.force]
     clipped, clipped_errs = loss_at(problem, theta, "flow_stop", problem.train_ids)
-    _, full_errs = loss_at(problem, theta, "none", with_data)
-    rmse = {c: float(np.sqrt(v)) for c, v in full_errs.items()}
+    report = offset_report(problem, theta, with_data) if offset_mm > 0 else None
+    if report is None:
+        _, full_errs = loss_at(problem, theta, "none", with_data)
+        rmse = {c: float(np.sqrt(v)) for c, v in full_errs.items()}
+    else:  # a training trial at its own offset, a held-out one at the training trials' mean
+        rmse = {c: report["rmse_own_kN"].get(c, report["rmse_at_mean_kN"][c]) for c in with_data}
     held = [c for c in with_data if c not in problem.train_ids]
     out = {"optimiser": f"differential evolution ({de} generations)" if de else "BO",
            "effects": effects, "fixed": fixed, "loss_clip": clip, "holdout": holdout, "train_ids": problem.train_ids,
@@ -233,8 +202,8 @@ def run_variant(name: str, run_dir: Path, budget: int, init: int, holdout: str |
            "wall_s": wall, "seconds_evaluations": info["seconds_evaluations"]}
     if scan:
         out["contact_scan"] = contact_scan(problem, effects, fixed, best, with_data)
-    if offset_mm > 0:
-        out["contact_offset"] = offset_report(problem, theta, with_data, offset_mm)
+    if report is not None:
+        out["contact_offset"] = report
     return out
 
 
@@ -260,7 +229,8 @@ def print_variant(name: str, res: dict) -> None:
         extra = (f"{scan[c]['best_height_mm']:>19.1f}{scan[c]['rmse_best_height_kN']:>17.1f}"
                  if c in scan else "")
         if off:
-            extra += f"{off['offsets_mm'][c]:>+17.2f}{off['rmse_at_mean_kN'][c]:>26.1f}"
+            own = off["offsets_mm"].get(c)
+            extra += f"{'-' if own is None else f'{own:+.2f}':>17}{off['rmse_at_mean_kN'][c]:>26.1f}"
         print(f"  {c:<16}{v:>16.1f}{'-' if clipped is None else f'{clipped:.1f}':>20}{extra}{role}")
 
 
@@ -277,11 +247,10 @@ def main() -> None:
     parser.add_argument("--contact-scan", action="store_true",
                         help="per-configuration RMSE with the best contact height of 7.4-8.8 mm")
     parser.add_argument("--profile-offset", type=float, default=0.0, metavar="MM",
-                        help="with --de: fit with each training trial's contact offset (within +-MM) "
-                             "profiled out of the loss; report the offsets and the RMSE at their mean")
+                        help="fit with each training trial's contact offset (within +-MM) profiled out of "
+                             "the loss; report the offsets and the RMSE at their mean (default 0: every "
+                             "trial at its nominal contact, whatever the project sets)")
     args = parser.parse_args()
-    if args.profile_offset > 0 and not args.de:
-        parser.error("--profile-offset needs --de")
     if not DATA.is_dir():
         print(f"skipped: {DATA} not found")
         return

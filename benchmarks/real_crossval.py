@@ -141,7 +141,7 @@ def rmse_at(project: Any, run_dir: Path, ids: list[str], theta_by_name: dict[str
     own best offset (as the calibration saw it) and a held-out trial at the mean of the
     training trials' offsets: its own is unknown until it is pressed.
     """
-    from smcbayes.data.loss import force_pair
+    from smcbayes.data.loss import contact_offsets_mm, force_pair
     from smcbayes.simulation.problem import build_problem
 
     problem = build_problem(project, run_dir, effects, fixed)
@@ -149,8 +149,7 @@ def rmse_at(project: Any, run_dir: Path, ids: list[str], theta_by_name: dict[str
     theta = np.array([[theta_by_name[n] for n in space.free_names]])
     results = problem.model.simulate(theta, ids)
     full_spec = project.loss.model_copy(update={"clip": "none"})
-    own = {c: float(force_pair(results[c], problem.dataset.measurements[c], full_spec).offset_mm[0])
-           for c in ids if c in train_ids}
+    own = contact_offsets_mm(results, problem.dataset, project.loss, [c for c in ids if c in train_ids])
     mean_offset = float(np.mean(list(own.values()))) if own else 0.0
     rmse, clipped = {}, {}
     for cid in ids:

@@ -10,7 +10,7 @@ from smcbayes.commands.common import add_model_options
 from smcbayes.config import load_project, parse_assignments
 from smcbayes.data.breakdown import force_breakdown
 from smcbayes.data.dataset import load_dataset
-from smcbayes.data.loss import LossResult, evaluate_loss
+from smcbayes.data.loss import LossResult, contact_offsets_mm, evaluate_loss
 from smcbayes.errors import DataError
 from smcbayes.forward.model import ForwardModel
 
@@ -72,6 +72,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"{cid}: simulation failed: {results[cid].status[0]}")
     parts = np.stack([bd.shift_kN2[0], bd.amplitude_kN2[0], bd.shape_kN2[0]])
     print_table(full, clipped, bd.shift_s[0], parts, bd.phase_share[0])
+    offsets = contact_offsets_mm(results, dataset, spec, ids)
+    if offsets:
+        print(f"each configuration at its best contact offset within +-{spec.contact_offset_mm:g} mm "
+              "([loss] contact_offset_mm): " + ", ".join(f"{c} {v:+.2f} mm" for c, v in offsets.items()))
     print(f"global loss L (w_F={spec.w_force:g}, w_D={spec.w_displacement:g}, {spec.grid_points} "
           f"points): full {full.total[0]:.6g} kN^2 (RMSE {_rmse(full.total[0])} kN); clipped at "
           f"flow stop (thesis) {clipped.total[0]:.6g} kN^2 (RMSE {_rmse(clipped.total[0])} kN)")

@@ -58,7 +58,9 @@ class LossSpec(_Strict):
             each configuration is compared at its best contact offset within +- this
             (a nuisance parameter per trial, profiled out of the loss), and a
             configuration outside the loss is predicted across the training trials'
-            offsets.  0 (default) compares every trial at its nominal contact.
+            offsets.  0 (default) compares every trial at its nominal contact; at most
+            2 mm (a quarter of a typical 8 mm stack: beyond it the first-order delay no
+            longer stands for a thicker charge).
     """
 
     w_force: float = Field(1.0, ge=0)

@@ -137,9 +137,10 @@ def force_pair(res: SimulationResult, m: Measurement, spec: LossSpec,
     offsets = np.broadcast_to(np.asarray(offset_mm, dtype=float), (res.rows,)).copy()
     t0, f, _, ok = _safe(res)
     delay = _delay_s(m, offsets)
-    ts = _switch(res, t0, ok) + delay
+    ts0 = _switch(res, t0, ok)
+    ts = ts0 + delay
     t = t0 + delay[:, None]
-    grid, meas = _window(m.force, m, spec, ts)
+    grid, meas = _window(m.force, m, spec, ts0 + _window_delay(m, spec, delay))
     sim = _sim_on_grid(grid, t, f, ts, m, spec)
     idx = np.clip((interp_rows(grid, t, np.broadcast_to(np.arange(t.shape[1], dtype=float), t.shape))
                    + 1e-9).astype(int), 0, t.shape[1] - 1)
@@ -157,9 +158,19 @@ def _delay_s(m: Measurement, offsets_mm: Array) -> Array:
     return offsets_mm / m.speed_mm_s
 
 
+def _window_delay(m: Measurement, spec: LossSpec, delay: Array) -> Array:
+    """The delay (s) the comparison window is sized for: where the loss profiles contact
+    offsets, the largest one for every offset, so that every candidate offset of a row is
+    compared on the same grid (beyond both curves' ends the errors are those of the held
+    values, and a window growing with the offset would thin the mean)."""
+    if spec.contact_offset_mm > 0 and m.speed_mm_s:
+        return np.maximum(delay, spec.contact_offset_mm / m.speed_mm_s)
+    return delay
+
+
 def _window(force: Curve, m: Measurement, spec: LossSpec, ts: Array) -> tuple[Array, Array]:
-    """The comparison grid ``(P, N)`` for switch times ``ts`` ``(P,)`` and the measured
-    ``force`` on it."""
+    """The comparison grid ``(P, N)`` for switch times ``ts`` ``(P,)`` (the simulated switch,
+    delayed as :func:`_window_delay` says) and the measured ``force`` on it."""
     tm, fm = force.time_s, force.values
     if spec.clip == "force_limit":
         t_lim = crossing_time(force, m.force_limit_kN)
@@ -187,9 +198,9 @@ def _mse_at(res: SimulationResult, m: Measurement, spec: LossSpec, offsets_mm: A
         raise DataError(f"configuration '{m.config_id}' has no measured force curve")
     t, f, _, ok = _safe(res)
     delay = _delay_s(m, offsets_mm)
-    ts = _switch(res, t, ok) + delay
-    grid, meas = _window(m.force, m, spec, ts)
-    sim = _sim_on_grid(grid, t + delay[:, None], f, ts, m, spec)
+    ts0 = _switch(res, t, ok)
+    grid, meas = _window(m.force, m, spec, ts0 + _window_delay(m, spec, delay))
+    sim = _sim_on_grid(grid, t + delay[:, None], f, ts0 + delay, m, spec)
     return np.where(ok, np.mean((sim - meas) ** 2, axis=1), np.inf)
 
 
@@ -199,8 +210,11 @@ def best_offsets_mm(res: SimulationResult, m: Measurement, spec: LossSpec) -> Ar
     2000, "On profile likelihood", J. Am. Stat. Assoc. 95:449-465).
 
     :data:`OFFSET_STEPS` offsets on an even grid, then the vertex of the parabola through the
-    best and its two neighbours where that fits better (so the offset, and the residuals
-    at it, move continuously with the parameters); 0 for a failed row.
+    best and its two neighbours where that fits better (the offset then moves with the
+    parameters rather than in grid steps, though it can still jump by up to half a step
+    where the parabola fits worse than the grid point); 0 for a failed row.  Every offset
+    of a row is compared on one window (:func:`_window_delay`); with ``clip = "flow_stop"``
+    the window keeps the nominal flow-stop time.
     """
     width = spec.contact_offset_mm
     cand = np.linspace(-width, width, OFFSET_STEPS)

@@ -49,7 +49,7 @@ from scipy.stats import qmc
 
 from smcbayes.config import DiagnoseSpec, ProjectConfig
 from smcbayes.data.dataset import Dataset, Measurement
-from smcbayes.data.loss import best_offsets_mm, interp_rows
+from smcbayes.data.loss import best_offsets_mm, contact_offsets_mm, displacement_mse, force_pair, interp_rows
 from smcbayes.data.preprocess import crossing_time
 from smcbayes.errors import ConfigError
 from smcbayes.forward.model import ForwardModel
@@ -386,14 +386,46 @@ class _Tally:
     best: float = float("inf")
 
 
+def held_out_offsets(ctx: DiagnosisContext, extra: Sequence[str], theta: Array,
+                     held_out: Sequence[str]) -> dict[str, float] | None:
+    """The contact offset (mm) each held-out trial is judged at: the mean of the fitting
+    trials' profiled offsets at ``theta``'s first row (a held-out trial's own offset is not
+    fitted); None where the loss does not profile offsets."""
+    spec = ctx.project.loss
+    if spec.contact_offset_mm <= 0:
+        return None
+    fit_ids = [c for c in ctx.ids if c not in held_out]
+    offsets = contact_offsets_mm(ctx.simulate(extra, theta[:1], fit_ids), ctx.dataset, spec, fit_ids)
+    mean = float(np.mean(list(offsets.values()))) if offsets else 0.0
+    return {c: mean for c in held_out}
+
+
+def fixed_offset_losses(ctx: DiagnosisContext, extra: Sequence[str], theta: Array, ids: Sequence[str],
+                        offsets_mm: Mapping[str, float]) -> Array:
+    """Per-configuration loss terms ``(P, K)`` (kN^2) with each configuration at a given
+    contact offset (mm) instead of its profiled one; NaN where a run failed."""
+    spec = ctx.project.loss
+    results = ctx.simulate(extra, theta, ids)
+    out = np.full((np.atleast_2d(theta).shape[0], len(ids)), np.nan)
+    for k, cid in enumerate(ids):
+        m = ctx.dataset[cid]
+        pair = force_pair(results[cid], m, spec, offset_mm=offsets_mm[cid])
+        term = spec.w_force * np.mean((pair.sim_kN - pair.meas_kN) ** 2, axis=1)
+        if spec.w_displacement > 0:
+            term = term + spec.w_displacement * displacement_mse(results[cid], m, spec)
+        out[:, k] = np.where(pair.ok, term, np.nan)
+    return out
+
+
 def residual_stack(ctx: DiagnosisContext, extra: Sequence[str], theta: Array, ids: Sequence[str],
-                   ends: Mapping[str, float] | None = None
+                   ends: Mapping[str, float] | None = None, offsets_mm: Mapping[str, float] | None = None
                    ) -> tuple[dict[str, Array], dict[str, float]]:
     """Residuals ``(P, N)`` per configuration on fixed windows (row 0's window by default).
 
-    Where the loss profiles each trial's contact offset, every row is taken at row 0's best
-    offset: at that optimum the loss's slope in the offset is zero, so residuals at the
-    fixed offset give the profiled loss's Gauss-Newton model."""
+    Where the loss profiles each trial's contact offset, every row is taken at one offset:
+    the configuration's entry of ``offsets_mm`` (a held-out trial's, :func:`held_out_offsets`),
+    else row 0's best.  Residuals at a fixed offset give the Jacobian in the parameters
+    alone; the steps built from it are judged by the loss itself."""
     results = ctx.simulate(extra, theta, ids)
     spec = ctx.project.loss
     clip, points = spec.clip, spec.grid_points
@@ -401,7 +433,9 @@ def residual_stack(ctx: DiagnosisContext, extra: Sequence[str], theta: Array, id
     for cid in ids:
         m = ctx.dataset[cid]
         delay = 0.0
-        if spec.contact_offset_mm > 0 and m.speed_mm_s and bool(results[cid].ok[0]):
+        if offsets_mm is not None and cid in offsets_mm and m.speed_mm_s:
+            delay = offsets_mm[cid] / m.speed_mm_s
+        elif spec.contact_offset_mm > 0 and m.speed_mm_s and bool(results[cid].ok[0]):
             delay = float(best_offsets_mm(results[cid], m, spec)[0]) / m.speed_mm_s
         end = ends[cid] if ends else float(window_end(results[cid], m, clip, delay)[0])
         if not np.isfinite(end):

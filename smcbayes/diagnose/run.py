@@ -200,7 +200,7 @@ def common_n_eff(ctx: DiagnosisContext, base: Fit, fits: dict[str, Fit], tests: 
     base_ho = next(iter(tests.values())).loss_base_kN2
     name = min(tests, key=lambda n: finite(tests[n].loss_kN2))
     best_ho = fits[name] if finite(tests[name].loss_kN2) < finite(base_ho) else base
-    return n_eff_of(ctx, best_fit, fit_ids), n_eff_of(ctx, best_ho, holdout)
+    return n_eff_of(ctx, best_fit, fit_ids), n_eff_of(ctx, best_ho, holdout, held_out=True)
 
 
 def decide(rows: list[dict[str, Any]], min_score: float) -> dict[str, Any]:

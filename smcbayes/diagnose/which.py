@@ -49,6 +49,8 @@ from smcbayes.diagnose.fit import (
     DiagnosisContext,
     Fit,
     FitSettings,
+    fixed_offset_losses,
+    held_out_offsets,
     initial_population,
     residual_stack,
 )
@@ -130,12 +132,16 @@ class HeldOutTest:
 
 
 def held_out_test(ctx: DiagnosisContext, base: Fit, cand: Fit, ids: Sequence[str]) -> HeldOutTest:
-    """Diebold-Mariano comparison of ``cand`` against ``base`` on the held-out ``ids``."""
-    _, ends_b = residual_stack(ctx, base.effects, base.theta, ids)
-    _, ends_c = residual_stack(ctx, cand.effects, cand.theta, ids)
+    """Diebold-Mariano comparison of ``cand`` against ``base`` on the held-out ``ids``
+    (where the loss profiles contact offsets, each model's held-out trials at the mean of
+    its fitting trials' offsets)."""
+    off_b = held_out_offsets(ctx, base.effects, base.theta, ids)
+    off_c = held_out_offsets(ctx, cand.effects, cand.theta, ids)
+    _, ends_b = residual_stack(ctx, base.effects, base.theta, ids, offsets_mm=off_b)
+    _, ends_c = residual_stack(ctx, cand.effects, cand.theta, ids, offsets_mm=off_c)
     ends = {c: max(ends_b[c], ends_c[c]) for c in ids}
-    rb, _ = residual_stack(ctx, base.effects, base.theta, ids, ends)
-    rc, _ = residual_stack(ctx, cand.effects, cand.theta, ids, ends)
+    rb, _ = residual_stack(ctx, base.effects, base.theta, ids, ends, off_b)
+    rc, _ = residual_stack(ctx, cand.effects, cand.theta, ids, ends, off_c)
     means, variances = [], []
     for c in ids:
         a, b = rb[c][0], rc[c][0]
@@ -148,14 +154,17 @@ def held_out_test(ctx: DiagnosisContext, base: Fit, cand: Fit, ids: Sequence[str
     diff = float(np.mean(means))
     se = float(np.sqrt(np.sum(variances))) / K
     z = diff / se if se > 0 else (np.inf if diff > 0 else 0.0)
-    lb = float(np.mean(ctx.losses(base.effects, base.theta, ids)[0]))
-    lc = float(np.mean(ctx.losses(cand.effects, cand.theta, ids)[0]))
+    lb, lc = (float(np.mean(ctx.losses(f.effects, f.theta, ids)[0] if off is None
+                            else fixed_offset_losses(ctx, f.effects, f.theta, ids, off)[0]))
+              for f, off in ((base, off_b), (cand, off_c)))
     return HeldOutTest(lb, lc, z)
 
 
-def n_eff_of(ctx: DiagnosisContext, fit: Fit, ids: Sequence[str]) -> float:
-    """Effective independent points of ``fit``'s force residuals on ``ids`` (summed)."""
-    res, _ = residual_stack(ctx, fit.effects, fit.theta, ids)
+def n_eff_of(ctx: DiagnosisContext, fit: Fit, ids: Sequence[str], held_out: bool = False) -> float:
+    """Effective independent points of ``fit``'s force residuals on ``ids`` (summed); held-out
+    trials at the fitting trials' mean contact offset where the loss profiles them."""
+    offsets = held_out_offsets(ctx, fit.effects, fit.theta, ids) if held_out else None
+    res, _ = residual_stack(ctx, fit.effects, fit.theta, ids, offsets_mm=offsets)
     _, n_eff = effective_points([np.nan_to_num(res[c][0]) for c in ids])
     return float(np.sum(n_eff))
 

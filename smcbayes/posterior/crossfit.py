@@ -47,7 +47,7 @@ logger = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 
 SCALES = (0.0, 0.25, 0.5, 1.0)
-"""Line-search scales of each leave-one-out step."""
+"""Line-search scales of each leave-out step."""
 MAX_STEP = 0.25
 """Largest move of one parameter in one step (unit-cube coordinates): beyond it the
 linearisation says little."""
@@ -62,8 +62,8 @@ class LocalFit:
     Attributes:
         config_ids: training configuration ids, ``K`` of them.
         u0: the calibrated point in unit-cube coordinates ``(d,)``.
-        residuals_kN: measured minus simulated force on each configuration's loss grid,
-            ``K`` arrays ``(N_k,)``.
+        residuals_kN: measured minus simulated force on each configuration's loss grid
+            (at its contact offset where the loss profiles it), ``K`` arrays ``(N_k,)``.
         sensitivities: d simulated force / d u on the same grids, ``K`` arrays ``(N_k, d)``
             (kN per unit of the unit cube).
         usable: false where a perturbed run failed (the sensitivities are then unreliable).

@@ -231,7 +231,16 @@ def residual_curve(config_id: str, res: SimulationResult, row: int, time_s: Arra
     ts = float(res.switch_time_s[row]) + delay_s
     tm = np.asarray(time_s, float)
     return ResidualCurve(config_id, tm, np.asarray(force_kN, float) - np.interp(tm, t, f),
-                         ts, float(np.interp(ts, t, disp)))
+                         ts, delayed_travel_mm(float(np.interp(ts, t, disp)), ts - delay_s, delay_s))
+
+
+def delayed_travel_mm(travel_mm: Array | float, switch_s: Array | float, delay_s: Array | float) -> Array:
+    """The ram travel to the switch of a closing delayed by ``delay_s`` (s), from the
+    undelayed ``travel_mm`` and ``switch_s``: the delay adds its time at the mean closing
+    speed, so the remaining travel ``d = D (1 - t / t_s)`` of the delayed closing is the
+    undelayed one shifted in time, not stretched."""
+    speed = np.asarray(travel_mm, dtype=float) / np.maximum(np.asarray(switch_s, dtype=float), 1e-9)
+    return np.asarray(travel_mm, dtype=float) + speed * np.asarray(delay_s, dtype=float)
 
 
 def training_residuals(model: Simulator, theta: Array, config_ids: Sequence[str],

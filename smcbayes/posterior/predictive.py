@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.forward.nodes import interp_rows
-from smcbayes.posterior.discrepancy import PhaseDiscrepancy, remaining_travel_mm
+from smcbayes.posterior.discrepancy import PhaseDiscrepancy, delayed_travel_mm, remaining_travel_mm
 from smcbayes.simulation.objective import Simulator
 
 Array = NDArray[np.float64]
@@ -128,13 +128,15 @@ def _delayed(grid: Array, force: Array, disp: Array, switch_s: Array, travel_mm:
              delays_s: Array) -> tuple[Array, Array, Array, Array]:
     """Every draw's curves ``(D, G)`` at every contact delay ``(S,)``: ``(D * S, G)`` curves
     (draw-major), each ``F(t - delay)`` on ``grid`` (the value at 0 before it), with its
-    switch time delayed alike and its travel repeated."""
+    switch time delayed alike and its travel to the switch lengthened by the delay
+    (:func:`~smcbayes.posterior.discrepancy.delayed_travel_mm`)."""
     s = delays_s.size
-    shifted = grid[None, :] - np.tile(delays_s, force.shape[0])[:, None]
+    delays = np.tile(delays_s, force.shape[0])
+    shifted = grid[None, :] - delays[:, None]
     rows = np.repeat(np.arange(force.shape[0]), s)
     base = np.broadcast_to(grid, (rows.size, grid.size))
     return (interp_rows(shifted, base, force[rows]), interp_rows(shifted, base, disp[rows]),
-            np.repeat(switch_s, s) + np.tile(delays_s, switch_s.size), np.repeat(travel_mm, s))
+            np.repeat(switch_s, s) + delays, delayed_travel_mm(travel_mm[rows], switch_s[rows], delays))
 
 
 def predictive_bands(model: Simulator, theta: Array, config_ids: Sequence[str],
@@ -164,7 +166,8 @@ def predictive_bands(model: Simulator, theta: Array, config_ids: Sequence[str],
         disc = discrepancy.get(cid) if isinstance(discrepancy, Mapping) else discrepancy
         kind = "white noise" if disc is None else "discrepancy"
         ok = res.ok
-        t_end = np.nanmax(res.switch_time_s[ok]) * 1.1 if np.any(ok) else 1.0
+        late = float(np.max(delays_s.get(cid, 0.0), initial=0.0)) if delays_s is not None else 0.0
+        t_end = (np.nanmax(res.switch_time_s[ok]) + late) * 1.1 if np.any(ok) else 1.0
         if cid in measured:
             t_end = max(t_end, measured[cid][0][-1] * 1.02)
         grid = np.linspace(0.0, t_end, grid_points)

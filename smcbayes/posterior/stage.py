@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.config import PosteriorSpec
-from smcbayes.data.loss import force_pair
+from smcbayes.data.loss import best_offsets_mm, force_pair
 from smcbayes.errors import UnreliablePosteriorWarning
 from smcbayes.forward.nodes import interp_rows
 from smcbayes.posterior.active import SPREAD_STEPS, fit_local, refine_stage, sample, spread_chains
@@ -63,8 +63,9 @@ def local_fit(ctx: RunContext) -> LocalFit:
     """Force residuals and sensitivities at the best point on every training configuration.
 
     Central differences of step :data:`SENSITIVITY_STEP` in the unit cube: 2 d + 1
-    parameter rows, each simulated on every training configuration; the perturbed forces
-    are read on the best point's loss grid.  ``usable`` is false where a perturbed run fails.
+    parameter rows, each simulated on every training configuration (at the best point's
+    contact offset where the loss profiles it); the perturbed forces are read on the best
+    point's loss grid.  ``usable`` is false where a perturbed run fails.
     """
     p, space = ctx.problem, ctx.space
     u0 = space.to_unit(ctx.best_theta)[0]
@@ -76,7 +77,11 @@ def local_fit(ctx: RunContext) -> LocalFit:
     results = ctx.runner.simulate(space.from_unit(rows), p.train_ids)
     residuals, sensitivities, usable = [], [], True
     for cid in p.train_ids:
-        pair = force_pair(results[cid], p.dataset.measurements[cid], p.project.loss)
+        m, spec = p.dataset.measurements[cid], p.project.loss
+        # every row at the best point's own contact offset, where the loss profiles it: the
+        # sensitivities in the parameters alone, free of the offset's grid steps
+        offset = best_offsets_mm(results[cid], m, spec)[0] if spec.contact_offset_mm > 0 else None
+        pair = force_pair(results[cid], m, spec, offset_mm=offset)
         grid = np.broadcast_to(pair.time_s[:1], pair.time_s.shape)
         sim = interp_rows(grid, pair.time_s, pair.sim_kN)
         residuals.append(pair.meas_kN[0] - sim[0])

@@ -168,8 +168,11 @@ def test_a_profiled_contact_offset_recovers_a_delayed_trial(dh, tmp_path: Path) 
     np.testing.assert_allclose(profiled.offset_mm, 0.2, atol=0.005)
     assert np.mean((profiled.sim_kN[0] - profiled.meas_kN[0]) ** 2) < 0.01
     # the same offset given explicitly gives the same pair; the loss sees the profiled one
-    given = force_pair(sim, m, LossSpec(), offset_mm=profiled.offset_mm)
+    given = force_pair(sim, m, LossSpec(contact_offset_mm=0.3), offset_mm=profiled.offset_mm)
     np.testing.assert_allclose(given.sim_kN, profiled.sim_kN)
+    # every offset is compared on one window, sized for the largest delay
+    late = force_pair(sim, m, LossSpec(contact_offset_mm=0.3), offset_mm=-0.3)
+    np.testing.assert_allclose(late.time_s, profiled.time_s)
     ds = load_dataset(dh.project(tmp_path, [dh.config(data={"force": "force/c1.csv"})]))
     loss = evaluate_loss({"c1": sim}, ds, LossSpec(contact_offset_mm=0.3)).total
     assert np.all(loss < 0.01) and evaluate_loss({"c1": sim}, ds, LossSpec()).total[0] > 10.0

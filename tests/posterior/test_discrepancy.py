@@ -169,6 +169,10 @@ def test_bands_mix_over_the_contact_delays() -> None:
     assert mixed.force_kN[4, mid] - mixed.force_kN[0, mid] == pytest.approx(200.0, rel=0.02)
     assert mixed.force_kN[2, mid] == pytest.approx(500.0, rel=0.02)
     assert mixed.draws == 30
+    # one delay of +1 s: the closing comes a second later, the force at 5 s is that of 4 s
+    later = predictive_bands(RampModel(), theta, ["c"], {}, {"c": 1.0}, np.random.default_rng(4),
+                             delays_s={"c": np.array([1.0])})["c"]
+    assert later.force_kN[2, mid] == pytest.approx(100.0 * (later.time_s[mid] - 1.0), rel=1e-6)
 
 
 def test_residuals_of_a_delayed_closing() -> None:
@@ -180,3 +184,8 @@ def test_residuals_of_a_delayed_closing() -> None:
     curve = residual_curve("a", res, 0, tm, measured, delay_s=0.5)
     np.testing.assert_allclose(curve.residual_kN, 0.0, atol=1e-9)
     assert curve.switch_s == pytest.approx(T_END + 0.5)
+    # the remaining travel of the delayed closing is the undelayed one shifted by the delay
+    plain = residual_curve("a", res, 0, tm, measured)
+    assert curve.travel_mm == pytest.approx(TRAVEL + 0.5 * TRAVEL / T_END)
+    d_plain = remaining_travel_mm(tm[10:20], plain.switch_s, plain.travel_mm)
+    np.testing.assert_allclose(remaining_travel_mm(tm[10:20] + 0.5, curve.switch_s, curve.travel_mm), d_plain)
