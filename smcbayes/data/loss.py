@@ -135,13 +135,7 @@ def force_pair(res: SimulationResult, m: Measurement, spec: LossSpec,
     if offset_mm is None:
         offset_mm = best_offsets_mm(res, m, spec) if spec.contact_offset_mm > 0 else 0.0
     offsets = np.broadcast_to(np.asarray(offset_mm, dtype=float), (res.rows,)).copy()
-    t0, f, _, ok = _safe(res)
-    delay = _delay_s(m, offsets)
-    ts0 = _switch(res, t0, ok)
-    ts = ts0 + delay
-    t = t0 + delay[:, None]
-    grid, meas = _window(m.force, m, spec, ts0 + _window_delay(m, spec, delay))
-    sim = _sim_on_grid(grid, t, f, ts, m, spec)
+    grid, t, sim, meas, ts, ok = _compare(res, m, m.force, spec, offsets)
     idx = np.clip((interp_rows(grid, t, np.broadcast_to(np.arange(t.shape[1], dtype=float), t.shape))
                    + 1e-9).astype(int), 0, t.shape[1] - 1)
     phase = np.take_along_axis(res.phase.astype(np.int8), idx, axis=1)
@@ -192,15 +186,24 @@ def _sim_on_grid(grid: Array, t: Array, f: Array, ts: Array, m: Measurement, spe
     return np.minimum(sim, m.force_limit_kN) if spec.clip == "force_limit" else sim
 
 
+def _compare(res: SimulationResult, m: Measurement, force: Curve, spec: LossSpec,
+             offsets_mm: Array) -> tuple[Array, Array, Array, Array, Array, NDArray[np.bool_]]:
+    """The comparison of every row at its contact offset ``(P,)``: grid, the delayed
+    simulated times ``(P, T)``, simulated and measured force on the grid, delayed switch
+    times and the usable rows."""
+    t0, f, _, ok = _safe(res)
+    delay = _delay_s(m, offsets_mm)
+    ts0 = _switch(res, t0, ok)
+    grid, meas = _window(force, m, spec, ts0 + _window_delay(m, spec, delay))
+    t, ts = t0 + delay[:, None], ts0 + delay
+    return grid, t, _sim_on_grid(grid, t, f, ts, m, spec), meas, ts, ok
+
+
 def _mse_at(res: SimulationResult, m: Measurement, spec: LossSpec, offsets_mm: Array) -> Array:
     """Force MSE (kN^2) of every row at its contact offset ``(P,)``; inf where a run failed."""
     if m.force is None:
         raise DataError(f"configuration '{m.config_id}' has no measured force curve")
-    t, f, _, ok = _safe(res)
-    delay = _delay_s(m, offsets_mm)
-    ts0 = _switch(res, t, ok)
-    grid, meas = _window(m.force, m, spec, ts0 + _window_delay(m, spec, delay))
-    sim = _sim_on_grid(grid, t + delay[:, None], f, ts0 + delay, m, spec)
+    _, _, sim, meas, _, ok = _compare(res, m, m.force, spec, offsets_mm)
     return np.where(ok, np.mean((sim - meas) ** 2, axis=1), np.inf)
 
 
