@@ -24,7 +24,15 @@ from smcbayes.diagnose.fit import DiagnosisContext, Fit, FitSettings, refit
 from smcbayes.diagnose.select import forward_selection
 from smcbayes.diagnose.shrink import shrink_summary
 from smcbayes.diagnose.where import WhereReport, analyse
-from smcbayes.diagnose.which import HeldOutTest, Signature, held_out_test, n_eff_of, score_row, signature
+from smcbayes.diagnose.which import (
+    HeldOutTest,
+    Signature,
+    choose,
+    held_out_test,
+    n_eff_of,
+    score_row,
+    signature,
+)
 from smcbayes.errors import ConfigError, closest
 from smcbayes.forward.effects import available, check_names
 
@@ -33,7 +41,7 @@ logger = logging.getLogger(__name__)
 RANKING_COLUMNS = ("rank", "effect", "extra_parameters", "sensitivity_kN", "most_sensitive",
                    "absorbable_share", "fit_loss_kN2", "holdout_loss_kN2", "holdout_loss_base_kN2",
                    "holdout_shrink_pct", "n_eff_holdout", "dm_z", "delta_bic_fit", "score",
-                   "significant")
+                   "evidence", "significant")
 
 
 _DEFAULTS = DiagnoseSpec()
@@ -204,21 +212,27 @@ def common_n_eff(ctx: DiagnosisContext, base: Fit, fits: dict[str, Fit], tests: 
 
 
 def decide(rows: list[dict[str, Any]], min_score: float) -> dict[str, Any]:
-    """The decision: the top-ranked single effect if significant, else none."""
+    """The decision: the top-ranked single effect if significant, else none; a near-tie on
+    the held-out trials is broken by the evidence on all trials (:func:`choose`)."""
     singles = [r for r in rows if "+" not in r["effect"]]
     top = singles[0] if singles else None
-    if top is None or not top["significant"]:
+    named = choose(singles, min_score)
+    if top is None or named is None:
         why = ("no candidate" if top is None else
                f"the best candidate, {top['effect']}, improves the held-out loss by "
                f"{top['holdout_shrink_pct']:.1f} %, penalised score {top['score']:.3g} "
                f"< {min_score:g}")
         return {"best": None, "statement": f"no effect explains the gap beyond noise: {why}"}
-    return {"best": top["effect"],
-            "statement": (f"{top['effect']} explains the gap: held-out loss "
-                          f"{top['holdout_loss_base_kN2']:.4g} -> "
-                          f"{top['holdout_loss_kN2']:.4g} kN^2 "
-                          f"({top['holdout_shrink_pct']:.1f} % shrink, z = {top['dm_z']:.1f}, "
-                          f"penalised score {top['score']:.3g})")}
+    tie = ("" if named is top else
+           f"; its held-out score is within {min_score:g} of {top['effect']}'s ({top['score']:.3g}), "
+           f"and on all trials its evidence is larger ({named['evidence']:.3g} against "
+           f"{top['evidence']:.3g}: it fits the fitting trials better)")
+    return {"best": named["effect"],
+            "statement": (f"{named['effect']} explains the gap: held-out loss "
+                          f"{named['holdout_loss_base_kN2']:.4g} -> "
+                          f"{named['holdout_loss_kN2']:.4g} kN^2 "
+                          f"({named['holdout_shrink_pct']:.1f} % shrink, z = {named['dm_z']:.1f}, "
+                          f"penalised score {named['score']:.3g}){tie}")}
 
 
 INERT_SHRINK_PCT = 1.0

@@ -9,7 +9,9 @@ the selected set, score each against the selected set on the held-out configurat
 (Diebold-Mariano comparison and the penalised score of
 :func:`smcbayes.diagnose.which.score_row`, the penalty counting only the parameters the step
 adds), add the best if its score reaches ``min_score`` and its Diebold-Mariano z reaches
-:data:`MIN_Z`, and stop when none does or the set holds ``max_effects``.  Before each step
+:data:`MIN_Z` (among significant candidates within ``min_score`` of the best score, the one
+with the largest evidence on all trials, :func:`smcbayes.diagnose.which.choose`), and stop
+when none does or the set holds ``max_effects``.  Before each step
 the selected set is re-calibrated once more from its own optimum, with the candidates' budget,
 so that a candidate is compared with an equally searched set (Diebold & Mariano 1995,
 "Comparing predictive accuracy", J. Bus. Econ. Stat. 13).
@@ -24,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from smcbayes.diagnose.fit import DiagnosisContext, Fit, FitSettings, refit
-from smcbayes.diagnose.which import extra_parameters, held_out_test, score_row
+from smcbayes.diagnose.which import all_trial_evidence, choose, extra_parameters, held_out_test, score_row
 
 logger = logging.getLogger(__name__)
 
@@ -42,7 +44,9 @@ def step_row(ctx: DiagnosisContext, current: Fit, cand: Fit, holdout: Sequence[s
     added = extra_parameters(ctx, cand.effects) - extra_parameters(ctx, current.effects)
     ratio = test.loss_base_kN2 / test.loss_kN2 if test.loss_kN2 > 0 else np.inf
     score = 0.5 * n_eff_ho * np.log(ratio) - 0.5 * added * np.log(max(n_eff_fit, 1.0))
-    row.update(extra_parameters=added, score=float(score),
+    evidence = all_trial_evidence(n_eff_fit, n_eff_ho, (current.loss, cand.loss),
+                                  (test.loss_base_kN2, test.loss_kN2), added)
+    row.update(extra_parameters=added, score=float(score), evidence=evidence,
                significant=bool(np.isfinite(score) and score >= min_score and row["dm_z"] >= MIN_Z))
     return row
 
@@ -82,7 +86,9 @@ def forward_selection(ctx: DiagnosisContext, first: Fit, candidates: Sequence[st
             tried.append((step_row(ctx, current, cand, holdout, *evidence, min_score), cand))
             log(f"selection: {'+'.join(extra)}: held-out loss {tried[-1][0]['holdout_loss_kN2']:.4g} vs "
                 f"{tried[-1][0]['holdout_loss_base_kN2']:.4g} kN^2, score {tried[-1][0]['score']:.3g}")
-        row, cand = max(tried, key=lambda rc: rc[0]["score"] if np.isfinite(rc[0]["score"]) else -np.inf)
+        best = max(tried, key=lambda rc: rc[0]["score"] if np.isfinite(rc[0]["score"]) else -np.inf)
+        chosen = choose([r for r, _ in tried], min_score)
+        row, cand = next((rc for rc in tried if rc[0] is chosen), best)
         added = cand.effects[-1]
         steps.append({"added": added if row["significant"] else None, "best_candidate": added,
                       "holdout_loss_before_kN2": row["holdout_loss_base_kN2"],

@@ -13,6 +13,8 @@ import pytest
 from smcbayes.cli import main
 from smcbayes.diagnose import select
 from smcbayes.diagnose.fit import Fit, FitSettings
+from smcbayes.diagnose.run import decide
+from smcbayes.diagnose.which import all_trial_evidence, choose
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -26,6 +28,7 @@ def scripted(monkeypatch: pytest.MonkeyPatch):
     """refit returns a fit of the asked effect set; step_row scores it from a table keyed by
     the set's name (missing sets score -10)."""
     scores: dict[str, float] = {}
+    evidence: dict[str, float] = {}
     calls: list[str] = []
 
     class Ctx:
@@ -37,8 +40,10 @@ def scripted(monkeypatch: pytest.MonkeyPatch):
         return _fit(tuple(extra))
 
     def step_row(ctx: Any, current: Fit, cand: Fit, *args: Any) -> dict[str, Any]:
-        score = scores.get("+".join(cand.effects), -10.0)
-        return {"effect": "+".join(cand.effects), "score": score, "significant": score >= 3.0,
+        name = "+".join(cand.effects)
+        score = scores.get(name, -10.0)
+        return {"effect": name, "score": score, "significant": score >= 3.0,
+                "evidence": evidence.get(name, score),
                 "holdout_loss_kN2": 1.0, "holdout_loss_base_kN2": 2.0, "holdout_shrink_pct": 50.0,
                 "dm_z": 2.0}
 
@@ -50,6 +55,7 @@ def scripted(monkeypatch: pytest.MonkeyPatch):
                                         np.random.default_rng(0), (10.0, 10.0), 3.0, max_effects,
                                         lambda line: None)
 
+    run.evidence = evidence
     return scores, calls, run
 
 
@@ -80,6 +86,46 @@ def test_the_set_stops_at_max_effects(scripted) -> None:
     assert selected == ["a", "b"] and calls == ["a", "a+b", "a+c"]
     selected, _, _ = run(["b", "c"], max_effects=1)
     assert selected == ["a"]
+
+
+def test_a_near_tie_goes_to_the_larger_evidence_on_all_trials(scripted) -> None:
+    scores, calls, run = scripted
+    # b scores best on the held-out trials but within min_score (3) of c, whose evidence on
+    # all trials is larger; then the same scores 5 apart: the held-out score decides
+    scores.update({"a+b": 8.0, "a+c": 6.0})
+    run.evidence.update({"a+b": 10.0, "a+c": 40.0})
+    selected, steps, _ = run(["b", "c"], max_effects=2)
+    assert selected == ["a", "c"] and steps[0]["best_candidate"] == "c"
+    scores.update({"a+c": 3.0})
+    selected, _, _ = run(["b", "c"], max_effects=2)
+    assert selected == ["a", "b"]
+
+
+def _row(effect: str, score: float, evidence: float, significant: bool = True) -> dict[str, Any]:
+    return {"effect": effect, "score": score, "evidence": evidence, "significant": significant,
+            "holdout_loss_base_kN2": 100.0, "holdout_loss_kN2": 10.0, "holdout_shrink_pct": 90.0,
+            "dm_z": 3.0}
+
+
+def test_choose_breaks_only_near_ties_among_significant_rows() -> None:
+    rows = [_row("timing", 30.6, 131.0), _row("shape", 29.2, 175.0), _row("far", 27.0, 500.0),
+            _row("weak", 30.0, 900.0, significant=False)]
+    assert choose(rows, 3.0)["effect"] == "shape"
+    assert choose(rows, 1.0)["effect"] == "timing"
+    # nothing named when the best score is not significant, whatever the evidence
+    assert choose([_row("a", 2.0, 50.0, significant=False), _row("b", 1.5, 60.0)], 3.0) is None
+    assert choose([_row("nan", float("nan"), 1.0)], 3.0) is None
+    decision = decide(rows, 3.0)
+    assert decision["best"] == "shape" and "within 3 of timing's" in decision["statement"]
+    assert decide(rows, 1.0)["best"] == "timing"
+    assert "within" not in decide(rows, 1.0)["statement"]
+
+
+def test_all_trial_evidence_is_the_chain_rule_sum() -> None:
+    # (10 / 2) ln 2 + (4 / 2) ln 4 - (1 / 2) ln 10
+    want = 5.0 * np.log(2.0) + 2.0 * np.log(4.0) - 0.5 * np.log(10.0)
+    assert all_trial_evidence(10.0, 4.0, (2.0, 1.0), (4.0, 1.0), 1) == pytest.approx(want)
+    assert np.isnan(all_trial_evidence(10.0, 4.0, (2.0, 0.0), (4.0, 1.0), 1))
 
 
 def _diagnosis(folder: Path, summary: dict[str, Any]) -> Path:
