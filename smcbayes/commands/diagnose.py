@@ -81,16 +81,20 @@ def run(args: argparse.Namespace) -> int:
     print(f"where: {summary['where']['verdict']}")
     print(f"{'rank':>4}  {'effect':<34} {'held-out loss kN2':>18} {'shrink %':>9} {'z':>7} "
           f"{'score':>9}")
+    named = summary["decision"].get("best")
     for r in summary["ranking"]:
         print(f"{r['rank']:>4}  {r['effect']:<34} {r['holdout_loss_kN2']:>18.4g} "
               f"{r['holdout_shrink_pct']:>9.1f} {r['dm_z']:>7.2f} {r['score']:>9.3g}"
-              f"{'  *' if r['significant'] else ''}")
+              f"{'  *' if r['significant'] else ''}{'  <- named' if r['effect'] == named else ''}")
     print(summary["decision"]["statement"])
     left_out = summary["selection"].get("left_out") or []
     if left_out:
         print(f"selection: {', '.join(left_out)} not tried (alone they absorbed none of the gap)")
     for step in summary["selection"]["steps"]:
         verdict = f"added {step['added']}" if step["added"] else f"stop ({step['best_candidate']} not significant)"
+        if step.get("chosen_over"):
+            verdict += (f" (within --min-score of {step['chosen_over']}'s held-out score, larger evidence "
+                        "on all trials)")
         print(f"selection: {verdict}: held-out loss {step['holdout_loss_before_kN2']:.4g} -> "
               f"{step['holdout_loss_after_kN2']:.4g} kN^2, score {step['score']:.3g}")
     if summary["selected_effects"]:

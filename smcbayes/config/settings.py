@@ -245,7 +245,8 @@ class DiagnoseSpec(Strict):
     restarts: int = Field(2, ge=1, le=1000,
                           description="independent evolutions per re-calibration, the best kept")
     min_score: float = Field(3.0, description="penalised held-out score (log Bayes factor) needed to "
-                                              "name an effect")
+                                              "name an effect; candidates scoring within it of the "
+                                              "best are told apart by their evidence on all trials")
     max_effects: int = Field(3, ge=1, le=10,
                              description="forward selection grows the named effect set up to this size, "
                                          "adding an effect while it scores min_score against the set "

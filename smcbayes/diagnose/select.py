@@ -90,12 +90,15 @@ def forward_selection(ctx: DiagnosisContext, first: Fit, candidates: Sequence[st
         chosen = choose([r for r, _ in tried], min_score)
         row, cand = next((rc for rc in tried if rc[0] is chosen), best)
         added = cand.effects[-1]
+        # the best-scoring candidate's last effect when a near-tie went to another one
+        over = None if row is best[0] else best[1].effects[-1]
         steps.append({"added": added if row["significant"] else None, "best_candidate": added,
                       "holdout_loss_before_kN2": row["holdout_loss_base_kN2"],
                       "holdout_loss_after_kN2": row["holdout_loss_kN2"],
                       "holdout_shrink_pct": row["holdout_shrink_pct"], "score": row["score"],
-                      "dm_z": row["dm_z"], "significant": row["significant"],
-                      "candidates": {r["effect"]: r["score"] for r, _ in tried}})
+                      "dm_z": row["dm_z"], "significant": row["significant"], "chosen_over": over,
+                      "candidates": {r["effect"]: r["score"] for r, _ in tried},
+                      "evidence": {r["effect"]: r["evidence"] for r, _ in tried}})
         if not row["significant"]:
             break
         selected.append(added)

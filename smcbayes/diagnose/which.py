@@ -42,6 +42,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -222,15 +223,17 @@ def all_trial_evidence(n_eff_fit: float, n_eff_ho: float, fit_losses_kN2: tuple[
                  - 0.5 * k * np.log(max(n_eff_fit, 1.0)))
 
 
-def choose(rows: Sequence[dict], min_score: float) -> dict | None:
+def choose(rows: Sequence[dict[str, Any]], min_score: float) -> dict[str, Any] | None:
     """The candidate to name among ranking rows (``score``, ``significant``, ``evidence``).
 
-    ``None`` unless the best-scoring row is significant.  The held-out trials decide unless
-    they cannot: the significant rows whose score lies within ``min_score`` of the best (a
-    held-out Bayes factor below exp(min_score) between them) are not told apart by the
-    held-out trials, and among them the one with the largest :func:`all_trial_evidence`
-    is named.  With a few held-out trials an effect that only shifts the timing can match
-    the held-out score of one that also fits the fitting trials' shape, at a fitting loss
+    ``None`` unless the best-scoring row is significant (the window below does not rescue
+    a top row that fails its own test).  The held-out trials decide unless they cannot:
+    the significant rows whose score lies within ``min_score`` of the best (a held-out
+    Bayes factor below exp(min_score) between them) are not told apart by the held-out
+    trials, and among them the one with the largest :func:`all_trial_evidence` is named;
+    the best-scoring row itself when its evidence is not finite (nothing to compare it
+    with).  With a few held-out trials an effect that only shifts the timing can match the
+    held-out score of one that also fits the fitting trials' shape, at a fitting loss
     several times larger; that effect then extrapolates worst to a new charge.
     """
     scored = [r for r in rows if np.isfinite(r["score"])]
@@ -239,6 +242,8 @@ def choose(rows: Sequence[dict], min_score: float) -> dict | None:
     top = max(scored, key=lambda r: r["score"])
     if not top["significant"]:
         return None
+    if not np.isfinite(top["evidence"]):
+        return top
     near = [r for r in scored if r["significant"] and r["score"] >= top["score"] - min_score
             and np.isfinite(r["evidence"])]
-    return max(near, key=lambda r: r["evidence"]) if near else top
+    return max(near, key=lambda r: r["evidence"])

@@ -12,7 +12,9 @@ from smcbayes.report.collect import RunFiles
 from smcbayes.report.document import Bullets, Figure, Heading, Paragraph, Section, Table, fmt, pct
 
 
-def _ranking(rows: list[dict[str, Any]]) -> Table:
+def _ranking(rows: list[dict[str, Any]], named: str | None) -> Table:
+    """The ranking table; ``named`` (the decision's effect) is marked in the last column,
+    which need not be rank 1 when a near-tie went to the larger evidence on all trials."""
     body = tuple(
         (
             fmt(r.get("rank")),
@@ -24,7 +26,8 @@ def _ranking(rows: list[dict[str, Any]]) -> Table:
             fmt(r.get("holdout_shrink_pct"), 3),
             fmt(r.get("dm_z"), 3),
             fmt(r.get("score"), 3),
-            "yes" if r.get("significant") else "no",
+            fmt(r.get("evidence"), 3),
+            ("yes" if r.get("significant") else "no") + (", named" if r.get("effect") == named else ""),
         )
         for r in rows
     )
@@ -39,11 +42,12 @@ def _ranking(rows: list[dict[str, Any]]) -> Table:
             "shrink (%)",
             "z",
             "score",
+            "evidence, all trials",
             "significant",
         ),
         body,
         caption="candidate effects ranked by their penalised held-out score",
-        numeric=(0, 2, 3, 4, 5, 6, 7, 8),
+        numeric=(0, 2, 3, 4, 5, 6, 7, 8, 9),
     )
 
 
@@ -150,7 +154,7 @@ def diagnosis_section(run: RunFiles) -> Section | None:
         )
     decision = diag.get("decision") or {}
     if diag.get("ranking"):
-        sec.add(Heading("Which effect explains it"), _ranking(diag["ranking"]))
+        sec.add(Heading("Which effect explains it"), _ranking(diag["ranking"], decision.get("best")))
     if decision.get("statement"):
         sec.add(Paragraph(str(decision["statement"])))
     if (check := truth_check(run, decision.get("best"))) is not None:

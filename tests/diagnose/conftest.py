@@ -21,11 +21,13 @@ TINY = FitSettings(population=10, generations=3, lhs_starts=4, global_starts=2, 
                    polish=3)
 
 
-def coarse(project: ProjectConfig) -> ProjectConfig:
-    """The project with a coarse solver and loss grid (fast, still resolving the closing)."""
+def coarse(project: ProjectConfig, contact_offset_mm: float = 0.0) -> ProjectConfig:
+    """The project with a coarse solver and loss grid (fast, still resolving the closing)
+    and a loss at the nominal contact unless ``contact_offset_mm`` says otherwise (the
+    synthetic charges have no contact scatter)."""
     solver = project.solver.model_copy(update={"closing_steps": 80, "hold_steps": 10,
                                                "output_closing_points": 80, "output_hold_points": 10})
-    loss = project.loss.model_copy(update={"grid_points": 150})
+    loss = project.loss.model_copy(update={"grid_points": 150, "contact_offset_mm": contact_offset_mm})
     return project.model_copy(update={"solver": solver, "loss": loss})
 
 

@@ -54,6 +54,9 @@ def test_calibrate_then_diagnose(tmp_path: Path, capsys: pytest.CaptureFixture[s
     with (out / "ranking.csv").open() as fh:
         rows = list(csv.DictReader(fh))
     assert [r["effect"] for r in rows][0] == "press_compliance" and len(rows) == 2
+    assert all(r["evidence"] for r in rows)
+    assert "<- named" in next(line for line in printed.splitlines() if "press_compliance" in line
+                              and line.lstrip().startswith("1"))
     models = summary["shrink"]["models"]
     assert models["press_compliance"]["holdout"]["shrink_pct"] > 50.0
     for name in ("heatmap", "phase_rmse", "before_after"):

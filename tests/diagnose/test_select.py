@@ -96,6 +96,7 @@ def test_a_near_tie_goes_to_the_larger_evidence_on_all_trials(scripted) -> None:
     run.evidence.update({"a+b": 10.0, "a+c": 40.0})
     selected, steps, _ = run(["b", "c"], max_effects=2)
     assert selected == ["a", "c"] and steps[0]["best_candidate"] == "c"
+    assert steps[0]["chosen_over"] == "b" and steps[0]["evidence"] == {"a+b": 10.0, "a+c": 40.0}
     scores.update({"a+c": 3.0})
     selected, _, _ = run(["b", "c"], max_effects=2)
     assert selected == ["a", "b"]
@@ -113,8 +114,12 @@ def test_choose_breaks_only_near_ties_among_significant_rows() -> None:
     assert choose(rows, 3.0)["effect"] == "shape"
     assert choose(rows, 1.0)["effect"] == "timing"
     # nothing named when the best score is not significant, whatever the evidence
-    assert choose([_row("a", 2.0, 50.0, significant=False), _row("b", 1.5, 60.0)], 3.0) is None
+    assert choose([_row("a", 2.0, 50.0, significant=False), _row("b", 1.5, 60.0, significant=False)],
+                  3.0) is None
     assert choose([_row("nan", float("nan"), 1.0)], 3.0) is None
+    # the window's edge is inside; a top without finite evidence keeps its place
+    assert choose([_row("a", 10.0, 1.0), _row("b", 7.0, 5.0)], 3.0)["effect"] == "b"
+    assert choose([_row("a", 10.0, float("nan")), _row("b", 9.0, 5.0)], 3.0)["effect"] == "a"
     decision = decide(rows, 3.0)
     assert decision["best"] == "shape" and "within 3 of timing's" in decision["statement"]
     assert decide(rows, 1.0)["best"] == "timing"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -30,6 +32,26 @@ def test_withheld_effect_is_named(synthetic_ctx, effect: str) -> None:
     assert top["holdout_shrink_pct"] > 50.0
     assert effect in summary["decision"]["statement"]
     assert summary["holdout"] == ["60-bar-07"]
+    # every row's evidence on all trials is its held-out score plus the fitting trials'
+    # log-likelihood ratio (the penalty counted once)
+    for r in summary["ranking"]:
+        fit = 0.5 * r["n_eff_fit"] * np.log(r["fit_loss_base_kN2"] / r["fit_loss_kN2"])
+        assert r["evidence"] == pytest.approx(r["score"] + fit, rel=1e-9, abs=1e-9)
+
+
+def test_withheld_effect_is_named_with_contact_offsets_profiled(synthetic_ctx) -> None:
+    """The thesis project profiles each trial's contact offset: the compliance, whose
+    signature is partly a delay, is still named over the offsets."""
+    ctx = synthetic_ctx("press_compliance")
+    loss = ctx.project.loss.model_copy(update={"contact_offset_mm": 0.3})
+    # fresh model and runner caches: the shared context's runners hold the nominal loss
+    profiled = replace(ctx, project=ctx.project.model_copy(update={"loss": loss}), _models={}, _runners={})
+    prof, nominal = (c.losses((), c.start(()), c.ids)[0] for c in (profiled, ctx))
+    # the offset grid holds 0, so the profile is never worse and here better somewhere
+    assert np.all(prof <= nominal + 1e-9) and np.any(prof < nominal)
+    summary = run(profiled)
+    assert summary["decision"]["best"] == "press_compliance"
+    assert summary["ranking"][0]["holdout_shrink_pct"] > 50.0
 
 
 def test_no_effect_data_are_not_attributed(synthetic_ctx) -> None:

@@ -25,7 +25,7 @@ def summary() -> dict[str, Any]:
         "ranking": [
             {"rank": 1, "effect": "press_compliance", "extra_parameters": 1, "absorbable_share": 0.42,
              "holdout_loss_base_kN2": 812.345678, "holdout_loss_kN2": 95.5, "holdout_shrink_pct": 88.24,
-             "dm_z": 4.123, "score": 31.26, "significant": True},
+             "dm_z": 4.123, "score": 31.26, "evidence": 80.04, "significant": True},
             {"rank": 2, "effect": "heating", "extra_parameters": 3, "absorbable_share": None,
              "holdout_loss_base_kN2": 812.345678, "holdout_loss_kN2": float("nan"),
              "significant": False},
@@ -68,9 +68,9 @@ def test_full_summary_gives_verdict_ranking_decision_next_step_and_shrink(tmp_pa
                for p in paragraphs)
     ranking, shrink = blocks(sec, Table)
     assert ranking.rows[0] == ("1", "press_compliance", "1", "42 %", "812.3", "95.5", "88.2", "4.12",
-                               "31.3", "yes")
+                               "31.3", "80", "yes, named")
     # missing and NaN values are dashes, never an error
-    assert ranking.rows[1] == ("2", "heating", "3", "-", "812.3", "-", "-", "-", "-", "no")
+    assert ranking.rows[1] == ("2", "heating", "3", "-", "812.3", "-", "-", "-", "-", "-", "no")
     assert shrink.rows == (("base", "none", "400", "-", "800", "-"),
                            ("press_compliance", "press_compliance", "40", "90", "100", "87.5"))
     assert "fitting: 60-bar-03, 60-bar-11; held out: 60-bar-07" in shrink.caption
