@@ -82,8 +82,8 @@ def test_evaluate_is_zero_on_the_model_own_curves_and_matches_the_definition(
     text = re.sub(r"contact_offset_mm = [0-9.eE+-]+", "contact_offset_mm = 0.0",
                   toml.read_text(encoding="utf-8"))
     toml.write_text(text, encoding="utf-8")
-    assert load_project(toml).loss.contact_offset_mm == 0.0
     project = load_project(toml)
+    assert project.loss.contact_offset_mm == 0.0
     truth = ForwardModel(project, overrides={"n": 0.3}).simulate(None, ids)
     for cid, res in truth.items():
         keep = res.time_s[0] <= res.switch_time_s[0]
