@@ -32,7 +32,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="held-out configurations, comma-separated (default: the middle speed of "
                         "each charge group)")
     p.add_argument("--pair", action="store_true", default=None,
-                   help="also re-calibrate the best two effects together (default: the [diagnose] table's pair)")
+                   help="also re-calibrate two effects together: the one the decision names and the "
+                        "best-scoring other (the two best when none is named; default: the "
+                        "[diagnose] table's pair)")
     for name, kind in (("seed", int), ("population", int), ("generations", int), ("restarts", int),
                        ("min_score", float), ("max_effects", int)):
         p.add_argument("--" + name.replace("_", "-"), type=kind, default=None, help=help_of(DiagnoseSpec, name))

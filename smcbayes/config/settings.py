@@ -237,7 +237,8 @@ class DiagnoseSpec(Strict):
     effects: list[str] | None = Field(None, description="candidate effects (default: all not already on)")
     holdout: list[str] | None = Field(
         None, description="held-out configurations (default: the middle speed of each charge group)")
-    pair: bool = Field(False, description="also re-calibrate the best two effects together")
+    pair: bool = Field(False, description=("also re-calibrate two effects together: the named "
+                                           "one and the best-scoring other"))
     seed: int = Field(0, ge=0, description="random seed (same seed, same ranking)")
     population: int = Field(64, ge=5, le=100000, description="parameter sets per generation")
     generations: int = Field(50, ge=1, le=100000,

@@ -54,7 +54,8 @@ class DiagnoseSettings:
     Attributes:
         candidates: effects to try (not already on in the calibration).
         holdout: held-out configurations (default: :func:`default_holdout`).
-        pair: also re-calibrate the best two effects together.
+        pair: also re-calibrate two effects together: the named one and the best other
+            (:func:`pair_members`).
         seed: random seed (same seed, same ranking).
         fit: budget of each re-calibration.
         min_score: penalised held-out score needed to name an effect (a log Bayes factor).
@@ -184,7 +185,7 @@ def which_effect(ctx: DiagnosisContext, settings: DiagnoseSettings, fit_ids: lis
     rows = _rank([score_row(ctx, base, fits[n], tests[n], n_eff_fit, n_eff_ho, settings.min_score)
                   for n in settings.candidates], sigs)
     if settings.pair and len(rows) >= 2:
-        a, b = rows[0]["effect"], rows[1]["effect"]
+        a, b = pair_members(rows, settings.min_score)
         start = ctx.start((a, b), {**fits[a].params, **fits[b].params})
         fits[f"{a}+{b}"] = refit(ctx, (a, b), fit_ids, start, settings.fit, rng,
                                  desc=f"diagnosis: {a}+{b} ({steps}/{steps})")
@@ -196,6 +197,15 @@ def which_effect(ctx: DiagnosisContext, settings: DiagnoseSettings, fit_ids: lis
     evidence = {"n_eff_fit": n_eff_fit, "n_eff_holdout": n_eff_ho,
                 "signatures": {k: asdict(v) for k, v in sigs.items()}}
     return base, fits, rows, evidence
+
+
+def pair_members(rows: list[dict[str, Any]], min_score: float) -> tuple[str, str]:
+    """The two effects ``--pair`` re-calibrates together: the one the decision names
+    (:func:`choose`, so a near-tie broken by the evidence is kept in the pair) and the
+    best-scoring other; the two best-scoring when none is named.  ``rows`` ranked."""
+    named = choose(rows, min_score) or rows[0]
+    other = next(r for r in rows if r is not named)
+    return named["effect"], other["effect"]
 
 
 def common_n_eff(ctx: DiagnosisContext, base: Fit, fits: dict[str, Fit], tests: dict[str, HeldOutTest],

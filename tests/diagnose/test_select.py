@@ -13,7 +13,7 @@ import pytest
 from smcbayes.cli import main
 from smcbayes.diagnose import select
 from smcbayes.diagnose.fit import Fit, FitSettings
-from smcbayes.diagnose.run import decide
+from smcbayes.diagnose.run import decide, pair_members
 from smcbayes.diagnose.which import all_trial_evidence, choose
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -124,6 +124,14 @@ def test_choose_breaks_only_near_ties_among_significant_rows() -> None:
     assert decision["best"] == "shape" and "within 3 of timing's" in decision["statement"]
     assert decide(rows, 1.0)["best"] == "timing"
     assert "within" not in decide(rows, 1.0)["statement"]
+
+
+def test_pair_keeps_the_named_effect() -> None:
+    rows = [_row("timing", 30.6, 131.0), _row("shape", 29.2, 175.0), _row("far", 27.0, 500.0)]
+    assert pair_members(rows, 3.0) == ("shape", "timing")
+    assert pair_members(rows, 1.0) == ("timing", "shape")
+    weak = [_row("a", 2.0, 50.0, significant=False), _row("b", 1.5, 60.0, significant=False)]
+    assert pair_members(weak, 3.0) == ("a", "b")
 
 
 def test_all_trial_evidence_is_the_chain_rule_sum() -> None:
