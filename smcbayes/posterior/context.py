@@ -114,3 +114,38 @@ def exact_log_posterior(ctx: RunContext, n_eff: float) -> Callable[[Array], Arra
         return -a * true_log_loss(ctx, ctx.space.from_unit(np.atleast_2d(u)))
 
     return log_post
+
+
+SEARCH_SPACING = 0.01
+"""Least distance (unit cube) between the local search's evaluations that join the emulator's
+first training set: closer ones add ill-conditioning, not information."""
+
+
+def emulator_start(ctx: RunContext, x_unit: Array, log_loss: Array,
+              spacing: float = SEARCH_SPACING) -> tuple[Array, Array]:
+    """The emulator's first training set: the calibration GP's ``x_unit`` ``(N, d)`` and
+    ``log_loss`` ``(N,)`` plus the calibration's local-search evaluations (Powell's line
+    searches, :mod:`smcbayes.surrogate.polish`), which the calibration GP thins to their best.
+
+    Those evaluations lie on the valley floor around the calibrated point, where the
+    posterior lives; without them the emulator starts from the few dozen points of the
+    Bayesian optimisation, of which a handful lie within the posterior's log-likelihood
+    range.  They are taken best first, each kept at least ``spacing`` from every point
+    already in the set.  Runs without a local search return the inputs unchanged.
+    """
+    from smcbayes.surrogate.polish import is_search
+
+    state = ctx.run.evaluation_log().read()
+    recs = [r for _, r in sorted(state.evaluations.items())
+            if is_search(state, r["round"]) and r["loss"] is not None and r["loss"] > 0]
+    if not recs:
+        return x_unit, log_loss
+    names = ctx.space.free_names
+    x_new = ctx.space.to_unit(np.array([[r["params"][n] for n in names] for r in recs], dtype=float))
+    y_new = np.log(np.array([r["loss"] for r in recs], dtype=float))
+    kept_x, kept_y = list(x_unit), list(log_loss)
+    for i in np.argsort(y_new, kind="stable"):
+        if not kept_x or np.min(np.linalg.norm(np.asarray(kept_x) - x_new[i], axis=1)) >= spacing:
+            kept_x.append(x_new[i])
+            kept_y.append(y_new[i])
+    return np.asarray(kept_x, dtype=float).reshape(-1, x_unit.shape[1]), np.asarray(kept_y, dtype=float)

@@ -31,7 +31,13 @@ from smcbayes.data.loss import best_offsets_mm, force_pair
 from smcbayes.errors import UnreliablePosteriorWarning
 from smcbayes.forward.nodes import interp_rows
 from smcbayes.posterior.active import SPREAD_STEPS, fit_local, refine_stage, sample, spread_chains
-from smcbayes.posterior.context import RunContext, exact_log_posterior, load_run, true_log_loss
+from smcbayes.posterior.context import (
+    RunContext,
+    emulator_start,
+    exact_log_posterior,
+    load_run,
+    true_log_loss,
+)
 from smcbayes.posterior.correct import correct
 from smcbayes.posterior.crossfit import LocalFit
 from smcbayes.posterior.likelihood import effective_points, sandwich_points
@@ -198,7 +204,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         fit = local_fit(ctx)
         budget = residual_budget(ctx, fit)
         n_eff = budget["n_eff_total"]
-        data = (calibration_gp.x_unit, calibration_gp.log_loss)
+        data = emulator_start(ctx, calibration_gp.x_unit, calibration_gp.log_loss)
         surrogate = fit_local(*data, n_eff, calibration_gp.kernel, settings.seed)
         surrogate, data, active, ended = refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
         t_sample = time.perf_counter()

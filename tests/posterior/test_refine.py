@@ -190,3 +190,34 @@ def test_round_design_gives_the_wide_draws_their_share(share: int) -> None:
     assert all(np.any(np.all(wide == p, axis=1)) for p in taken)
     # the next row is the Latin hypercube's, inside the posterior's box, not a wide draw
     assert not np.any(np.all(wide == pts[n_rand + 30 // share], axis=1))
+
+
+def test_emulator_start_adds_the_local_search_spaced_best_first() -> None:
+    from types import SimpleNamespace
+
+    from smcbayes.forward.parameters import Parameter, ParameterSpace
+    from smcbayes.posterior.context import emulator_start
+    from smcbayes.run.runlog import LogState
+
+    space = ParameterSpace([Parameter("a", "a", "-", 1.0, 0.0, 1.0, False, 0.5, (-np.inf, np.inf), "a"),
+                            Parameter("b", "b", "-", 1.0, 0.0, 1.0, False, 0.5, (-np.inf, np.inf), "b")])
+    # rounds 0-1: the optimisation; 2-6: a local search with two points a hair apart
+    rounds = {0: {"kind": "init"}, 1: {"kind": "bo"}, **{r: {"kind": "polish"} for r in range(2, 7)}}
+    pts = [((0.1, 0.1), 9.0), ((0.9, 0.9), 8.0), ((0.5, 0.5), 2.0), ((0.5, 0.505), 1.0),
+           ((0.6, 0.5), 3.0), ((0.7, 0.5), None), ((0.55, 0.5), 4.0)]
+    evals = {i: {"round": i, "params": {"a": p[0], "b": p[1]}, "loss": loss}
+             for i, (p, loss) in enumerate(pts)}
+    state = LogState(rounds=rounds, evaluations=evals)
+    ctx = SimpleNamespace(space=space, run=SimpleNamespace(
+        evaluation_log=lambda: SimpleNamespace(read=lambda: state)))
+    x0, y0 = np.array([[0.1, 0.1], [0.9, 0.9], [0.5, 0.505]]), np.log([9.0, 8.0, 1.0])
+    x, y = emulator_start(ctx, x0, y0, spacing=0.02)
+    # the GP's points first and unchanged; the failed run left out; 0.5, 0.5 is too close
+    # to the best (already in the GP); the rest best first
+    np.testing.assert_array_equal(x[:3], x0)
+    np.testing.assert_allclose(x[3:], [[0.6, 0.5], [0.55, 0.5]])
+    np.testing.assert_allclose(y[3:], np.log([3.0, 4.0]))
+    # a run without a local search keeps its GP's data
+    state.rounds = {r: {"kind": "bo"} for r in rounds}
+    x, y = emulator_start(ctx, x0, y0)
+    assert x is x0 and y is y0
