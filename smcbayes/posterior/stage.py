@@ -205,6 +205,8 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         budget = residual_budget(ctx, fit)
         n_eff = budget["n_eff_total"]
         data = emulator_start(ctx, calibration_gp.x_unit, calibration_gp.log_loss)
+        start_points = {"calibration_gp": int(calibration_gp.log_loss.size),
+                        "local_search": int(data[1].size - calibration_gp.log_loss.size)}
         surrogate = fit_local(*data, n_eff, calibration_gp.kernel, settings.seed)
         surrogate, data, active, ended = refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
         t_sample = time.perf_counter()
@@ -223,7 +225,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     info["stage_seconds"] = {"setup_and_refine": t_sample - start, "emulator_sampling": t_correct - t_sample,
                              "correction": t_spread - t_correct, "emulator_spread": t_outputs - t_spread,
                              "outputs": time.perf_counter() - t_outputs}
-    info["active_learning"] = active
+    info["active_learning"] = {**active, "start_points": start_points}
     _count_runs(info["forward_evaluations"], active["evaluations"], 2 * ctx.space.dim + 1)
     info["reliability"] = assess(info, ctx.space, ctx.summary.get("best_loss_kN2"), ctx.noise_free)
     info["reliable"] = info["reliability"]["reliable"]

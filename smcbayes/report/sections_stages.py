@@ -147,13 +147,18 @@ def _sampled_words(post: dict[str, Any]) -> str:
 
 
 def _active_words(post: dict[str, Any]) -> str:
-    """How the emulator was trained further by active learning, in a clause."""
+    """What the emulator started from and how it was trained further by active learning,
+    in a clause."""
     active = post.get("active_learning") or {}
+    start = active.get("start_points") or {}
+    searched = start.get("local_search") or 0
+    begun = (f", starting from its {fmt(start.get('calibration_gp'))} points and {fmt(searched)} "
+             "evaluations of the calibration's local search" if searched else "")
     if not active.get("enabled"):
-        return ""
+        return begun
     done = ("validated: out-of-sample error below 1 nat, stable quantiles and a small spread"
             if active.get("converged") else "stopped by its budget before it was validated")
-    return (f", trained further by active learning with {fmt(active.get('evaluations'))} forward runs in "
+    return (f"{begun}, trained further by active learning with {fmt(active.get('evaluations'))} forward runs in "
             f"{fmt(active.get('rounds'))} rounds ({done})")
 
 

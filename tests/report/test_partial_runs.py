@@ -218,3 +218,15 @@ def test_posterior_section_states_what_was_sampled_and_the_spread(tmp_path: Path
     if spread is not None:
         assert f"up to {spread['max_quantile_shift']:.2f} of its range" in text
     assert ("widens it" in text) == pooled
+
+
+def test_the_emulators_start_and_active_learning_are_stated() -> None:
+    from smcbayes.report.sections_stages import _active_words
+
+    start = {"calibration_gp": 61, "local_search": 178}
+    words = _active_words({"active_learning": {"enabled": True, "evaluations": 400, "rounds": 14,
+                                               "converged": False, "start_points": start}})
+    assert words.startswith(", starting from its 61 points and 178 evaluations of the calibration's local search")
+    assert "400 forward runs in 14 rounds (stopped by its budget" in words
+    alone = {"enabled": False, "evaluations": 0, "start_points": {"calibration_gp": 30, "local_search": 0}}
+    assert _active_words({"active_learning": alone}) == ""
