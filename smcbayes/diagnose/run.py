@@ -202,7 +202,10 @@ def which_effect(ctx: DiagnosisContext, settings: DiagnoseSettings, fit_ids: lis
 def pair_members(rows: list[dict[str, Any]], min_score: float) -> tuple[str, str]:
     """The two effects ``--pair`` re-calibrates together: the one the decision names
     (:func:`choose`, so a near-tie broken by the evidence is kept in the pair) and the
-    best-scoring other; the two best-scoring when none is named.  ``rows`` ranked."""
+    best-scoring other; the two best-scoring when none is named.  ``rows``: ranked single
+    effects, at least two."""
+    if len(rows) < 2:
+        raise ValueError(f"a pair needs two candidate effects, got {len(rows)}")
     named = choose(rows, min_score) or rows[0]
     other = next(r for r in rows if r is not named)
     return named["effect"], other["effect"]
@@ -318,8 +321,8 @@ def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None
     if len(selected) > 1:
         shown["+".join(selected)] = grown["+".join(selected)]
     pair = next((r["effect"] for r in rows if "+" in r["effect"]), None)
-    if pair is not None:
-        shown[pair] = fits[pair]
+    if pair is not None:  # the same set as the selection's is shown as the selection fitted it
+        shown.setdefault(pair, fits[pair])
     shrink = shrink_summary(ctx, shown, fit_ids, holdout)
     summary = {"holdout": holdout, "fit_configurations": fit_ids, "seed": settings.seed,
                "candidates": list(settings.candidates), "fit_settings": asdict(settings.fit),

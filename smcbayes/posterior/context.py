@@ -25,6 +25,7 @@ from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import Executor
 from smcbayes.simulation.problem import Problem
 from smcbayes.simulation.runner import Runner
+from smcbayes.surrogate.loop import search_points
 
 Array = NDArray[np.float64]
 
@@ -116,36 +117,42 @@ def exact_log_posterior(ctx: RunContext, n_eff: float) -> Callable[[Array], Arra
     return log_post
 
 
+
 SEARCH_SPACING = 0.01
 """Least distance (unit cube) between the local search's evaluations that join the emulator's
 first training set: closer ones add ill-conditioning, not information."""
 
+SEARCH_POINTS = 400
+"""At most this many of the local search's evaluations join it (the best): a search run with
+a large budget must not push the GP past the size its exact solves handle quickly."""
 
-def emulator_start(ctx: RunContext, x_unit: Array, log_loss: Array,
-              spacing: float = SEARCH_SPACING) -> tuple[Array, Array]:
-    """The emulator's first training set: the calibration GP's ``x_unit`` ``(N, d)`` and
-    ``log_loss`` ``(N,)`` plus the calibration's local-search evaluations (Powell's line
-    searches, :mod:`smcbayes.surrogate.polish`), which the calibration GP thins to their best.
+
+def emulator_start(ctx: RunContext, x_unit: Array, log_loss: Array, spacing: float = SEARCH_SPACING,
+                   limit: int = SEARCH_POINTS) -> tuple[Array, Array]:
+    """The emulator's first training set: the calibration GP's ``x_unit`` ``(N, d)`` (unit
+    cube) and ``log_loss`` ``(N,)`` (log of the loss, kN^2) followed by up to ``limit`` of the
+    calibration's local-search evaluations (Powell's line searches,
+    :mod:`smcbayes.surrogate.polish`), which the calibration GP thins to their best;
+    returns ``(N + M, d)`` and ``(N + M,)``.
 
     Those evaluations lie on the valley floor around the calibrated point, where the
     posterior lives; without them the emulator starts from the few dozen points of the
     Bayesian optimisation, of which a handful lie within the posterior's log-likelihood
     range.  They are taken best first, each kept at least ``spacing`` from every point
-    already in the set.  Runs without a local search return the inputs unchanged.
+    already in the set.  Runs without a local search return the inputs themselves.
     """
-    from smcbayes.surrogate.polish import is_search
-
-    state = ctx.run.evaluation_log().read()
-    recs = [r for _, r in sorted(state.evaluations.items())
-            if is_search(state, r["round"]) and r["loss"] is not None and r["loss"] > 0]
-    if not recs:
+    x_new, y_new = search_points(ctx.run.evaluation_log().read(), ctx.space.to_unit, ctx.space.free_names)
+    if not y_new.size:
         return x_unit, log_loss
-    names = ctx.space.free_names
-    x_new = ctx.space.to_unit(np.array([[r["params"][n] for n in names] for r in recs], dtype=float))
-    y_new = np.log(np.array([r["loss"] for r in recs], dtype=float))
-    kept_x, kept_y = list(x_unit), list(log_loss)
+    n = log_loss.size
+    x = np.empty((n + min(limit, y_new.size), x_unit.shape[1]))
+    y = np.empty(x.shape[0])
+    x[:n], y[:n] = x_unit, log_loss
+    k = n
     for i in np.argsort(y_new, kind="stable"):
-        if not kept_x or np.min(np.linalg.norm(np.asarray(kept_x) - x_new[i], axis=1)) >= spacing:
-            kept_x.append(x_new[i])
-            kept_y.append(y_new[i])
-    return np.asarray(kept_x, dtype=float).reshape(-1, x_unit.shape[1]), np.asarray(kept_y, dtype=float)
+        if k == x.shape[0]:
+            break
+        if k == 0 or np.min(np.linalg.norm(x[:k] - x_new[i], axis=1)) >= spacing:
+            x[k], y[k] = x_new[i], y_new[i]
+            k += 1
+    return x[:k], y[:k]

@@ -79,6 +79,20 @@ def training_data(state: LogState, space_to_unit: Callable[[Array], Array], name
     return space_to_unit(theta[keep]), y[keep]
 
 
+def search_points(state: LogState, space_to_unit: Callable[[Array], Array],
+                  names: list[str]) -> tuple[Array, Array]:
+    """Every evaluation of the local searches with a finite positive loss, as GP inputs
+    ``(M, d)`` (unit cube) and targets ``(M,)`` (log loss, kN^2), in log order: what
+    :func:`thin_polish` reduces to each search's best."""
+    recs = [r for _, r in sorted(state.evaluations.items())
+            if is_search(state, r["round"]) and r["loss"] is not None
+            and np.isfinite(r["loss"]) and r["loss"] > 0]
+    if not recs:
+        return np.zeros((0, len(names))), np.zeros(0)
+    theta = np.array([[r["params"][n] for n in names] for r in recs], dtype=float)
+    return space_to_unit(theta), np.log(np.array([r["loss"] for r in recs], dtype=float))
+
+
 def thin_polish(recs: list[dict[str, Any]], state: LogState) -> list[dict[str, Any]]:
     """``recs`` with the local searches' evaluations reduced to the best of each search.
 

@@ -132,6 +132,8 @@ def test_pair_keeps_the_named_effect() -> None:
     assert pair_members(rows, 1.0) == ("timing", "shape")
     weak = [_row("a", 2.0, 50.0, significant=False), _row("b", 1.5, 60.0, significant=False)]
     assert pair_members(weak, 3.0) == ("a", "b")
+    with pytest.raises(ValueError, match="two candidate effects"):
+        pair_members(rows[:1], 3.0)
 
 
 def test_all_trial_evidence_is_the_chain_rule_sum() -> None:

@@ -201,10 +201,11 @@ def test_emulator_start_adds_the_local_search_spaced_best_first() -> None:
 
     space = ParameterSpace([Parameter("a", "a", "-", 1.0, 0.0, 1.0, False, 0.5, (-np.inf, np.inf), "a"),
                             Parameter("b", "b", "-", 1.0, 0.0, 1.0, False, 0.5, (-np.inf, np.inf), "b")])
-    # rounds 0-1: the optimisation; 2-6: a local search with two points a hair apart
-    rounds = {0: {"kind": "init"}, 1: {"kind": "bo"}, **{r: {"kind": "polish"} for r in range(2, 7)}}
+    # evaluations 0-1: the optimisation; 2-9: a local search
     pts = [((0.1, 0.1), 9.0), ((0.9, 0.9), 8.0), ((0.5, 0.5), 2.0), ((0.5, 0.505), 1.0),
-           ((0.6, 0.5), 3.0), ((0.7, 0.5), None), ((0.55, 0.5), 4.0)]
+           ((0.6, 0.5), 3.0), ((0.7, 0.5), None), ((0.55, 0.5), 4.0), ((0.3, 0.3), 6.0),
+           ((0.3, 0.305), 5.0), ((0.2, 0.8), float("inf"))]
+    rounds = {i: {"kind": "polish" if i >= 2 else "bo"} for i in range(len(pts))}
     evals = {i: {"round": i, "params": {"a": p[0], "b": p[1]}, "loss": loss}
              for i, (p, loss) in enumerate(pts)}
     state = LogState(rounds=rounds, evaluations=evals)
@@ -212,11 +213,14 @@ def test_emulator_start_adds_the_local_search_spaced_best_first() -> None:
         evaluation_log=lambda: SimpleNamespace(read=lambda: state)))
     x0, y0 = np.array([[0.1, 0.1], [0.9, 0.9], [0.5, 0.505]]), np.log([9.0, 8.0, 1.0])
     x, y = emulator_start(ctx, x0, y0, spacing=0.02)
-    # the GP's points first and unchanged; the failed run left out; 0.5, 0.5 is too close
-    # to the best (already in the GP); the rest best first
+    # the GP's points first and unchanged; failed and infinite losses left out; 0.5, 0.5 is
+    # too close to the best (already in the GP); of 0.3, 0.3 and 0.3, 0.305 the better
+    # one, though logged later; the rest best first
     np.testing.assert_array_equal(x[:3], x0)
+    np.testing.assert_allclose(x[3:], [[0.6, 0.5], [0.55, 0.5], [0.3, 0.305]])
+    np.testing.assert_allclose(y[3:], np.log([3.0, 4.0, 5.0]))
+    x, _ = emulator_start(ctx, x0, y0, spacing=0.02, limit=2)
     np.testing.assert_allclose(x[3:], [[0.6, 0.5], [0.55, 0.5]])
-    np.testing.assert_allclose(y[3:], np.log([3.0, 4.0]))
     # a run without a local search keeps its GP's data
     state.rounds = {r: {"kind": "bo"} for r in rounds}
     x, y = emulator_start(ctx, x0, y0)

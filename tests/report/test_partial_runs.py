@@ -230,3 +230,6 @@ def test_the_emulators_start_and_active_learning_are_stated() -> None:
     assert "400 forward runs in 14 rounds (stopped by its budget" in words
     alone = {"enabled": False, "evaluations": 0, "start_points": {"calibration_gp": 30, "local_search": 0}}
     assert _active_words({"active_learning": alone}) == ""
+    searched = {**alone, "start_points": start}
+    assert _active_words({"active_learning": searched}) == (
+        ", starting from its 61 points and 178 evaluations of the calibration's local search")
