@@ -410,7 +410,7 @@ def main() -> int:
           f"{tot['max_rmse_kN']:.1f}), median-curve RMSE {tot['mean_rmse_median_kN']:.1f} kN, coverage "
           f"50 % {tot['mean_coverage50']:.0%}, 90 % {tot['mean_coverage90']:.0%}, 90 % width "
           f"{tot['mean_band_width90_kN']:.0f} kN, CRPS {tot['mean_crps_kN']:.1f} kN")
-    if tot["mean_rmse_own_contact_kN"] == tot["mean_rmse_own_contact_kN"]:
+    if np.isfinite(tot["mean_rmse_own_contact_kN"]):
         print(f"at each held-out trial's own best contact offset (known only after the trial): mean RMSE "
               f"{tot['mean_rmse_own_contact_kN']:.1f} kN, {tot['own_contact_le_70kN']} of {tot['trials']} "
               "within 70 kN")

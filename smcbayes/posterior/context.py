@@ -117,7 +117,6 @@ def exact_log_posterior(ctx: RunContext, n_eff: float) -> Callable[[Array], Arra
     return log_post
 
 
-
 SEARCH_SPACING = 0.01
 """Least distance (unit cube) between the local search's evaluations that join the emulator's
 first training set: closer ones add ill-conditioning, not information."""
