@@ -50,31 +50,33 @@ class Nodes:
     status: list[str]
 
 
+def _contiguous(x_new: Array, xp: Array) -> tuple[Array, Array]:
+    """The nodes ``(P, T)`` and the queries broadcast to ``(P, N)``, contiguous floats."""
+    xp = np.ascontiguousarray(xp, dtype=float)
+    shape = (xp.shape[0], np.shape(x_new)[-1])
+    return xp, np.ascontiguousarray(np.broadcast_to(np.asarray(x_new, dtype=float), shape))
+
+
 def row_weights(x_new: Array, xp: Array) -> tuple[NDArray[np.int64], Array]:
     """Bracketing nodes and weights of row-wise linear interpolation, all rows at once.
 
     Args:
-        x_new: query points, ``(P, N)``.
+        x_new: query points, ``(P, N)`` (or broadcastable to it).
         xp: node abscissae, non-decreasing per row, ``(P, T)`` with ``T >= 2`` (rows may be
             padded past their end by repeating the last node).
 
     Returns:
         ``(j, w)``, each ``(P, N)``: the value at a query is ``f[j-1] + w (f[j] - f[j-1])``;
-        constant extrapolation at both ends.
+        constant extrapolation at both ends, NaN at a NaN query.  The compiled kernel
+        (:mod:`smcbayes.forward._interp_kernel`) walks each row's rising queries along its
+        nodes, so a time grid costs O(N + T) per row.
     """
-    P, T = xp.shape
-    lo, hi = xp[:, :1], xp[:, -1:]
-    span = np.where(hi > lo, hi - lo, 1.0)
-    # rows are mapped to disjoint intervals [2r, 2r + 1] so one searchsorted serves all rows
-    offset = 2.0 * np.arange(P)[:, None]
-    xs = ((xp - lo) / span + offset).ravel()
-    q = np.clip((x_new - lo) / span, 0.0, 1.0) + offset
-    j = np.searchsorted(xs, q.ravel(), side="right").reshape(q.shape) - np.arange(P)[:, None] * T
-    j = np.clip(j, 1, T - 1)
-    rows = np.arange(P)[:, None]
-    x0, x1 = xp[rows, j - 1], xp[rows, j]
-    width = np.where(x1 > x0, x1 - x0, 1.0)
-    w = np.where(x1 > x0, (np.clip(x_new, lo, hi) - x0) / width, 1.0)
+    from smcbayes.forward._interp_kernel import row_weights_kernel  # numba loads on first use
+
+    xp, x = _contiguous(x_new, xp)
+    j = np.empty(x.shape, dtype=np.int64)
+    w = np.empty(x.shape)
+    row_weights_kernel(x, xp, j, w)
     return j, w
 
 
@@ -89,11 +91,16 @@ def interp_rows(x_new: Array, xp: Array, fp: Array) -> Array:
     """Row-wise linear interpolation holding end values (``numpy.interp`` per row).
 
     Args:
-        x_new: query points, ``(P, N)``.
+        x_new: query points, ``(P, N)`` (or broadcastable to it).
         xp: node abscissae, non-decreasing per row, ``(P, T)``.
         fp: node values, ``(P, T)``.
     """
-    return apply_weights(fp, *row_weights(x_new, xp))
+    from smcbayes.forward._interp_kernel import interp_kernel  # numba loads on first use
+
+    xp, x = _contiguous(x_new, xp)
+    out = np.empty(x.shape)
+    interp_kernel(x, xp, np.ascontiguousarray(np.broadcast_to(fp, xp.shape), dtype=float), out)
+    return out
 
 
 def output_times(switch: Array, hold: float, closing_points: int, hold_points: int,

@@ -107,6 +107,30 @@ def test_interp_rows_matches_numpy() -> None:
         np.testing.assert_allclose(out[p], np.interp(x[p], xp[p], fp[p]), rtol=1e-12, atol=1e-12)
 
 
+def test_interp_rows_on_sorted_grids_padded_nodes_and_nan() -> None:
+    """The walk along rising queries, falling queries, repeated (padded) nodes and NaN
+    queries give what numpy.interp gives."""
+    rng = np.random.default_rng(1)
+    xp = np.cumsum(rng.uniform(0.0, 1, (6, 25)), axis=1)
+    xp[:, 18:] = xp[:, 17:18]  # padded past the row's end
+    xp[2, 5:8] = xp[2, 4]  # repeated nodes inside
+    xp[4] = 3.0  # a row of one repeated node
+    fp = rng.normal(size=(6, 25))
+    fp[:, 18:] = fp[:, 17:18]
+    x = np.sort(rng.uniform(-1, 20, (6, 50)), axis=1)
+    x[:, 10:13] = x[:, 10:11]  # equal queries
+    x[1, 30:] = x[1, 30:][::-1]  # falling queries
+    x[3, 7] = np.nan
+    out = interp_rows(x, xp, fp)
+    for p in (0, 1, 2, 3, 5):
+        ok = np.isfinite(x[p])
+        # numpy.interp takes the right value at a repeated node; both are legitimate there
+        keep = ok & ~np.isin(x[p], xp[p, 4:8]) if p == 2 else ok
+        np.testing.assert_allclose(out[p][keep], np.interp(x[p][keep], xp[p], fp[p]), rtol=1e-12, atol=1e-12)
+    assert np.isnan(out[3, 7])
+    np.testing.assert_array_equal(out[4], fp[4, -1])  # a row of one node holds its last value
+
+
 def test_missing_measurement_or_result_is_an_error(dh, tmp_path: Path) -> None:
     ds = _dataset(dh, tmp_path)
     with pytest.raises(DataError, match="no simulation result"):
