@@ -36,6 +36,7 @@ from smcbayes.forward.effects import EffectStack, get_effect
 from smcbayes.forward.flux import FlowTable, MaterialTable, log_grid
 from smcbayes.forward.march import march
 from smcbayes.forward.model import ForwardModel
+from smcbayes.forward.nodes import interp_rows
 from smcbayes.forward.parameters import to_si
 from smcbayes.forward.squeeze1d import Squeeze1D, Squeeze1DOptions, material_table
 
@@ -175,8 +176,52 @@ def two_d(bench: Bench) -> list[Row]:
     return [Row("2d 60-center-07: one run", s["seconds"], 1, s["nodes"], 10.0, "<= 10 s", note)]
 
 
+def _interp_searchsorted(x_new: Array, xp: Array, fp: Array) -> Array:
+    """Row-wise linear interpolation by one sorted search over all rows (each row mapped
+    to its own interval): the NumPy baseline of the compiled walk."""
+    P, T = xp.shape
+    lo, hi = xp[:, :1], xp[:, -1:]
+    span = np.where(hi > lo, hi - lo, 1.0)
+    offset = 2.0 * np.arange(P)[:, None]
+    q = np.clip((x_new - lo) / span, 0.0, 1.0) + offset
+    j = np.searchsorted(((xp - lo) / span + offset).ravel(), q.ravel(), side="right").reshape(q.shape)
+    j = np.clip(j - np.arange(P)[:, None] * T, 1, T - 1)
+    rows = np.arange(P)[:, None]
+    x0, x1 = xp[rows, j - 1], xp[rows, j]
+    w = np.where(x1 > x0, (np.clip(x_new, lo, hi) - x0) / np.where(x1 > x0, x1 - x0, 1.0), 1.0)
+    return fp[rows, j - 1] + w * (fp[rows, j] - fp[rows, j - 1])
+
+
+def interpolation(bench: Bench) -> list[Row]:
+    """The loss's resampling: a batch's simulated force (250 output times) read on a
+    400-point comparison grid at each of the contact-offset profile's 9 offsets and its
+    refinement, by the compiled walk and by the sorted-search baseline."""
+    rng = np.random.default_rng(bench.seed)
+    nodes = np.cumsum(rng.uniform(0.5, 1.5, (bench.batch, 250)), axis=1)
+    force = np.cumsum(rng.random((bench.batch, 250)), axis=1)
+    grid = np.linspace(0.0, 1.05, 400)[None, :] * nodes[:, -1:]
+    shifts = np.linspace(-0.3, 0.3, 10) / 0.7 * nodes[:, -1:].mean() / 30.0
+    queries = [np.minimum(grid - s, nodes[:, -1:]) for s in shifts]
+    timed = {}
+    for name, fn in (("compiled walk", interp_rows), ("sorted search", _interp_searchsorted)):
+        fn(queries[0], nodes, force)  # warm-up (the kernel compiles or loads here)
+        times = []
+        for _ in range(bench.repeats):
+            start = time.perf_counter()
+            out = [fn(q, nodes, force) for q in queries]
+            times.append(time.perf_counter() - start)
+        timed[name] = (statistics.median(times), out)
+    diff = max(float(np.max(np.abs(a - b))) for a, b in zip(timed["compiled walk"][1], timed["sorted search"][1],
+                                                             strict=True))
+    walk, search = timed["compiled walk"][0], timed["sorted search"][0]
+    label = f"loss resampling: {bench.batch} rows x 10 offsets x 400 points"
+    return [Row(f"{label}, compiled walk", walk, bench.batch, 400, None, "",
+                f"{search / walk:.2g}x faster than the sorted search; max difference {diff:.1e}"),
+            Row(f"{label}, sorted search", search, bench.batch, 400, None, "", "NumPy baseline")]
+
+
 ROWS: list[Callable[[Bench], list[Row]]] = [base_single, base_batch, first_call, effect_rows,
-                                             all_effects, numpy_reference, two_d]
+                                             all_effects, numpy_reference, interpolation, two_d]
 
 
 # -- convergence orders --------------------------------------------------------------------
