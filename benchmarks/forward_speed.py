@@ -195,7 +195,9 @@ def _interp_searchsorted(x_new: Array, xp: Array, fp: Array) -> Array:
 def interpolation(bench: Bench) -> list[Row]:
     """The loss's resampling: a batch's simulated force (250 output times) read on a
     400-point comparison grid at each of the contact-offset profile's 9 offsets and its
-    refinement, by the compiled walk and by the sorted-search baseline."""
+    refinement, by the compiled walk and by the sorted-search baseline (the force only;
+    the loss also reads the phase and, for the hold, the displacement).  The rows above
+    include the compiled resampling of the forward model's output grid."""
     rng = np.random.default_rng(bench.seed)
     nodes = np.cumsum(rng.uniform(0.5, 1.5, (bench.batch, 250)), axis=1)
     force = np.cumsum(rng.random((bench.batch, 250)), axis=1)

@@ -14,10 +14,13 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+# the division is guarded; IEEE semantics as in the marching kernel, no Python checks
+_jit = njit(cache=True, error_model="numpy")
 
-@njit(cache=True)
+
+@_jit
 def _first_above(xp_row: NDArray[np.float64], x: float, lo: int, hi: int) -> int:
-    """The first index k in [lo, hi] with ``xp_row[k] > x``, or ``hi`` when none is."""
+    """The first index k in [lo, hi) with ``xp_row[k] > x``, or ``hi`` when none is."""
     while lo < hi:
         mid = (lo + hi) // 2
         if xp_row[mid] > x:
@@ -27,7 +30,7 @@ def _first_above(xp_row: NDArray[np.float64], x: float, lo: int, hi: int) -> int
     return lo
 
 
-@njit(cache=True)
+@_jit
 def _bracket(xp_row: NDArray[np.float64], x: float, j: int, prev: float) -> tuple[int, float, float]:
     """One query ``x`` of a row: its bracket ``j`` and weight, and the clipped query
     (the next call's ``prev``), walking on from the previous query's ``j``."""
@@ -44,7 +47,7 @@ def _bracket(xp_row: NDArray[np.float64], x: float, j: int, prev: float) -> tupl
     return j, ((xc - x0) / (x1 - x0) if x1 > x0 else 1.0), xc
 
 
-@njit(cache=True)
+@_jit
 def row_weights_kernel(x_new: NDArray[np.float64], xp: NDArray[np.float64],
                        j_out: NDArray[np.int64], w_out: NDArray[np.float64]) -> None:
     """Fill ``j_out`` and ``w_out`` ``(P, N)`` with the brackets and weights of
@@ -59,7 +62,7 @@ def row_weights_kernel(x_new: NDArray[np.float64], xp: NDArray[np.float64],
             w_out[p, i] = w
 
 
-@njit(cache=True)
+@_jit
 def interp_kernel(x_new: NDArray[np.float64], xp: NDArray[np.float64], fp: NDArray[np.float64],
                   out: NDArray[np.float64]) -> None:
     """Fill ``out`` ``(P, N)`` with the values of ``fp`` ``(P, T)`` at ``x_new`` ``(P, N)``

@@ -50,38 +50,52 @@ class Nodes:
     status: list[str]
 
 
-def _contiguous(x_new: Array, xp: Array) -> tuple[Array, Array]:
-    """The nodes ``(P, T)`` and the queries broadcast to ``(P, N)``, contiguous floats."""
-    xp = np.ascontiguousarray(xp, dtype=float)
-    shape = (xp.shape[0], np.shape(x_new)[-1])
-    return xp, np.ascontiguousarray(np.broadcast_to(np.asarray(x_new, dtype=float), shape))
+def _rows(x_new: Array, xp: Array) -> tuple[Array, Array]:
+    """The queries ``(P, N)`` and nodes ``(P, T)`` broadcast to common rows, as the
+    compiled kernels want them: C-contiguous, writable float arrays (one compiled version
+    for every caller; a broadcast view is read-only and would get its own)."""
+    x, nodes = np.atleast_2d(np.asarray(x_new, dtype=float)), np.atleast_2d(np.asarray(xp, dtype=float))
+    if x.ndim != 2 or nodes.ndim != 2 or nodes.shape[1] == 0:
+        raise ValueError(f"row-wise interpolation takes 2-D queries and nodes (at least one per row), "
+                         f"not {x.shape} and {nodes.shape}")
+    if nodes.shape[1] == 1:  # a single node: its value everywhere, as numpy.interp gives
+        nodes = np.repeat(nodes, 2, axis=1)
+    rows = np.broadcast_shapes(x.shape[:1], nodes.shape[:1])
+    return (np.require(np.broadcast_to(x, rows + x.shape[1:]), float, ["C", "W"]),
+            np.require(np.broadcast_to(nodes, rows + nodes.shape[1:]), float, ["C", "W"]))
 
 
 def row_weights(x_new: Array, xp: Array) -> tuple[NDArray[np.int64], Array]:
     """Bracketing nodes and weights of row-wise linear interpolation, all rows at once.
 
     Args:
-        x_new: query points, ``(P, N)`` (or broadcastable to it).
-        xp: node abscissae, non-decreasing per row, ``(P, T)`` with ``T >= 2`` (rows may be
-            padded past their end by repeating the last node).
+        x_new: query points, ``(P, N)`` (or rows broadcastable with those of ``xp``).
+        xp: node abscissae, non-decreasing per row, ``(P, T)`` (rows may be padded past
+            their end by repeating the last node).
 
     Returns:
         ``(j, w)``, each ``(P, N)``: the value at a query is ``f[j-1] + w (f[j] - f[j-1])``;
-        constant extrapolation at both ends, NaN at a NaN query.  The compiled kernel
+        constant extrapolation at both ends, NaN weight at a NaN query, and at a repeated
+        node the value of its last copy.  The compiled kernel
         (:mod:`smcbayes.forward._interp_kernel`) walks each row's rising queries along its
         nodes, so a time grid costs O(N + T) per row.
+
+    Raises:
+        ValueError: queries or nodes not 2-D, or a row without nodes.
     """
     from smcbayes.forward._interp_kernel import row_weights_kernel  # numba loads on first use
 
-    xp, x = _contiguous(x_new, xp)
+    x, nodes = _rows(x_new, xp)
     j = np.empty(x.shape, dtype=np.int64)
     w = np.empty(x.shape)
-    row_weights_kernel(x, xp, j, w)
+    row_weights_kernel(x, nodes, j, w)
     return j, w
 
 
 def apply_weights(fp: Array, j: NDArray[np.int64], w: Array) -> Array:
     """Values ``(P, N)`` of ``fp`` ``(P, T)`` at the weights of :func:`row_weights`."""
+    if fp.shape[1] == 1:  # one node per row (the weights were made on it repeated)
+        return np.where(np.isnan(w), np.nan, np.broadcast_to(fp, w.shape))
     rows = np.arange(fp.shape[0])[:, None]
     f0 = fp[rows, j - 1]
     return f0 + w * (fp[rows, j] - f0)
@@ -91,15 +105,21 @@ def interp_rows(x_new: Array, xp: Array, fp: Array) -> Array:
     """Row-wise linear interpolation holding end values (``numpy.interp`` per row).
 
     Args:
-        x_new: query points, ``(P, N)`` (or broadcastable to it).
+        x_new: query points, ``(P, N)`` (or rows broadcastable with those of ``xp``).
         xp: node abscissae, non-decreasing per row, ``(P, T)``.
-        fp: node values, ``(P, T)``.
+        fp: node values, ``(P, T)`` (or broadcastable to the rows).
+
+    Returns:
+        Values ``(P, N)``; NaN at a NaN query, the last copy's value at a repeated node.
     """
     from smcbayes.forward._interp_kernel import interp_kernel  # numba loads on first use
 
-    xp, x = _contiguous(x_new, xp)
+    x, nodes = _rows(x_new, xp)
+    values = np.broadcast_to(fp, (nodes.shape[0], np.shape(xp)[-1]))
+    if values.shape[1] == 1:
+        values = np.repeat(values, 2, axis=1)
     out = np.empty(x.shape)
-    interp_kernel(x, xp, np.ascontiguousarray(np.broadcast_to(fp, xp.shape), dtype=float), out)
+    interp_kernel(x, nodes, np.require(values, float, ["C", "W"]), out)
     return out
 
 

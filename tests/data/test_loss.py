@@ -11,6 +11,7 @@ from smcbayes.data.breakdown import force_breakdown, split_error
 from smcbayes.data.dataset import load_dataset
 from smcbayes.data.loss import LossSpec, evaluate_loss, interp_rows
 from smcbayes.errors import DataError
+from smcbayes.forward.nodes import apply_weights, row_weights
 
 
 def _dataset(dh, tmp_path: Path):
@@ -108,8 +109,9 @@ def test_interp_rows_matches_numpy() -> None:
 
 
 def test_interp_rows_on_sorted_grids_padded_nodes_and_nan() -> None:
-    """The walk along rising queries, falling queries, repeated (padded) nodes and NaN
-    queries give what numpy.interp gives."""
+    """The walk along rising queries, queries that fall back (bisection), repeated (padded)
+    nodes, a flat row, NaN queries and one-node rows give what numpy.interp gives, and the
+    weights of row_weights give the same values."""
     rng = np.random.default_rng(1)
     xp = np.cumsum(rng.uniform(0.0, 1, (6, 25)), axis=1)
     xp[:, 18:] = xp[:, 17:18]  # padded past the row's end
@@ -119,16 +121,25 @@ def test_interp_rows_on_sorted_grids_padded_nodes_and_nan() -> None:
     fp[:, 18:] = fp[:, 17:18]
     x = np.sort(rng.uniform(-1, 20, (6, 50)), axis=1)
     x[:, 10:13] = x[:, 10:11]  # equal queries
-    x[1, 30:] = x[1, 30:][::-1]  # falling queries
+    x[1, 30:] = np.linspace(xp[1, 16], xp[1, 1], 20)  # falling back inside the nodes
     x[3, 7] = np.nan
+    x[3, 8] = x[3, 6] - 0.5  # a query after the NaN, below the one before it
+    x[2, 40:43] = xp[2, 4]  # on the repeated node: its last copy's value
     out = interp_rows(x, xp, fp)
-    for p in (0, 1, 2, 3, 5):
+    for p in (0, 1, 3, 5):
         ok = np.isfinite(x[p])
-        # numpy.interp takes the right value at a repeated node; both are legitimate there
-        keep = ok & ~np.isin(x[p], xp[p, 4:8]) if p == 2 else ok
-        np.testing.assert_allclose(out[p][keep], np.interp(x[p][keep], xp[p], fp[p]), rtol=1e-12, atol=1e-12)
-    assert np.isnan(out[3, 7])
+        np.testing.assert_allclose(out[p][ok], np.interp(x[p][ok], xp[p], fp[p]), rtol=1e-12, atol=1e-12)
+    on_node = x[2] == xp[2, 4]
+    np.testing.assert_allclose(out[2][~on_node], np.interp(x[2][~on_node], xp[2], fp[2]), rtol=1e-12, atol=1e-12)
+    assert np.all(out[2][on_node] == fp[2, 7])
+    assert np.isnan(out[3, 7]) and np.isfinite(out[3, 8])
     np.testing.assert_array_equal(out[4], fp[4, -1])  # a row of one node holds its last value
+    j, w = row_weights(x, xp)
+    np.testing.assert_array_equal(apply_weights(fp, j, w), out)
+    # one node per row; nodes shared by all rows
+    np.testing.assert_array_equal(interp_rows(x[:2], xp[:2, :1], fp[:2, :1]), np.repeat(fp[:2, :1], 50, axis=1))
+    np.testing.assert_allclose(interp_rows(x[:2], xp[:1], fp[:1]), [np.interp(x[0], xp[0], fp[0]),
+                                                                    np.interp(x[1], xp[0], fp[0])], rtol=1e-12)
 
 
 def test_missing_measurement_or_result_is_an_error(dh, tmp_path: Path) -> None:
