@@ -1,6 +1,7 @@
-"""numba kernel of :func:`smcbayes.forward.nodes.row_weights` (imported on first use).
+"""numba kernels of :func:`smcbayes.forward.nodes.row_weights` and
+:func:`~smcbayes.forward.nodes.interp_rows` (imported on first use).
 
-Row-wise linear interpolation brackets: each row's queries are matched to its nodes by a
+Row-wise linear interpolation: each row's queries are matched to its nodes by a
 walk that moves forward while the queries rise (the common case: a time grid), and by
 bisection where a query falls back, so a row of ``N`` sorted queries on ``T`` nodes costs
 O(N + T) instead of a sort-based search over all rows at once.
