@@ -332,7 +332,7 @@ def draws_advice(ess: float, target: float, draws_needed: int | None, iterations
         return (f"its ESS ({ess:.0f}) grew too little over the last iterations for more draws alone to "
                 "reach the target; raise --refine for a better proposal")
     return (f"at the ESS's growth over the last iterations, about --correct-draws {draws_needed} "
-            "would reach the ESS target")
+            "would reach the ESS target (--workers or --scheduler run their forward runs in parallel)")
 
 
 def correction_warnings(sample: ImportanceSample, warn: bool = True, stacklevel: int = 2) -> list[str]:
