@@ -17,8 +17,9 @@ through the library's API (the same code as the commands):
 Per held-out trial: force RMSE (kN) over the whole closing at the calibrated point and of
 the posterior median curve, coverage of the 50 % and 90 % predictive bands, mean width of the
 90 % band (kN), CRPS (kN) and the 90 % interval score (kN); where the project profiles
-contact offsets, also the RMSE at the trial's own best offset (``rmse_own_contact_kN``,
-``own_contact_offset_mm``): the error a known contact (a measured stack height) would
+contact offsets or measures them from each trial's end state, also the RMSE at the trial's
+own offset (``rmse_own_contact_kN``, ``own_contact_offset_mm``; its best within the profile's
+range, or the one its own end state implies): the error a known contact (a measured stack height) would
 leave, i.e. the model's share of the held-out error.  Per fold: the effects, the wall
 time of each step, and the thesis's clipped loss (force compared up to the incompressible
 flow-stop time, summed over the 9 configurations; the thesis's best is 18,384 kN^2) at the
@@ -143,11 +144,12 @@ def rmse_at(project: Any, run_dir: Path, ids: list[str], theta_by_name: dict[str
     """Force RMSE (kN, whole closing) and the thesis's clipped MSE (kN^2) of ``ids`` at one
     point, and each held-out trial's RMSE at its own contact.
 
-    Where the loss profiles each trial's contact offset, a training trial is compared at its
-    own best offset (as the calibration saw it) and a held-out trial at the mean of the
-    training trials' offsets: its own is unknown until it is pressed.  The third result
-    gives, per held-out trial, the RMSE at its own best offset within the loss's range
-    (``rmse_kN``, ``offset_mm``): the error left if the trial's contact were known (e.g.
+    Where each trial has a contact offset (profiled by the loss or measured from its end
+    state), a training trial is compared at its own offset (as the calibration saw it) and
+    a held-out trial at the mean of the training trials' offsets: its own is unknown until
+    it is pressed.  The third result gives, per held-out trial, the RMSE at its own offset
+    (the best within the loss's range, or the one its end state implies; ``rmse_kN``,
+    ``offset_mm``): the error left if the trial's contact were known (e.g.
     its stack height measured), which separates the model's error from the trials' scatter.
     """
     from smcbayes.data.loss import contact_offsets_mm, force_pair
@@ -411,7 +413,7 @@ def main() -> int:
           f"50 % {tot['mean_coverage50']:.0%}, 90 % {tot['mean_coverage90']:.0%}, 90 % width "
           f"{tot['mean_band_width90_kN']:.0f} kN, CRPS {tot['mean_crps_kN']:.1f} kN")
     if np.isfinite(tot["mean_rmse_own_contact_kN"]):
-        print(f"at each held-out trial's own best contact offset (known only after the trial): mean RMSE "
+        print(f"at each held-out trial's own contact offset (known only after the trial): mean RMSE "
               f"{tot['mean_rmse_own_contact_kN']:.1f} kN, {tot['own_contact_le_70kN']} of {tot['trials']} "
               "within 70 kN")
     verdict = {True: "met", False: "MISSED", None: "not judged (reused folds are not timed)"}

@@ -74,8 +74,9 @@ def run(args: argparse.Namespace) -> int:
     print_table(full, clipped, bd.shift_s[0], parts, bd.phase_share[0])
     offsets = contact_offsets_mm(results, dataset, spec, ids)
     if offsets:
-        print(f"each configuration at its best contact offset within +-{spec.contact_offset_mm:g} mm "
-              "([loss] contact_offset_mm): " + ", ".join(f"{c} {v:+.2f} mm" for c, v in offsets.items()))
+        how = (f"its best contact offset within +-{spec.contact_offset_mm:g} mm ([loss] contact_offset_mm)"
+               if spec.contact_mode == "profile" else "the contact offset its end state implies ([loss] contact)")
+        print(f"each configuration at {how}: " + ", ".join(f"{c} {v:+.2f} mm" for c, v in offsets.items()))
     print(f"global loss L (w_F={spec.w_force:g}, w_D={spec.w_displacement:g}, {spec.grid_points} "
           f"points): full {full.total[0]:.6g} kN^2 (RMSE {_rmse(full.total[0])} kN); clipped at "
           f"flow stop (thesis) {clipped.total[0]:.6g} kN^2 (RMSE {_rmse(clipped.total[0])} kN)")

@@ -11,6 +11,7 @@ from smcbayes.config.project import (
     MaterialSpec,
     MouldSpec,
     ParameterSpec,
+    PartSpec,
     PieceSpec,
     PressSpec,
     ProjectConfig,
@@ -34,7 +35,7 @@ from smcbayes.config.specs import ClipMode, LossSpec, PreprocessSpec
 
 __all__ = [
     "CalibrationSpec", "ChargeSpec", "ClipMode", "ConfigurationSpec", "DataSpec", "LossSpec",
-    "MaterialSpec", "MouldSpec", "ParameterSpec", "PieceSpec", "PreprocessSpec", "PressSpec",
+    "MaterialSpec", "MouldSpec", "ParameterSpec", "PartSpec", "PieceSpec", "PreprocessSpec", "PressSpec",
     "ProjectConfig", "SolverSpec", "Strict", "build_project", "format_validation_error",
     "load_project", "parse_assignments", "PosteriorSpec", "DiagnoseSpec", "CorrectionSpec", "default_of", "help_of",
     "override",

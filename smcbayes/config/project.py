@@ -1,6 +1,6 @@
 """Typed, validated configuration built once from TOML (and CLI overrides).
 
-A project file holds shared ``[defaults]`` (mould, charge, press), the material constants,
+A project file holds shared ``[defaults]`` (mould, charge, press, data, part), the material constants,
 the calibrated parameters with bounds, the effects switched on, and one
 ``[[configuration]]`` table per press trial.  Defaults are merged into every
 configuration before validation.  Any error becomes a :class:`ConfigError` whose message
@@ -91,6 +91,40 @@ class DataSpec(Strict):
     displacement_unit: str | None = Field(None, description="mm, m, um; default from the file")
 
 
+class PartSpec(Strict):
+    """The moulded part as measured after demoulding.
+
+    Its thickness is the gap at the end of the force-controlled hold; with the hold's
+    closing and the ram's travel to the force limit it says how high the charge stood at
+    first contact (``[loss] contact = "end_state"``).  Give ``thickness_mm``, or
+    ``mass_g`` (flash removed) with ``density_g_cm3``, which spreads the mass over the
+    whole cavity at the consolidated density.
+    """
+
+    thickness_mm: float | None = Field(None, gt=0, description="measured thickness of the part")
+    mass_g: float | None = Field(None, gt=0, description="mass of the part after demoulding, flash removed")
+    density_g_cm3: float | None = Field(None, gt=0, description="consolidated density that turns mass_g into a "
+                                        "thickness (e.g. in [defaults.part])")
+
+    @model_validator(mode="after")
+    def _one_measure(self) -> PartSpec:
+        if self.thickness_mm is not None and self.mass_g is not None:
+            raise ValueError("give part.thickness_mm or part.mass_g, not both")
+        if self.mass_g is not None and self.density_g_cm3 is None:
+            raise ValueError("part.mass_g needs part.density_g_cm3 (the consolidated density, "
+                             "e.g. 1.5 for CF-epoxy SMC at 60 wt% fibre) to give a thickness")
+        return self
+
+    def thickness(self, mould: MouldSpec) -> float | None:
+        """The part's thickness (mm): measured, or its mass over the cavity at the
+        consolidated density; None when neither is given."""
+        if self.thickness_mm is not None:
+            return self.thickness_mm
+        if self.mass_g is None or self.density_g_cm3 is None:
+            return None
+        return self.mass_g / (self.density_g_cm3 * mould.length_mm * mould.width_mm) * 1e3
+
+
 class ConfigurationSpec(Strict):
     """One press trial setup."""
 
@@ -100,6 +134,7 @@ class ConfigurationSpec(Strict):
     charge: ChargeSpec
     press: PressSpec
     data: DataSpec | None = None
+    part: PartSpec | None = None
 
 
 class MaterialSpec(Strict):
@@ -239,11 +274,12 @@ def build_project(raw: Mapping[str, Any], source: str, base_dir: Path) -> Projec
     defaults = raw.pop("defaults", {})
     if not isinstance(defaults, Mapping):
         raise ConfigError(f"{source}: [defaults] must be a table")
-    unknown = set(defaults) - {"mould", "charge", "press", "data"}
+    accepted = ["mould", "charge", "press", "data", "part"]
+    unknown = set(defaults) - set(accepted)
     if unknown:
         key = sorted(unknown)[0]
         raise ConfigError(f"{source}: unknown key 'defaults.{key}'"
-                          f"{closest(key, ['mould', 'charge', 'press'])}; accepted here: mould, charge, press")
+                          f"{closest(key, accepted)}; accepted here: {', '.join(accepted)}")
     configs = raw.get("configuration", [])
     if isinstance(configs, list):
         raw["configuration"] = [_merge(defaults, c) if isinstance(c, Mapping) else c for c in configs]

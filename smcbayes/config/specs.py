@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 ClipMode = Literal["none", "flow_stop", "force_limit"]
 
@@ -61,6 +61,16 @@ class LossSpec(_Strict):
             offsets.  0 (default) compares every trial at its nominal contact; at most
             2 mm (a quarter of a typical 8 mm stack: beyond it the first-order delay no
             longer stands for a thicker charge).
+        contact: where each training trial's contact lies.  ``nominal``: at the stack
+            height; ``profile``: the best offset within +- ``contact_offset_mm``;
+            ``end_state``: the offset that the trial's
+            measured end state implies (the part's thickness, the hold's closing and the
+            ram's travel to the force limit; see
+            :func:`smcbayes.data.loss.end_state_offsets_mm`), so the offset is measured,
+            not fitted, and a model that ends the closing at the wrong gap pays for it.
+            A configuration outside the loss is predicted across the training trials'
+            offsets in either case.  Not given: ``profile`` for a width above 0, else
+            ``nominal`` (:attr:`contact_mode`).
     """
 
     w_force: float = Field(1.0, ge=0)
@@ -68,3 +78,23 @@ class LossSpec(_Strict):
     grid_points: int = Field(400, ge=2, le=100000)
     clip: ClipMode = "none"
     contact_offset_mm: float = Field(0.0, ge=0, le=2.0)
+    contact: Literal["nominal", "profile", "end_state"] | None = None
+
+    @model_validator(mode="after")
+    def _width_for_profile(self) -> LossSpec:
+        if self.contact == "profile" and self.contact_offset_mm <= 0:
+            raise ValueError('contact = "profile" needs contact_offset_mm > 0 (the range searched)')
+        return self
+
+    @property
+    def contact_mode(self) -> Literal["nominal", "profile", "end_state"]:
+        """``contact``, or where it is not given ``profile`` for a width above 0 (what a
+        width alone has always meant) and else ``nominal``."""
+        if self.contact is not None:
+            return self.contact
+        return "profile" if self.contact_offset_mm > 0 else "nominal"
+
+    @property
+    def per_trial_contact(self) -> bool:
+        """Whether each trial has a contact offset of its own (profiled or measured)."""
+        return self.contact_mode != "nominal"

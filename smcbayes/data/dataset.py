@@ -35,6 +35,11 @@ UNIT_FACTOR_LIMIT = 20.0
 HOLD_MIN_S = 1.0
 """A force curve running this long past the limit contains the hold and is split there."""
 
+END_NEAR_LIMIT = 0.95
+"""A force curve that stops at this share of the limit or above without reaching it is
+taken to stop where the press switched (sampled or digitised curves end a little short of
+the limit, and a curve through the hold is cut at the hold's threshold)."""
+
 
 @dataclass(frozen=True)
 class Measurement:
@@ -51,6 +56,9 @@ class Measurement:
         flow_stop_s: time (s) from contact at which the ram reaches the incompressible
             flow-stop gap (thesis eq. 4.1) at the set speed.
         speed_mm_s: the set closing speed (mm/s), which turns a contact offset into a delay.
+        end_stack_mm: the stack height (mm) at first contact that the trial's end state
+            implies were the frame rigid (:func:`end_stack_height_mm`); None without a
+            measured part or a force curve that reaches the limit.
     """
 
     config_id: str
@@ -61,6 +69,7 @@ class Measurement:
     force_limit_kN: float = 1400.0
     flow_stop_s: float | None = None
     speed_mm_s: float | None = None
+    end_stack_mm: float | None = None
 
 
 @dataclass(frozen=True)
@@ -112,6 +121,43 @@ def _check_units(m: Measurement, stack_mm: float) -> None:
             raise DataError(
                 f"{m.hold.source}: hold displacement up to {travel:.4g} mm exceeds 10x the "
                 f"{stack_mm:g} mm stack; the file is probably in um: set data.displacement_unit")
+
+
+def end_stack_height_mm(spec: ConfigurationSpec, force: Curve | None, hold: Curve | None,
+                        steps: list[str]) -> float | None:
+    """The stack height (mm) at first contact that a pressed trial's end state implies.
+
+    Under speed control the ram travels v t_end from first contact to the force limit; the
+    gap there is the part's thickness plus what the force-controlled hold closed after it
+    (the hold curve's last value, negative = closing).  Their sum is the charge's height at
+    contact, were the frame rigid: a compliant frame has travelled F / k further, which
+    the loss takes from the simulation (:func:`smcbayes.data.loss.end_state_offsets_mm`).
+    The closing ends where the force first reaches the limit (where the simulation
+    switches), or at the end of a curve that stops short of it at :data:`END_NEAR_LIMIT`
+    of it or above.  A note on what was used is
+    appended to ``steps``; None (with the reason) when the trial has no measured part, no
+    force curve reaching the limit, or a ram profile instead of a set speed.
+    """
+    if spec.part is None or spec.part.thickness(spec.mould) is None:
+        return None
+    limit = spec.press.force_limit_kN
+    t_end = None if force is None else pp.crossing_time(force, limit)
+    if t_end is None and force is not None and force.values[-1] >= END_NEAR_LIMIT * limit:
+        t_end = float(force.time_s[-1])
+    if t_end is None or spec.press.profile is not None:
+        why = ("its closing follows a ram profile, not a set speed" if spec.press.profile is not None
+               else "its force curve does not reach the force limit")
+        steps.append(f"no end state: {why}")
+        return None
+    part = float(spec.part.thickness(spec.mould) or 0.0)
+    closed = 0.0 if hold is None else float(-hold.values[-1])
+    travel = spec.press.speed_mm_s * t_end
+    height = part + closed + travel
+    held = (f"+ {closed:.3f} mm closed in the hold" if hold is not None
+            else "(no hold curve: nothing closed in the hold)")
+    steps.append(f"end state: part {part:.3f} mm {held} + ram travel {travel:.3f} mm to the force "
+                 f"limit = stack height {height:.3f} mm at contact (nominal {spec.charge.stack_height_mm:g} mm)")
+    return height
 
 
 def _path(root: Path | None, name: str, cid: str, key: str) -> Path:
@@ -235,8 +281,9 @@ def load_measurement(spec: ConfigurationSpec, root: Path | None, pre: Preprocess
     speed = spec.press.speed_mm_s
     m = Measurement(spec.id, spec.role, force, hold, steps, limit, flow_stop, speed)
     _check_units(m, spec.charge.stack_height_mm)
+    end_stack = end_stack_height_mm(spec, force, hold, steps)
     force, hold = _optional_steps(force, hold, pre, limit, flow_stop, steps)
-    return Measurement(spec.id, spec.role, force, hold, steps, limit, flow_stop, speed)
+    return Measurement(spec.id, spec.role, force, hold, steps, limit, flow_stop, speed, end_stack)
 
 
 def load_dataset(project: ProjectConfig, ids: Sequence[str] | None = None,

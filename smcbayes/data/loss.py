@@ -38,7 +38,7 @@ from smcbayes.forward.result import PHASE_FORCE, SimulationResult
 Array = NDArray[np.float64]
 
 __all__ = ["LossSpec", "LossResult", "evaluate_loss", "ForcePair", "force_pair", "best_offsets_mm",
-           "contact_offsets_mm", "interp_rows"]
+           "contact_offsets_mm", "end_state_offsets_mm", "trial_offsets_mm", "interp_rows"]
 
 
 @dataclass(frozen=True)
@@ -126,14 +126,14 @@ def force_pair(res: SimulationResult, m: Measurement, spec: LossSpec,
         offset_mm: contact offset (mm) of every row, or one per row ``(P,)``: a charge that
             much thicker than nominal meets the ram earlier, and since the data's clock
             starts at first contact the simulated closing comes offset / set speed later
-            (to first order).  None: each row's best offset within
-            +-``spec.contact_offset_mm`` (:func:`best_offsets_mm`), or none when that is 0.
+            (to first order).  None: the offset ``spec.contact_mode`` gives the trial
+            (:func:`trial_offsets_mm`).
     """
     if m.force is None:
         raise DataError(f"configuration '{m.config_id}' has no measured force curve; "
                         "leave it out of the loss or add data.force")
     if offset_mm is None:
-        offset_mm = best_offsets_mm(res, m, spec) if spec.contact_offset_mm > 0 else 0.0
+        offset_mm = trial_offsets_mm(res, m, spec)
     offsets = np.broadcast_to(np.asarray(offset_mm, dtype=float), (res.rows,)).copy()
     grid, t, sim, meas, ts, ok = _compare(res, m, m.force, spec, offsets)
     idx = np.clip((interp_rows(grid, t, np.broadcast_to(np.arange(t.shape[1], dtype=float), t.shape))
@@ -157,7 +157,7 @@ def _window_delay(m: Measurement, spec: LossSpec, delay: Array) -> Array:
     offsets, the largest one for every offset, so that every candidate offset of a row is
     compared on the same grid (beyond both curves' ends the errors are those of the held
     values, and a window growing with the offset would thin the mean)."""
-    if spec.contact_offset_mm > 0 and m.speed_mm_s:
+    if spec.contact_mode == "profile" and m.speed_mm_s:
         return np.maximum(delay, spec.contact_offset_mm / m.speed_mm_s)
     return delay
 
@@ -236,18 +236,59 @@ def best_offsets_mm(res: SimulationResult, m: Measurement, spec: LossSpec) -> Ar
     return np.where(np.isfinite(e0), best, 0.0)
 
 
+def end_state_offsets_mm(res: SimulationResult, m: Measurement) -> Array:
+    """Each row's contact offset (mm) from the trial's measured end state, shape ``(P,)``.
+
+    The measurement gives H_meas = h_end + v t_end (:func:`smcbayes.data.dataset.
+    end_stack_height_mm`): the gap where the force reached the limit plus the set speed
+    times the time it took.  The simulation gives the same sum at its own switch,
+    h_sim + v t_sim: its stack height plus the frame's deflection there (the ram runs at
+    the set speed, the gap closes slower by F / k), and less any stretch in which the ram
+    could not keep the speed (a locked incompressible charge), which the measurement holds
+    alike if the model is right.  The offset H_meas - (h_sim + v t_sim) is how much higher
+    the charge stood than the simulated one: measured, not fitted, it cannot absorb a
+    model that ends the closing at the wrong gap.  Delayed by offset / v, the simulated
+    closing ends at t_end + (h_end - h_sim) / v: exactly at the measured end when it ends
+    at the measured gap.  0 for a failed row.
+    """
+    if m.end_stack_mm is None:
+        raise DataError(f"configuration '{m.config_id}': [loss] contact = \"end_state\" needs the "
+                        "measured part (part.thickness_mm, or part.mass_g with part.density_g_cm3) "
+                        "and a force curve that reaches the force limit")
+    if not m.speed_mm_s:
+        raise DataError(f"configuration '{m.config_id}': a contact from the end state needs the set closing speed")
+    t, _, _, ok = _safe(res)
+    ts = _switch(res, t, ok)
+    gap = np.where(ok[:, None], np.nan_to_num(res.gap_mm), 0.0)
+    end = interp_rows(ts[:, None], t, gap)[:, 0] + m.speed_mm_s * ts
+    return np.where(ok & np.isfinite(end), m.end_stack_mm - end, 0.0)
+
+
+def trial_offsets_mm(res: SimulationResult, m: Measurement, spec: LossSpec) -> Array:
+    """Each row's contact offset (mm) as ``spec.contact_mode`` says, shape ``(P,)``: measured
+    from the end state, profiled, or 0 at the nominal stack height."""
+    if spec.contact_mode == "end_state":
+        return end_state_offsets_mm(res, m)
+    if spec.contact_mode == "profile":
+        return best_offsets_mm(res, m, spec)
+    return np.zeros(res.rows)
+
+
 def contact_offsets_mm(results: Mapping[str, SimulationResult], dataset: Dataset, spec: LossSpec,
                        ids: Sequence[str], row: int = 0) -> dict[str, float]:
-    """Each configuration's profiled contact offset (mm) at row ``row``: those of ``ids`` with
-    a measured force and a usable run; empty when the loss does not profile offsets."""
-    if spec.contact_offset_mm <= 0:
+    """Each configuration's contact offset (mm) at row ``row`` (:func:`trial_offsets_mm`):
+    those of ``ids`` with a measured force, a usable run and, for ``contact =
+    "end_state"``, a measured end state; empty at the nominal contact."""
+    if not spec.per_trial_contact:
         return {}
     out = {}
     for cid in ids:
         m = dataset.measurements.get(cid)
         if m is None or m.force is None or cid not in results or not bool(np.asarray(results[cid].ok)[row]):
             continue
-        out[cid] = float(best_offsets_mm(results[cid], m, spec)[row])
+        if spec.contact_mode == "end_state" and m.end_stack_mm is None:
+            continue
+        out[cid] = float(trial_offsets_mm(results[cid], m, spec)[row])
     return out
 
 

@@ -49,7 +49,7 @@ from scipy.stats import qmc
 
 from smcbayes.config import DiagnoseSpec, ProjectConfig
 from smcbayes.data.dataset import Dataset, Measurement
-from smcbayes.data.loss import best_offsets_mm, contact_offsets_mm, displacement_mse, force_pair, interp_rows
+from smcbayes.data.loss import contact_offsets_mm, displacement_mse, force_pair, interp_rows, trial_offsets_mm
 from smcbayes.data.preprocess import crossing_time
 from smcbayes.errors import ConfigError
 from smcbayes.forward.model import ForwardModel
@@ -389,10 +389,10 @@ class _Tally:
 def held_out_offsets(ctx: DiagnosisContext, extra: Sequence[str], theta: Array,
                      held_out: Sequence[str]) -> dict[str, float] | None:
     """The contact offset (mm) each held-out trial is judged at: the mean of the fitting
-    trials' profiled offsets at ``theta``'s first row (a held-out trial's own offset is not
-    fitted); None where the loss does not profile offsets."""
+    trials' offsets at ``theta``'s first row (profiled or measured from their end states: a
+    held-out trial's own is not known before it is pressed); None at the nominal contact."""
     spec = ctx.project.loss
-    if spec.contact_offset_mm <= 0:
+    if not spec.per_trial_contact:
         return None
     fit_ids = [c for c in ctx.ids if c not in held_out]
     offsets = contact_offsets_mm(ctx.simulate(extra, theta[:1], fit_ids), ctx.dataset, spec, fit_ids)
@@ -422,9 +422,9 @@ def residual_stack(ctx: DiagnosisContext, extra: Sequence[str], theta: Array, id
                    ) -> tuple[dict[str, Array], dict[str, float]]:
     """Residuals ``(P, N)`` per configuration on fixed windows (row 0's window by default).
 
-    Where the loss profiles each trial's contact offset, every row is taken at one offset:
+    Where each trial has a contact offset of its own, every row is taken at one offset:
     the configuration's entry of ``offsets_mm`` (a held-out trial's, :func:`held_out_offsets`),
-    else row 0's best.  Residuals at a fixed offset give the Jacobian in the parameters
+    else row 0's (profiled or measured).  Residuals at a fixed offset give the Jacobian in the parameters
     alone; the steps built from it are judged by the loss itself."""
     results = ctx.simulate(extra, theta, ids)
     spec = ctx.project.loss
@@ -435,8 +435,8 @@ def residual_stack(ctx: DiagnosisContext, extra: Sequence[str], theta: Array, id
         delay = 0.0
         if offsets_mm is not None and cid in offsets_mm and m.speed_mm_s:
             delay = offsets_mm[cid] / m.speed_mm_s
-        elif spec.contact_offset_mm > 0 and m.speed_mm_s and bool(results[cid].ok[0]):
-            delay = float(best_offsets_mm(results[cid], m, spec)[0]) / m.speed_mm_s
+        elif spec.per_trial_contact and m.speed_mm_s and bool(results[cid].ok[0]):
+            delay = float(trial_offsets_mm(results[cid], m, spec)[0]) / m.speed_mm_s
         end = ends[cid] if ends else float(window_end(results[cid], m, clip, delay)[0])
         if not np.isfinite(end):
             end = float(m.force.time_s[-1])

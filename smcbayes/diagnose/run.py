@@ -249,23 +249,25 @@ def decide(rows: list[dict[str, Any]], min_score: float) -> dict[str, Any]:
 
 
 INERT_SHRINK_PCT = 1.0
-"""Held-out shrink (%) below which an effect that alone absorbs none of the gap is left out
-of the forward selection."""
+"""Held-out change (%, either way) below which an effect whose parameters do not move the
+curves is left out of the forward selection."""
 INERT_ABSORBABLE = 0.01
-"""Absorbable share (:class:`~smcbayes.diagnose.which.Signature`) below which an effect's
-parameters cannot move the curves along the gap."""
+"""Absorbable share (:class:`~smcbayes.diagnose.which.Signature`, either sign) below which
+an effect's parameters do not move the curves."""
 
 
 def inert(row: dict[str, Any]) -> bool:
-    """Whether a single-effect ranking row shows an effect that cannot help: its parameters
-    move the curves across the gap's direction only (absorbable share below
-    :data:`INERT_ABSORBABLE`) and re-calibrating with it shrank the held-out loss by less
-    than :data:`INERT_SHRINK_PCT`.  Such an effect is not tried again in combination: each
-    trial costs a full re-calibration, and an effect that cannot move the curves along the
-    gap alone is not expected to pass the selection's score with another one on."""
+    """Whether a single-effect ranking row shows an effect whose parameters do not move the
+    curves: its absorbable share and the change of the held-out loss its re-calibration made
+    are both about zero (below :data:`INERT_ABSORBABLE` and :data:`INERT_SHRINK_PCT` in
+    size).  Such an effect is not tried again in combination (each trial costs a full
+    re-calibration).  An effect that moves the curves but, alone, the wrong way (a negative
+    share: the linearised step overshoots; a held-out loss that grows) is tried: the frame's
+    compliance delays the rise of a rigid charge that is already too late, but shapes the
+    end of the closing once the charge is compressible."""
     share, shrink = row.get("absorbable_share"), row.get("holdout_shrink_pct")
     return (share is not None and shrink is not None and np.isfinite(shrink)
-            and share < INERT_ABSORBABLE and shrink < INERT_SHRINK_PCT)
+            and abs(share) < INERT_ABSORBABLE and abs(shrink) < INERT_SHRINK_PCT)
 
 
 def _select(ctx: DiagnosisContext, settings: DiagnoseSettings, decision: dict[str, Any],

@@ -70,10 +70,10 @@ class BandErrorModels:
 
 
 def training_offsets_mm(ctx: RunContext) -> dict[str, float]:
-    """Each training configuration's best contact offset (mm) at the calibrated point, where
-    the loss profiles them (``[loss] contact_offset_mm``; else empty)."""
+    """Each training configuration's contact offset (mm) at the calibrated point, where each
+    trial has one (``[loss] contact``, profiled or measured from its end state; else empty)."""
     p = ctx.problem
-    if p.project.loss.contact_offset_mm <= 0:
+    if not p.project.loss.per_trial_contact:
         return {}
     results = ctx.runner.simulate(np.atleast_2d(ctx.best_theta), p.train_ids)
     return contact_offsets_mm(results, p.dataset, p.project.loss, p.train_ids)
@@ -99,7 +99,7 @@ def band_error_models(ctx: RunContext, fit: LocalFit | None, band_ids: Sequence[
     """
     p = ctx.problem
     offsets = training_offsets_mm(ctx)
-    runs = len(p.train_ids) if p.project.loss.contact_offset_mm > 0 else 0
+    runs = len(p.train_ids) if p.project.loss.per_trial_contact else 0
     if fit is not None and not fit.usable:
         logger.info("a perturbed run at the best point failed: the bands' error model uses the "
                     "residuals at the calibrated point")

@@ -70,7 +70,8 @@ def local_fit(ctx: RunContext) -> LocalFit:
 
     Central differences of step :data:`SENSITIVITY_STEP` in the unit cube: 2 d + 1
     parameter rows, each simulated on every training configuration (at the best point's
-    contact offset where the loss profiles it); the perturbed forces are read on the best
+    contact offset where the loss profiles it, at their own where it is measured from the end
+    state); the perturbed forces are read on the best
     point's loss grid.  ``usable`` is false where a perturbed run fails.
     """
     p, space = ctx.problem, ctx.space
@@ -85,8 +86,9 @@ def local_fit(ctx: RunContext) -> LocalFit:
     for cid in p.train_ids:
         m, spec = p.dataset.measurements[cid], p.project.loss
         # every row at the best point's own contact offset, where the loss profiles it: the
-        # sensitivities in the parameters alone, free of the offset's grid steps
-        offset = best_offsets_mm(results[cid], m, spec)[0] if spec.contact_offset_mm > 0 else None
+        # sensitivities in the parameters alone, free of the offset's grid steps (an offset
+        # measured from the end state moves with the parameters, as in the loss)
+        offset = best_offsets_mm(results[cid], m, spec)[0] if spec.contact_mode == "profile" else None
         pair = force_pair(results[cid], m, spec, offset_mm=offset)
         grid = np.broadcast_to(pair.time_s[:1], pair.time_s.shape)
         sim = interp_rows(grid, pair.time_s, pair.sim_kN)

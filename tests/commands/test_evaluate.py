@@ -78,12 +78,11 @@ def test_evaluate_is_zero_on_the_model_own_curves_and_matches_the_definition(
     assert main(["synth", str(THESIS_TOML), "--truth", "n=0.3", "--noise-kN", "0", "--seed", "2",
                  "--only", *ids, "--out", str(tmp_path)]) == 0
     toml = tmp_path / "project.toml"
-    # the definition written out below is the nominal contact's (no offset profiled)
-    text = re.sub(r"contact_offset_mm = [0-9.eE+-]+", "contact_offset_mm = 0.0",
-                  toml.read_text(encoding="utf-8"))
+    # the definition written out below is the nominal contact's (no offset of a trial's own)
+    text = re.sub(r'contact = "[a-z_]+"', 'contact = "nominal"', toml.read_text(encoding="utf-8"))
     toml.write_text(text, encoding="utf-8")
     project = load_project(toml)
-    assert project.loss.contact_offset_mm == 0.0
+    assert project.loss.contact_mode == "nominal"
     truth = ForwardModel(project, overrides={"n": 0.3}).simulate(None, ids)
     for cid, res in truth.items():
         keep = res.time_s[0] <= res.switch_time_s[0]

@@ -90,6 +90,12 @@ def test_effects_pass_through(tmp_path: Path, dh) -> None:
     base = _synth(dh, tmp_path / "b")
     # a compressible charge reaches the force limit later than the incompressible one
     assert ds["60-bar-03"].force.end_s > base["60-bar-03"].force.end_s + 1.0
+    # each synthetic part is its own simulated end gap (the source's measured parts are
+    # dropped), so its end state gives back the 8 mm stack
+    text = (tmp_path / "e" / "project.toml").read_text()
+    assert text.count("part = { thickness_mm") == 12 and "mass_g = 360" not in text
+    for cid in ds.ids("train"):
+        assert ds[cid].end_stack_mm == pytest.approx(8.0, abs=0.01)
 
 
 def test_ou_noise_statistics() -> None:

@@ -27,7 +27,8 @@ def coarse(project: ProjectConfig, contact_offset_mm: float = 0.0) -> ProjectCon
     synthetic charges have no contact scatter)."""
     solver = project.solver.model_copy(update={"closing_steps": 80, "hold_steps": 10,
                                                "output_closing_points": 80, "output_hold_points": 10})
-    loss = project.loss.model_copy(update={"grid_points": 150, "contact_offset_mm": contact_offset_mm})
+    loss = project.loss.model_copy(update={"grid_points": 150, "contact_offset_mm": contact_offset_mm,
+                                           "contact": None})
     return project.model_copy(update={"solver": solver, "loss": loss})
 
 

@@ -56,6 +56,10 @@ def test_inert_needs_both_no_absorption_and_no_shrink() -> None:
     assert not run.inert(_row("heating", 0.0, 3.0, -6.0))       # it did shrink the held-out loss
     assert not run.inert(_row("speed_ramp", 0.6, -20.0, -6.0))  # its curves can absorb the gap
     assert not run.inert(_row("x", 0.0, float("nan"), -6.0))    # a failed fit is not evidence
+    # moving the curves the wrong way alone is moving them: tried with another effect on
+    assert not run.inert(_row("press_compliance", -0.21, -13.7, -4.3))
+    assert not run.inert(_row("press_compliance", -0.21, 0.5, -4.3))
+    assert not run.inert(_row("press_compliance", 0.005, -13.7, -4.3))
 
 
 def test_inert_effects_are_not_tried_in_the_selection(monkeypatch) -> None:
