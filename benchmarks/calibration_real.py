@@ -164,8 +164,10 @@ def run_variant(name: str, run_dir: Path, budget: int, init: int, holdout: str |
                 scan: bool = False, de: int = 0, offset_mm: float = 0.0) -> dict:
     effects, fixed, clip = VARIANTS[name]
     project = load_project(ROOT / "configs" / "thesis.toml", DATA.resolve())
+    # the contact as this benchmark's options say, not the project's (which takes it from
+    # the end state): profiled within +-offset_mm, or nominal
     project = project.model_copy(update={"loss": project.loss.model_copy(
-        update={"clip": clip, "contact_offset_mm": offset_mm})})
+        update={"clip": clip, "contact_offset_mm": offset_mm, "contact": "profile" if offset_mm > 0 else "nominal"})})
     if holdout is not None:
         left_out = HOLDOUTS[holdout]
         project = project.model_copy(update={"configuration": [

@@ -53,12 +53,11 @@ class LossSpec(_Strict):
             ``flow_stop``: over [0, t_flow_stop] (the thesis's clipped loss);
             ``force_limit``: both curves cut where they first reach the force limit and
             their values capped at the limit.
-        contact_offset_mm: how far (mm of ram travel) a trial's contact may lie from the
-            nominal stack height (hand-cut charges differ from trial to trial).  Above 0,
-            each configuration is compared at its best contact offset within +- this
-            (a nuisance parameter per trial, profiled out of the loss), and a
-            configuration outside the loss is predicted across the training trials'
-            offsets.  0 (default) compares every trial at its nominal contact; at most
+        contact_offset_mm: the range of ``contact = "profile"``: how far (mm of ram
+            travel) a trial's contact may lie from the nominal stack height (hand-cut
+            charges differ from trial to trial); each configuration is compared at its best
+            contact offset within +- this (a nuisance parameter per trial, profiled out of
+            the loss).  Given alone (above 0) it means the profile.  0 (default); at most
             2 mm (a quarter of a typical 8 mm stack: beyond it the first-order delay no
             longer stands for a thicker charge).
         contact: where each training trial's contact lies.  ``nominal``: at the stack
@@ -84,6 +83,9 @@ class LossSpec(_Strict):
     def _width_for_profile(self) -> LossSpec:
         if self.contact == "profile" and self.contact_offset_mm <= 0:
             raise ValueError('contact = "profile" needs contact_offset_mm > 0 (the range searched)')
+        if self.contact in ("nominal", "end_state") and self.contact_offset_mm > 0:
+            raise ValueError(f'contact_offset_mm is the range of contact = "profile"; with contact = '
+                             f'"{self.contact}" remove it (or set it to 0)')
         return self
 
     @property

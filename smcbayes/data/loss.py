@@ -249,17 +249,18 @@ def end_state_offsets_mm(res: SimulationResult, m: Measurement) -> Array:
     the charge stood than the simulated one: measured, not fitted, it cannot absorb a
     model that ends the closing at the wrong gap.  Delayed by offset / v, the simulated
     closing ends at t_end + (h_end - h_sim) / v: exactly at the measured end when it ends
-    at the measured gap.  0 for a failed row.
+    at the measured gap.  0 for a failed row (or one whose gap is not finite).
     """
     if m.end_stack_mm is None:
-        raise DataError(f"configuration '{m.config_id}': [loss] contact = \"end_state\" needs the "
-                        "measured part (part.thickness_mm, or part.mass_g with part.density_g_cm3) "
-                        "and a force curve that reaches the force limit")
+        why = next((s.removeprefix("no end state: ") for s in m.steps if s.startswith("no end state: ")),
+                   "it has no measured part (part.thickness_mm, or part.mass_g with part.density_g_cm3)")
+        raise DataError(f"configuration '{m.config_id}': [loss] contact = \"end_state\" needs its end "
+                        f"state, but {why}; add it, or leave the trial out of the loss")
     if not m.speed_mm_s:
         raise DataError(f"configuration '{m.config_id}': a contact from the end state needs the set closing speed")
     t, _, _, ok = _safe(res)
     ts = _switch(res, t, ok)
-    gap = np.where(ok[:, None], np.nan_to_num(res.gap_mm), 0.0)
+    gap = np.where(ok[:, None], res.gap_mm, 0.0)
     end = interp_rows(ts[:, None], t, gap)[:, 0] + m.speed_mm_s * ts
     return np.where(ok & np.isfinite(end), m.end_stack_mm - end, 0.0)
 
@@ -312,7 +313,8 @@ def displacement_mse(res: SimulationResult, m: Measurement, spec: LossSpec) -> A
 
 
 def evaluate_loss(results: Mapping[str, SimulationResult], dataset: Dataset,
-                  spec: LossSpec = LossSpec(), ids: Sequence[str] | None = None) -> LossResult:
+                  spec: LossSpec = LossSpec(), ids: Sequence[str] | None = None,
+                  offsets_mm: Mapping[str, float] | None = None) -> LossResult:
     """Loss of a batch of simulations against the measured data.
 
     Args:
@@ -320,6 +322,9 @@ def evaluate_loss(results: Mapping[str, SimulationResult], dataset: Dataset,
         dataset: the measured data.
         spec: weights, grid size and clipping.
         ids: configurations to compare (default: the dataset's training configurations).
+        offsets_mm: contact offsets (mm) of configurations compared at a given one (e.g. a
+            trial outside the loss at the training trials' mean); the others take the one
+            ``spec.contact_mode`` gives them.
 
     Returns:
         Per-configuration MSEs ``(P, K)`` and the global loss ``(P,)``.
@@ -342,7 +347,7 @@ def evaluate_loss(results: Mapping[str, SimulationResult], dataset: Dataset,
     ok = np.ones(P, dtype=bool)
     for k, cid in enumerate(ids):
         m = dataset[cid]
-        pair = force_pair(results[cid], m, spec)
+        pair = force_pair(results[cid], m, spec, offset_mm=(offsets_mm or {}).get(cid))
         ef[:, k] = np.where(pair.ok, np.mean((pair.sim_kN - pair.meas_kN) ** 2, axis=1), np.nan)
         if spec.w_displacement > 0 and m.hold is None:
             raise DataError(f"configuration '{cid}': w_displacement > 0 but no measured hold "

@@ -403,7 +403,7 @@ def held_out_offsets(ctx: DiagnosisContext, extra: Sequence[str], theta: Array,
 def fixed_offset_losses(ctx: DiagnosisContext, extra: Sequence[str], theta: Array, ids: Sequence[str],
                         offsets_mm: Mapping[str, float]) -> Array:
     """Per-configuration loss terms ``(P, K)`` (kN^2) with each configuration at a given
-    contact offset (mm) instead of its profiled one; NaN where a run failed."""
+    contact offset (mm) instead of its own; NaN where a run failed."""
     spec = ctx.project.loss
     results = ctx.simulate(extra, theta, ids)
     out = np.full((np.atleast_2d(theta).shape[0], len(ids)), np.nan)

@@ -136,7 +136,7 @@ class HeldOutTest:
 
 def held_out_test(ctx: DiagnosisContext, base: Fit, cand: Fit, ids: Sequence[str]) -> HeldOutTest:
     """Diebold-Mariano comparison of ``cand`` against ``base`` on the held-out ``ids``
-    (where the loss profiles contact offsets, each model's held-out trials at the mean of
+    (where each trial has a contact offset, each model's held-out trials at the mean of
     its fitting trials' offsets)."""
     off_b = held_out_offsets(ctx, base.effects, base.theta, ids)
     off_c = held_out_offsets(ctx, cand.effects, cand.theta, ids)
@@ -165,7 +165,7 @@ def held_out_test(ctx: DiagnosisContext, base: Fit, cand: Fit, ids: Sequence[str
 
 def n_eff_of(ctx: DiagnosisContext, fit: Fit, ids: Sequence[str], held_out: bool = False) -> float:
     """Effective independent points of ``fit``'s force residuals on ``ids`` (summed); held-out
-    trials at the fitting trials' mean contact offset where the loss profiles them."""
+    trials at the fitting trials' mean contact offset where each trial has one."""
     offsets = held_out_offsets(ctx, fit.effects, fit.theta, ids) if held_out else None
     res, _ = residual_stack(ctx, fit.effects, fit.theta, ids, offsets_mm=offsets)
     _, n_eff = effective_points([np.nan_to_num(res[c][0]) for c in ids])

@@ -63,7 +63,7 @@ class LocalFit:
         config_ids: training configuration ids, ``K`` of them.
         u0: the calibrated point in unit-cube coordinates ``(d,)``.
         residuals_kN: measured minus simulated force on each configuration's loss grid
-            (at its contact offset where the loss profiles it), ``K`` arrays ``(N_k,)``.
+            (at its own contact offset where it has one), ``K`` arrays ``(N_k,)``.
         sensitivities: d simulated force / d u on the same grids, ``K`` arrays ``(N_k, d)``
             (kN per unit of the unit cube).
         usable: false where a perturbed run failed (the sensitivities are then unreliable).
@@ -189,7 +189,7 @@ def leave_out_residuals(model: Simulator, space: ParameterSpace, fit: LocalFit,
         for cid in (ids[i] for i in group):
             force = measurements[cid].force
             if force is not None and bool(np.asarray(results[cid].ok)[row]):
-                # each trial at its own contact offset, profiled at its refit point: the residual
+                # each trial at its own contact offset at its refit point: the residual
                 # left once the trial's own offset is known; the bands draw offsets separately
                 curves.append(residual_curve(cid, results[cid], row, force.time_s, force.values,
                                              float(delays[cid][row])))

@@ -4,8 +4,8 @@ A band configuration that the training set spans takes the error model learnt fr
 leave-one-configuration-out residuals (:mod:`smcbayes.posterior.crossfit`); one that lies
 outside it (a new speed or charge: :mod:`smcbayes.posterior.extrapolation`) takes the one
 learnt from leave-group-out residuals that put training trials across the same kind of gap.
-Every refit runs in one batch of the forward model.  Where the loss profiles each trial's
-contact offset, the residuals are taken at each trial's own offset and the training trials'
+Every refit runs in one batch of the forward model.  Where each trial has a contact offset
+of its own (profiled by the loss or measured from its end state), the residuals are taken at each trial's own offset and the training trials'
 offsets at the calibrated point are kept for the bands to mix over.
 """
 
@@ -48,7 +48,7 @@ class BandErrorModels:
         runs: forward runs made for the residuals (and the contact offsets).
         extra: summary blocks of the leave-group-out models (with the configurations using each).
         offsets_mm: each training configuration's contact offset at the calibrated point
-            (mm; empty unless the loss profiles them): the scatter a new trial's bands mix over.
+            (mm; empty at the nominal contact): the scatter a new trial's bands mix over.
     """
 
     models: dict[str, PhaseDiscrepancy | None]

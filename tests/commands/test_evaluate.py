@@ -134,3 +134,24 @@ def test_evaluate_without_data_exits_2(tmp_path: Path, capsys: pytest.CaptureFix
     assert main(["evaluate", str(THESIS_TOML), "--data-dir", str(tmp_path / "none")]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "not found" in err
+
+
+def test_evaluate_with_the_contact_from_the_end_state(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The thesis project takes each trial's contact from its end state; synthetic trials
+    carry their own simulated parts, so at the truth their offsets are 0, and a trial
+    without its part is compared at the training trials' mean offset instead of failing."""
+    ids = ["60-bar-03", "60-center-07", "80-center-03"]
+    assert main(["synth", str(THESIS_TOML), "--truth", "n=0.3", "--noise-kN", "0", "--seed", "2",
+                 "--only", *ids, "--out", str(tmp_path)]) == 0
+    toml = tmp_path / "project.toml"
+    text = toml.read_text(encoding="utf-8")
+    assert 'contact = "end_state"' in text
+    head, sep, rest = text.partition('id = "80-center-03"')
+    toml.write_text(head + sep + re.sub(r"\npart = \{[^}]*\}", "", rest, count=1), encoding="utf-8")
+    capsys.readouterr()
+    assert main(["evaluate", str(toml), "--set", "n=0.3", "--role", "all"]) == 0
+    out = capsys.readouterr().out
+    assert "the contact offset its end state implies" in out
+    assert re.search(r"60-bar-03 [+-]0\.00 mm", out) and re.search(r"60-center-07 [+-]0\.00 mm", out)
+    assert re.search(r"without an end state, at the training trials' mean offset: 80-center-03 [+-]0\.00 mm", out)
+    assert sorted(_rows(out)) == sorted(ids)

@@ -116,14 +116,28 @@ def test_the_end_state_offset_recovers_a_thicker_charge(dhp, tmp_path: Path) -> 
 def test_end_state_contact_needs_the_part_of_every_training_trial(dhp, tmp_path: Path) -> None:
     _write_rise(dhp, tmp_path, 0.2)
     _write_rise(dhp, tmp_path, 0.2, name="v1")
-    ds = load_dataset(dhp.project(tmp_path, [_config(dhp, None),
-                                             _config(dhp, None, cid="v1", role="validation")]))
+    bare = load_dataset(dhp.project(tmp_path, [_config(dhp, None)]))
     with pytest.raises(DataError, match="part.thickness_mm"):
-        evaluate_loss({"c1": _simulated()}, ds, LossSpec(contact="end_state"))
+        evaluate_loss({"c1": _simulated()}, bare, LossSpec(contact="end_state"))
     # a trial without its end state has no offset of its own (a new trial: predicted across
-    # the training trials' offsets)
-    assert contact_offsets_mm({"c1": _simulated(), "v1": _simulated()}, ds, LossSpec(contact="end_state"),
-                              ["c1", "v1"]) == {}
+    # the training trials' offsets), a pressed one has
+    ds = load_dataset(dhp.project(tmp_path, [_config(dhp, {"thickness_mm": 3.0}),
+                                             _config(dhp, None, cid="v1", role="validation")]))
+    offsets = contact_offsets_mm({"c1": _simulated(), "v1": _simulated()}, ds, LossSpec(contact="end_state"),
+                                 ["c1", "v1"])
+    assert list(offsets) == ["c1"] and offsets["c1"] == pytest.approx(0.2, abs=2e-3)
+    # given an offset, the trial without one is compared at it
+    total = evaluate_loss({"v1": _simulated()}, ds, LossSpec(contact="end_state"), ["v1"], {"v1": 0.2}).total
+    assert total[0] < 1.0
+
+
+def test_a_failed_row_or_a_gap_that_is_not_finite_has_no_offset(dhp, tmp_path: Path) -> None:
+    _write_rise(dhp, tmp_path, 0.2)
+    m = load_dataset(dhp.project(tmp_path, [_config(dhp, {"thickness_mm": 3.0})]))["c1"]
+    sim = _simulated(rows=3)
+    sim.gap_mm[1, 100:] = np.nan
+    sim.status[2] = "failed: test"
+    np.testing.assert_allclose(end_state_offsets_mm(sim, m), [0.2, 0.0, 0.0], atol=2e-3)
 
 
 def test_a_width_alone_still_profiles_and_a_profile_needs_a_width() -> None:
@@ -134,3 +148,5 @@ def test_a_width_alone_still_profiles_and_a_profile_needs_a_width() -> None:
     assert LossSpec(contact="end_state").per_trial_contact
     with pytest.raises(ValueError, match="contact_offset_mm"):
         LossSpec(contact="profile")
+    with pytest.raises(ValueError, match="remove it"):
+        LossSpec(contact="end_state", contact_offset_mm=0.3)
