@@ -138,7 +138,8 @@ def end_stack_height_mm(spec: ConfigurationSpec, force: Curve | None, hold: Curv
     appended to ``steps``; None (with the reason) when the trial has no measured part, no
     force curve reaching the limit, or a ram profile instead of a set speed.
     """
-    if spec.part is None or spec.part.thickness(spec.mould) is None:
+    part = None if spec.part is None else spec.part.thickness(spec.mould)
+    if part is None:
         return None
     limit = spec.press.force_limit_kN
     t_end = None if force is None else pp.crossing_time(force, limit)
@@ -149,7 +150,6 @@ def end_stack_height_mm(spec: ConfigurationSpec, force: Curve | None, hold: Curv
                else "its force curve does not reach the force limit")
         steps.append(f"no end state: {why}")
         return None
-    part = float(spec.part.thickness(spec.mould) or 0.0)
     closed = 0.0 if hold is None else float(-hold.values[-1])
     travel = spec.press.speed_mm_s * t_end
     height = part + closed + travel

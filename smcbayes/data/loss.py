@@ -254,8 +254,9 @@ def end_state_offsets_mm(res: SimulationResult, m: Measurement) -> Array:
     if m.end_stack_mm is None:
         why = next((s.removeprefix("no end state: ") for s in m.steps if s.startswith("no end state: ")),
                    "it has no measured part (part.thickness_mm, or part.mass_g with part.density_g_cm3)")
-        raise DataError(f"configuration '{m.config_id}': [loss] contact = \"end_state\" needs its end "
-                        f"state, but {why}; add it, or leave the trial out of the loss")
+        raise DataError(f"configuration '{m.config_id}': [loss] contact = \"end_state\" cannot place its "
+                        f"contact: {why}; give the trial its end state, leave it out of the loss or "
+                        "choose another [loss] contact")
     if not m.speed_mm_s:
         raise DataError(f"configuration '{m.config_id}': a contact from the end state needs the set closing speed")
     t, _, _, ok = _safe(res)
