@@ -114,12 +114,12 @@ def offset_report(problem, theta: np.ndarray, ids: list[str]) -> dict:
     """At one vector, where the loss profiles contact offsets: each training configuration's
     offset, their mean, and every configuration's force RMSE (kN) at that mean (the
     prediction for a trial whose own offset is unknown) and at its own offset (training)."""
-    from smcbayes.data.loss import contact_offsets_mm, force_pair
+    from smcbayes.data.loss import contact_offsets_mm, force_pair, unseen_offset_mm
 
     spec = problem.project.loss.model_copy(update={"clip": "none"})
     res = problem.model.simulate(theta[None, :], ids)
     own = contact_offsets_mm(res, problem.dataset, spec, problem.train_ids)
-    mean = float(np.mean(list(own.values()))) if own else 0.0
+    mean = unseen_offset_mm(own)
 
     def rmse(cid: str, offset: float) -> float:
         pair = force_pair(res[cid], problem.dataset.measurements[cid], spec, offset_mm=offset)

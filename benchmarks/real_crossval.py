@@ -26,14 +26,14 @@ flow-stop time, summed over the 9 configurations; the thesis's best is 18,384 kN
 fold's calibrated point.
 
     python benchmarks/real_crossval.py [--fold K] [--jobs N] [--effects a,b] [--workdir DIR] [--reuse]
-        [--project FILE]
+        [--project FILE] [--name real_crossval]
         [--budget 60 --init 20] [--population 64 --generations 50 --restarts 2]
         [--walkers 32 --steps 10000 --refine 800 --correct-draws 0 --draws 100]
 
 The budgets default to the workflow's defaults (``[calibration]``, ``[diagnose]``,
-``[posterior]`` of settings.py).  Writes ``benchmarks/results/real_crossval.json`` (merged
-with an existing file when ``--fold`` is given) and copies each fold's band figure to
-``benchmarks/results/real_crossval/fold-K.png``.  Needs ../shared/data/thesis-press next to
+``[posterior]`` of settings.py).  Writes ``benchmarks/results/NAME.json`` (``--name``,
+default ``real_crossval``; merged with an existing file when ``--fold`` is given) and
+copies each fold's band figure to ``benchmarks/results/NAME/fold-K.png``.  Needs ../shared/data/thesis-press next to
 the repository (``--data-dir``); without it, prints why and exits 0.
 """
 
@@ -152,7 +152,7 @@ def rmse_at(project: Any, run_dir: Path, ids: list[str], theta_by_name: dict[str
     ``offset_mm``): the error left if the trial's contact were known (e.g.
     its stack height measured), which separates the model's error from the trials' scatter.
     """
-    from smcbayes.data.loss import contact_offsets_mm, force_pair
+    from smcbayes.data.loss import contact_offsets_mm, force_pair, unseen_offset_mm
     from smcbayes.simulation.problem import build_problem
 
     problem = build_problem(project, run_dir, effects, fixed)
@@ -161,7 +161,7 @@ def rmse_at(project: Any, run_dir: Path, ids: list[str], theta_by_name: dict[str
     results = problem.model.simulate(theta, ids)
     full_spec = project.loss.model_copy(update={"clip": "none"})
     own = contact_offsets_mm(results, problem.dataset, project.loss, [c for c in ids if c in train_ids])
-    mean_offset = float(np.mean(list(own.values()))) if own else 0.0
+    mean_offset = unseen_offset_mm(own)
     held_out = [c for c in ids if c not in train_ids]
     known = contact_offsets_mm(results, problem.dataset, project.loss, held_out)
     rmse, clipped, at_own = {}, {}, {}
@@ -288,7 +288,7 @@ def run_fold(k: int, args: argparse.Namespace) -> dict[str, Any]:
     fig = final_run.run_dir.root / "posterior" / "figures" / "bands.png"
     figure = None
     if fig.exists():
-        dest = RESULTS / "real_crossval" / f"fold-{k}.png"
+        dest = RESULTS / args.name / f"fold-{k}.png"
         dest.parent.mkdir(parents=True, exist_ok=True)
         small_copy(fig, dest)
         figure = str(dest.relative_to(ROOT))
@@ -369,6 +369,9 @@ def parse() -> argparse.Namespace:
     ap.add_argument("--project", default=str(PROJECT),
                     help="project file whose settings and trials the folds use (default: configs/thesis.toml); "
                          "a variant of it tests another loss or parameter box")
+    ap.add_argument("--name", default="real_crossval",
+                    help="results file benchmarks/results/NAME.json and figures in NAME/ (a variant's "
+                         "run keeps the default's)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--budget", type=int, default=d(CalibrationSpec, "budget"))
     ap.add_argument("--init", type=int, default=d(CalibrationSpec, "init"))
@@ -399,7 +402,7 @@ def main() -> int:
         folds = [run_fold(k, args) for k in ks]
     for f in folds:
         print_fold(f)
-    path = RESULTS / "real_crossval.json"
+    path = RESULTS / f"{args.name}.json"
     old = json.loads(path.read_text()) if args.fold and path.exists() else {}
     merged = {f["fold"]: f for f in old.get("folds", [])}
     merged.update({f["fold"]: f for f in folds})

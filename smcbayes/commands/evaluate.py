@@ -10,7 +10,7 @@ from smcbayes.commands.common import add_model_options
 from smcbayes.config import load_project, parse_assignments
 from smcbayes.data.breakdown import force_breakdown
 from smcbayes.data.dataset import Dataset, load_dataset
-from smcbayes.data.loss import LossResult, LossSpec, contact_offsets_mm, evaluate_loss
+from smcbayes.data.loss import LossResult, LossSpec, contact_offsets_mm, evaluate_loss, unseen_offset_mm
 from smcbayes.errors import DataError
 from smcbayes.forward.model import ForwardModel
 from smcbayes.forward.result import SimulationResult
@@ -42,7 +42,7 @@ def _offsets_without_end_state(results: dict[str, SimulationResult], dataset: Da
     if not missing:
         return {}
     own = contact_offsets_mm(results, dataset, spec, dataset.ids("train"))
-    mean = float(np.mean(list(own.values()))) if own else 0.0
+    mean = unseen_offset_mm(own)
     return {c: mean for c in missing}
 
 

@@ -294,6 +294,13 @@ def contact_offsets_mm(results: Mapping[str, SimulationResult], dataset: Dataset
     return out
 
 
+def unseen_offset_mm(offsets: Mapping[str, float]) -> float:
+    """The contact offset (mm) at which a trial without its own is compared (one held out,
+    or not yet pressed), from the training trials' ``offsets`` (:func:`contact_offsets_mm`):
+    their mean; 0 (the nominal contact) when there are none."""
+    return float(np.mean(list(offsets.values()))) if offsets else 0.0
+
+
 def displacement_mse(res: SimulationResult, m: Measurement, spec: LossSpec) -> Array:
     """e^D (mm^2) of the hold displacement, shape ``(P,)``; NaN without a measured hold."""
     if m.hold is None:

@@ -49,7 +49,14 @@ from scipy.stats import qmc
 
 from smcbayes.config import DiagnoseSpec, ProjectConfig
 from smcbayes.data.dataset import Dataset, Measurement
-from smcbayes.data.loss import contact_offsets_mm, displacement_mse, force_pair, interp_rows, trial_offsets_mm
+from smcbayes.data.loss import (
+    contact_offsets_mm,
+    displacement_mse,
+    force_pair,
+    interp_rows,
+    trial_offsets_mm,
+    unseen_offset_mm,
+)
 from smcbayes.data.preprocess import crossing_time
 from smcbayes.errors import ConfigError
 from smcbayes.forward.model import ForwardModel
@@ -396,7 +403,7 @@ def held_out_offsets(ctx: DiagnosisContext, extra: Sequence[str], theta: Array,
         return None
     fit_ids = [c for c in ctx.ids if c not in held_out]
     offsets = contact_offsets_mm(ctx.simulate(extra, theta[:1], fit_ids), ctx.dataset, spec, fit_ids)
-    mean = float(np.mean(list(offsets.values()))) if offsets else 0.0
+    mean = unseen_offset_mm(offsets)
     return {c: mean for c in held_out}
 
 

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from smcbayes.config import CalibrationSpec
-from smcbayes.data.loss import contact_offsets_mm, force_pair
+from smcbayes.data.loss import contact_offsets_mm, force_pair, unseen_offset_mm
 from smcbayes.data.readers.csv import write_curves
 from smcbayes.errors import ParameterOnBoundWarning
 from smcbayes.forward.ranges import PHYSICAL_RANGES
@@ -150,7 +150,7 @@ def _best_outputs(bo: BayesOpt, problem: Problem, run: RunDir, executor: Executo
         path.parent.mkdir(exist_ok=True)
         write_curves(res, 0, path)
     offsets = contact_offsets_mm(results, problem.dataset, problem.project.loss, problem.train_ids)
-    mean_offset = float(np.mean(list(offsets.values()))) if offsets else 0.0
+    mean_offset = unseen_offset_mm(offsets)
     if figures:
         label = ", ".join(f"{k}={v:.4g}" for k, v in best["params"].items())
         delays = {c: offsets.get(c, mean_offset) / problem.project.get(c).press.speed_mm_s for c in ids} \

@@ -14,6 +14,7 @@ from smcbayes.data.loss import (
     end_state_offsets_mm,
     evaluate_loss,
     force_pair,
+    unseen_offset_mm,
 )
 from smcbayes.errors import ConfigError, DataError
 from smcbayes.forward.result import SimulationResult
@@ -150,3 +151,8 @@ def test_a_width_alone_still_profiles_and_a_profile_needs_a_width() -> None:
         LossSpec(contact="profile")
     with pytest.raises(ValueError, match="remove it"):
         LossSpec(contact="end_state", contact_offset_mm=0.3)
+
+
+def test_a_trial_without_its_own_offset_takes_the_training_mean() -> None:
+    assert unseen_offset_mm({"a": 0.2, "b": 0.5, "c": -0.1}) == pytest.approx(0.2)
+    assert unseen_offset_mm({}) == 0.0
