@@ -84,6 +84,22 @@ class ParameterOnBoundWarning(SmcBayesWarning):
                        f"{physical:.4g}), or {missing}")
 
 
+class ContactOffsetWarning(SmcBayesWarning):
+    """A trial's end state puts its contact beyond the range a charge can stand from its
+    nominal height (``[loss] contact_offset_mm``): the model ends the closing elsewhere
+    than the press did."""
+
+    @staticmethod
+    def advice(config_id: str, offset_mm: float, bound_mm: float) -> str:
+        """What a contact offset ``offset_mm`` beyond +- ``bound_mm`` means, in one sentence."""
+        return (f"{config_id}: its end state puts its contact {offset_mm:+.2f} mm from the nominal "
+                f"stack height, beyond the +-{bound_mm:g} mm of [loss] contact_offset_mm, so it is "
+                "compared at the bound: the model ends the closing elsewhere than the press did "
+                "(a ram speed ramp or frame compliance far from the press's, or a compaction law "
+                "that locks too early or too late); check the trial's part and stack height, or "
+                "the effects")
+
+
 class FixedOutsideBoxWarning(SmcBayesWarning):
     """A parameter was fixed (``--set``, ``[parameters]``) outside its search bounds."""
 

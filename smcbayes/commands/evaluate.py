@@ -91,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
     offsets = contact_offsets_mm(results, dataset, spec, ids)
     if offsets:
         how = (f"its best contact offset within +-{spec.contact_offset_mm:g} mm ([loss] contact_offset_mm)"
-               if spec.contact_mode == "profile" else "the contact offset its end state implies ([loss] contact)")
+               if spec.contact_mode == "profile" else "the contact offset its end state implies ([loss] contact)"
+               + (f", within +-{spec.contact_offset_mm:g} mm" if spec.contact_offset_mm > 0 else ""))
         print(f"each configuration at {how}: " + ", ".join(f"{c} {v:+.2f} mm" for c, v in offsets.items()))
     if given:
         print("without an end state, at the training trials' mean offset: "

@@ -53,13 +53,18 @@ class LossSpec(_Strict):
             ``flow_stop``: over [0, t_flow_stop] (the thesis's clipped loss);
             ``force_limit``: both curves cut where they first reach the force limit and
             their values capped at the limit.
-        contact_offset_mm: the range of ``contact = "profile"``: how far (mm of ram
-            travel) a trial's contact may lie from the nominal stack height (hand-cut
-            charges differ from trial to trial); each configuration is compared at its best
-            contact offset within +- this (a nuisance parameter per trial, profiled out of
-            the loss).  Given alone (above 0) it means the profile.  0 (default); at most
-            2 mm (a quarter of a typical 8 mm stack: beyond it the first-order delay no
-            longer stands for a thicker charge).
+        contact_offset_mm: how far (mm of ram travel) a trial's contact may lie from the
+            nominal stack height (hand-cut charges differ from trial to trial).  With
+            ``contact = "profile"`` each configuration is compared at its best contact
+            offset within +- this (a nuisance parameter per trial, profiled out of the
+            loss); given alone (above 0) it means the profile.  With ``contact =
+            "end_state"`` it bounds the measured offset (0: unbounded): a model whose end
+            of closing would put the charge further from its nominal height (a ram that
+            lags, a frame that yields, far from the press's) is compared at the bound and
+            pays for the rest in the loss, instead of being aligned with every trial by an
+            offset no charge could have.  0 (default); at most 2 mm (a quarter of a typical
+            8 mm stack: beyond it the first-order delay no longer stands for a thicker
+            charge).
         contact: where each training trial's contact lies.  ``nominal``: at the stack
             height; ``profile``: the best offset within +- ``contact_offset_mm``;
             ``end_state``: the offset that the trial's
@@ -83,9 +88,9 @@ class LossSpec(_Strict):
     def _width_for_profile(self) -> LossSpec:
         if self.contact == "profile" and self.contact_offset_mm <= 0:
             raise ValueError('contact = "profile" needs contact_offset_mm > 0 (the range searched)')
-        if self.contact in ("nominal", "end_state") and self.contact_offset_mm > 0:
-            raise ValueError(f'contact_offset_mm is the range of contact = "profile"; with contact = '
-                             f'"{self.contact}" remove it (or set it to 0)')
+        if self.contact == "nominal" and self.contact_offset_mm > 0:
+            raise ValueError('contact_offset_mm is the range of a contact that moves (profile, end_state); '
+                             'with contact = "nominal" remove it (or set it to 0)')
         return self
 
     @property

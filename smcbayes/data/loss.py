@@ -236,7 +236,7 @@ def best_offsets_mm(res: SimulationResult, m: Measurement, spec: LossSpec) -> Ar
     return np.where(np.isfinite(e0), best, 0.0)
 
 
-def end_state_offsets_mm(res: SimulationResult, m: Measurement) -> Array:
+def end_state_offsets_mm(res: SimulationResult, m: Measurement, bound_mm: float = 0.0) -> Array:
     """Each row's contact offset (mm) from the trial's measured end state, shape ``(P,)``.
 
     The measurement gives H_meas = h_end + v t_end (:func:`smcbayes.data.dataset.
@@ -249,7 +249,9 @@ def end_state_offsets_mm(res: SimulationResult, m: Measurement) -> Array:
     the charge stood than the simulated one: measured, not fitted, it cannot absorb a
     model that ends the closing at the wrong gap.  Delayed by offset / v, the simulated
     closing ends at t_end + (h_end - h_sim) / v: exactly at the measured end when it ends
-    at the measured gap.  0 for a failed row (or one whose gap is not finite).
+    at the measured gap.  With ``bound_mm`` above 0 the offset is clipped to +- it (no
+    charge stands further from its nominal height; ``[loss] contact_offset_mm``).  0 for a
+    failed row (or one whose gap is not finite).
     """
     if m.end_stack_mm is None:
         why = next((s.removeprefix("no end state: ") for s in m.steps if s.startswith("no end state: ")),
@@ -263,14 +265,16 @@ def end_state_offsets_mm(res: SimulationResult, m: Measurement) -> Array:
     ts = _switch(res, t, ok)
     gap = np.where(ok[:, None], res.gap_mm, 0.0)
     end = interp_rows(ts[:, None], t, gap)[:, 0] + m.speed_mm_s * ts
-    return np.where(ok & np.isfinite(end), m.end_stack_mm - end, 0.0)
+    offset = np.where(ok & np.isfinite(end), m.end_stack_mm - end, 0.0)
+    return np.clip(offset, -bound_mm, bound_mm) if bound_mm > 0 else offset
 
 
 def trial_offsets_mm(res: SimulationResult, m: Measurement, spec: LossSpec) -> Array:
     """Each row's contact offset (mm) as ``spec.contact_mode`` says, shape ``(P,)``: measured
-    from the end state, profiled, or 0 at the nominal stack height."""
+    from the end state (within +- ``spec.contact_offset_mm`` when above 0), profiled, or 0
+    at the nominal stack height."""
     if spec.contact_mode == "end_state":
-        return end_state_offsets_mm(res, m)
+        return end_state_offsets_mm(res, m, spec.contact_offset_mm)
     if spec.contact_mode == "profile":
         return best_offsets_mm(res, m, spec)
     return np.zeros(res.rows)
@@ -292,6 +296,17 @@ def contact_offsets_mm(results: Mapping[str, SimulationResult], dataset: Dataset
             continue
         out[cid] = float(trial_offsets_mm(results[cid], m, spec)[row])
     return out
+
+
+def contact_beyond_bound(results: Mapping[str, SimulationResult], dataset: Dataset, spec: LossSpec,
+                         ids: Sequence[str], row: int = 0) -> dict[str, float]:
+    """Of ``ids``, the trials whose end state puts their contact beyond +-
+    ``spec.contact_offset_mm`` at row ``row``, with their unbounded offsets (mm); empty
+    unless ``contact = "end_state"`` has a bound."""
+    if spec.contact_mode != "end_state" or spec.contact_offset_mm <= 0:
+        return {}
+    raw = contact_offsets_mm(results, dataset, spec.model_copy(update={"contact_offset_mm": 0.0}), ids, row)
+    return {c: v for c, v in raw.items() if abs(v) > spec.contact_offset_mm}
 
 
 def unseen_offset_mm(offsets: Mapping[str, float]) -> float:

@@ -167,13 +167,15 @@ def _best_table(cal: dict[str, Any], truth: dict[str, Any] | None) -> Table:
 
 def bound_advice(cal: dict[str, Any]) -> list[str]:
     """One sentence per calibrated parameter on a search bound (``on_bounds`` of the
-    calibration summary): which way the data push it and what to do."""
+    calibration summary): which way the data push it and what to do; then one per trial
+    whose end state puts its contact beyond the loss's bound (``contact_on_bound``)."""
     out = []
     for b in cal.get("on_bounds") or []:
         text = b.get("advice") or ParameterOnBoundWarning.advice(
             str(b.get("name")), str(b.get("bound")), float(b.get("limit", float("nan"))),
             float(b.get("value", float("nan"))), b.get("physical_limit"))
         out.append(text)
+    out.extend(str(c.get("advice")) for c in cal.get("contact_on_bound") or [] if c.get("advice"))
     return out
 
 

@@ -19,9 +19,9 @@ from typing import Any
 import numpy as np
 
 from smcbayes.config import CalibrationSpec
-from smcbayes.data.loss import contact_offsets_mm, force_pair, unseen_offset_mm
+from smcbayes.data.loss import contact_beyond_bound, contact_offsets_mm, force_pair, unseen_offset_mm
 from smcbayes.data.readers.csv import write_curves
-from smcbayes.errors import ParameterOnBoundWarning
+from smcbayes.errors import ContactOffsetWarning, ParameterOnBoundWarning
 from smcbayes.forward.ranges import PHYSICAL_RANGES
 from smcbayes.forward.result import SimulationResult
 from smcbayes.plotting import plot_simulation
@@ -160,15 +160,25 @@ def _best_outputs(bo: BayesOpt, problem: Problem, run: RunDir, executor: Executo
     out: dict[str, Any] = {"validation_errors": validation_errors(problem, results, mean_offset)}
     if offsets:
         out["contact_offsets_mm"] = offsets
+    beyond = contact_beyond_bound(results, problem.dataset, problem.project.loss, problem.train_ids)
+    if beyond:
+        bound = problem.project.loss.contact_offset_mm
+        out["contact_on_bound"] = [{"config_id": c, "offset_mm": v, "bound_mm": bound,
+                                    "advice": ContactOffsetWarning.advice(c, v, bound)}
+                                   for c, v in beyond.items()]
     return out
 
 
 def warn_on_bounds(info: dict[str, Any]) -> None:
-    """One :class:`ParameterOnBoundWarning` per calibrated parameter on a search bound."""
+    """One :class:`ParameterOnBoundWarning` per calibrated parameter on a search bound, one
+    :class:`ContactOffsetWarning` per trial whose end state puts its contact beyond the
+    bound of the loss."""
     for b in info.get("on_bounds") or []:
         text = b.get("advice") or ParameterOnBoundWarning.advice(b["name"], b["bound"], b["limit"],
                                                                   b["value"])
         warnings.warn(text, ParameterOnBoundWarning, stacklevel=3)
+    for c in info.get("contact_on_bound") or []:
+        warnings.warn(c["advice"], ContactOffsetWarning, stacklevel=3)
 
 
 def finish(bo: BayesOpt, problem: Problem, run: RunDir, wall_s: float, figures: bool = True,

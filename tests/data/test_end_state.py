@@ -10,13 +10,14 @@ import pytest
 from smcbayes.data.dataset import load_dataset
 from smcbayes.data.loss import (
     LossSpec,
+    contact_beyond_bound,
     contact_offsets_mm,
     end_state_offsets_mm,
     evaluate_loss,
     force_pair,
     unseen_offset_mm,
 )
-from smcbayes.errors import ConfigError, DataError
+from smcbayes.errors import ConfigError, ContactOffsetWarning, DataError
 from smcbayes.forward.result import SimulationResult
 
 SPEED = 1.0  # mm/s: a delay of 0.2 s is a 0.2 mm offset
@@ -150,7 +151,28 @@ def test_a_width_alone_still_profiles_and_a_profile_needs_a_width() -> None:
     with pytest.raises(ValueError, match="contact_offset_mm"):
         LossSpec(contact="profile")
     with pytest.raises(ValueError, match="remove it"):
-        LossSpec(contact="end_state", contact_offset_mm=0.3)
+        LossSpec(contact="nominal", contact_offset_mm=0.3)
+    # with the end state, the width bounds the measured offset
+    assert LossSpec(contact="end_state", contact_offset_mm=0.3).contact_mode == "end_state"
+
+
+def test_a_bound_clips_the_end_state_offset_and_names_the_trials_beyond_it(dhp, tmp_path: Path) -> None:
+    """The charge measured 0.2 mm above the simulated one and a frame that would put it
+    0.1 mm below: within +-0.15 mm both are compared at the bound and named; the error the
+    bound leaves is paid in the loss."""
+    _write_rise(dhp, tmp_path, 0.2)
+    ds = load_dataset(dhp.project(tmp_path, [_config(dhp, {"thickness_mm": 3.0})]))
+    sims = {"c1": _simulated(), "soft": _simulated(k_kN_mm=1000.0)}
+    bounded = LossSpec(contact="end_state", contact_offset_mm=0.15)
+    np.testing.assert_allclose(end_state_offsets_mm(sims["c1"], ds["c1"], 0.15), 0.15)
+    np.testing.assert_allclose(end_state_offsets_mm(sims["soft"], ds["c1"], 0.15), -0.1, atol=2e-3)
+    assert contact_beyond_bound({"c1": sims["c1"]}, ds, bounded, ["c1"]) == pytest.approx({"c1": 0.2}, abs=2e-3)
+    assert contact_beyond_bound({"c1": sims["soft"]}, ds, bounded, ["c1"]) == {}
+    assert contact_beyond_bound({"c1": sims["c1"]}, ds, LossSpec(contact="end_state"), ["c1"]) == {}
+    assert evaluate_loss({"c1": sims["c1"]}, ds, bounded).total[0] > \
+        10 * evaluate_loss({"c1": sims["c1"]}, ds, LossSpec(contact="end_state")).total[0]
+    text = ContactOffsetWarning.advice("c1", 0.2, 0.15)
+    assert "+0.20 mm" in text and "+-0.15 mm" in text
 
 
 def test_a_trial_without_its_own_offset_takes_the_training_mean() -> None:

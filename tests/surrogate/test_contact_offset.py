@@ -34,3 +34,29 @@ def test_a_calibration_records_each_trials_contact_offset(tmp_path: Path) -> Non
     theta = np.array([[cal.best_params[n] for n in problem.model.space.free_names]])
     again = contact_offsets_mm(problem.model.simulate(theta, train), problem.dataset, problem.project.loss, train)
     assert again == offsets
+
+
+def test_a_calibration_names_the_trials_whose_end_state_lies_beyond_the_bound(tmp_path: Path) -> None:
+    """Trials pressed with a ram that lags (1 s speed ramp), calibrated without the ramp
+    and a 0.05 mm bound: the model ends each closing earlier than the press did, so the
+    end state puts the contacts beyond the bound; the summary and a warning say which."""
+    from smcbayes.cli import main
+    from smcbayes.errors import ContactOffsetWarning
+
+    ids = ["60-bar-03", "80-bar-11"]
+    assert main(["synth", str(REPO / "configs" / "thesis.toml"), "--effect", "compressibility",
+                 "--effect", "speed_ramp", "--truth", "ramp_time_s=1.0", "--truth", "load_slowdown=0.3",
+                 "--seed", "1", "--only", *ids, "--out", str(tmp_path / "data")]) == 0
+    project = smcbayes.load_project(tmp_path / "data" / "project.toml")
+    project = project.model_copy(update={
+        "loss": project.loss.model_copy(update={"contact_offset_mm": 0.05}),
+        "configuration": [c for c in project.configuration if c.id in ids]})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cal = smcbayes.calibrate(project, tmp_path / "run", effects=["compressibility"], budget=4, init=3,
+                                 figures=False, polish=0)
+    beyond = {c["config_id"]: c["offset_mm"] for c in cal.summary["contact_on_bound"]}
+    assert beyond and set(beyond) <= set(ids) and all(abs(v) > 0.05 for v in beyond.values())
+    assert all(abs(v) == 0.05 for c, v in cal.summary["contact_offsets_mm"].items() if c in beyond)
+    named = [str(w.message) for w in caught if issubclass(w.category, ContactOffsetWarning)]
+    assert len(named) == len(beyond) and all("contact_offset_mm" in t for t in named)
