@@ -32,8 +32,9 @@ fold's calibrated point.
 
 The budgets default to the workflow's defaults (``[calibration]``, ``[diagnose]``,
 ``[posterior]`` of settings.py).  Writes ``benchmarks/results/NAME.json`` (``--name``,
-default ``real_crossval``; merged with an existing file when ``--fold`` is given) and
-copies each fold's band figure to ``benchmarks/results/NAME/fold-K.png``.  Needs ../shared/data/thesis-press next to
+default ``real_crossval``; merged with an existing file when ``--fold`` is given), copies
+each fold's band figure to ``benchmarks/results/NAME/fold-K.png`` and keeps the folds'
+work in ``NAME/work`` unless ``--workdir`` says otherwise.  Needs ../shared/data/thesis-press next to
 the repository (``--data-dir``); without it, prints why and exits 0.
 """
 
@@ -199,7 +200,7 @@ work only when they and the project file are unchanged."""
 def fold_workdir(k: int, args: argparse.Namespace) -> Path:
     """Fold ``k``'s work directory: emptied unless ``--reuse`` finds it made with the same
     settings (:data:`REUSE_KEYS`, recorded in ``settings.json``)."""
-    work = Path(args.workdir) / f"fold-{k}"
+    work = Path(args.workdir or RESULTS / args.name / "work") / f"fold-{k}"
     settings = {key: getattr(args, key) for key in REUSE_KEYS}
     # the same data reached through another checkout's relative path is the same data
     settings["data_dir"] = str(Path(args.data_dir).resolve())
@@ -360,7 +361,8 @@ def parse() -> argparse.Namespace:
                     help="skip the diagnosis and add these effects (comma separated; '' for none)")
     ap.add_argument("--candidates", type=lambda s: s.split(","), default=None,
                     help="candidate effects of the diagnosis (default: all)")
-    ap.add_argument("--workdir", default=str(RESULTS / "real_crossval" / "work"))
+    ap.add_argument("--workdir", default=None,
+                    help="folds' work directories (default: benchmarks/results/NAME/work)")
     ap.add_argument("--reuse", action="store_true",
                     help="keep each fold's calibrations and diagnosis in --workdir when made with the same "
                          "settings, finish what is missing and rerun the posterior (whose stage cache "
@@ -370,8 +372,8 @@ def parse() -> argparse.Namespace:
                     help="project file whose settings and trials the folds use (default: configs/thesis.toml); "
                          "a variant of it tests another loss or parameter box")
     ap.add_argument("--name", default="real_crossval",
-                    help="results file benchmarks/results/NAME.json and figures in NAME/ (a variant's "
-                         "run keeps the default's)")
+                    help="results file benchmarks/results/NAME.json, figures and work directories in "
+                         "NAME/ (a variant's run keeps the default's)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--budget", type=int, default=d(CalibrationSpec, "budget"))
     ap.add_argument("--init", type=int, default=d(CalibrationSpec, "init"))

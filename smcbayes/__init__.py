@@ -18,6 +18,7 @@ from typing import Any
 
 from smcbayes.errors import (
     ConfigError,
+    ContactOffsetWarning,
     ConvergenceWarning,
     DataError,
     ParameterOnBoundWarning,
@@ -35,7 +36,7 @@ _API = ("load_project", "calibrate", "sample_posterior", "diagnose_gap", "write_
         "CalibrationResult", "PosteriorResult", "DiagnosisResult")
 
 __all__ = [
-    "ConfigError", "ConvergenceWarning", "DataError", "ParameterOnBoundWarning", "SlowPathWarning",
+    "ConfigError", "ContactOffsetWarning", "ConvergenceWarning", "DataError", "ParameterOnBoundWarning", "SlowPathWarning",
     "SmcBayesError", "SmcBayesWarning", "SolverError", "SurrogateError", "UnreliablePosteriorWarning",
     "__version__", *_API,
 ]

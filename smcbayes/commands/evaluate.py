@@ -10,7 +10,14 @@ from smcbayes.commands.common import add_model_options
 from smcbayes.config import load_project, parse_assignments
 from smcbayes.data.breakdown import force_breakdown
 from smcbayes.data.dataset import Dataset, load_dataset
-from smcbayes.data.loss import LossResult, LossSpec, contact_offsets_mm, evaluate_loss, unseen_offset_mm
+from smcbayes.data.loss import (
+    LossResult,
+    LossSpec,
+    contact_beyond_bound,
+    contact_offsets_mm,
+    evaluate_loss,
+    unseen_offset_mm,
+)
 from smcbayes.errors import DataError
 from smcbayes.forward.model import ForwardModel
 from smcbayes.forward.result import SimulationResult
@@ -44,6 +51,25 @@ def _offsets_without_end_state(results: dict[str, SimulationResult], dataset: Da
     own = contact_offsets_mm(results, dataset, spec, dataset.ids("train"))
     mean = unseen_offset_mm(own)
     return {c: mean for c in missing}
+
+
+def _offsets_line(results: dict[str, SimulationResult], dataset: Dataset, spec: LossSpec,
+                  ids: list[str]) -> str | None:
+    """The line that gives each configuration's contact offset (mm) and how it was found;
+    a trial whose end state lies beyond the bound also shows the offset it implies."""
+    offsets = contact_offsets_mm(results, dataset, spec, ids)
+    if not offsets:
+        return None
+    bound = spec.contact_offset_mm
+    if spec.contact_mode == "profile":
+        how = f"its best contact offset within +-{bound:g} mm ([loss] contact_offset_mm)"
+    else:
+        how = "the contact offset its end state implies ([loss] contact)" + \
+            (f", within +-{bound:g} mm ([loss] contact_offset_mm)" if bound > 0 else "")
+    beyond = contact_beyond_bound(results, dataset, spec, list(offsets))
+    cells = [f"{c} {v:+.2f} mm" + (f" (on the bound; its end state implies {beyond[c]:+.2f} mm)"
+                                   if c in beyond else "") for c, v in offsets.items()]
+    return f"each configuration at {how}: " + ", ".join(cells)
 
 
 def _rmse(x: float) -> str:
@@ -88,12 +114,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"{cid}: simulation failed: {results[cid].status[0]}")
     parts = np.stack([bd.shift_kN2[0], bd.amplitude_kN2[0], bd.shape_kN2[0]])
     print_table(full, clipped, bd.shift_s[0], parts, bd.phase_share[0])
-    offsets = contact_offsets_mm(results, dataset, spec, ids)
-    if offsets:
-        how = (f"its best contact offset within +-{spec.contact_offset_mm:g} mm ([loss] contact_offset_mm)"
-               if spec.contact_mode == "profile" else "the contact offset its end state implies ([loss] contact)"
-               + (f", within +-{spec.contact_offset_mm:g} mm" if spec.contact_offset_mm > 0 else ""))
-        print(f"each configuration at {how}: " + ", ".join(f"{c} {v:+.2f} mm" for c, v in offsets.items()))
+    line = _offsets_line(results, dataset, spec, ids)
+    if line:
+        print(line)
     if given:
         print("without an end state, at the training trials' mean offset: "
               + ", ".join(f"{c} {v:+.2f} mm" for c, v in given.items()))

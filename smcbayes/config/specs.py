@@ -64,7 +64,7 @@ class LossSpec(_Strict):
             pays for the rest in the loss, instead of being aligned with every trial by an
             offset no charge could have.  0 (default); at most 2 mm (a quarter of a typical
             8 mm stack: beyond it the first-order delay no longer stands for a thicker
-            charge).
+            charge; an unbounded end-state offset may exceed it).
         contact: where each training trial's contact lies.  ``nominal``: at the stack
             height; ``profile``: the best offset within +- ``contact_offset_mm``;
             ``end_state``: the offset that the trial's
@@ -85,7 +85,7 @@ class LossSpec(_Strict):
     contact: Literal["nominal", "profile", "end_state"] | None = None
 
     @model_validator(mode="after")
-    def _width_for_profile(self) -> LossSpec:
+    def _width_for_a_moving_contact(self) -> LossSpec:
         if self.contact == "profile" and self.contact_offset_mm <= 0:
             raise ValueError('contact = "profile" needs contact_offset_mm > 0 (the range searched)')
         if self.contact == "nominal" and self.contact_offset_mm > 0:

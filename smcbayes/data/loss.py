@@ -38,7 +38,8 @@ from smcbayes.forward.result import PHASE_FORCE, SimulationResult
 Array = NDArray[np.float64]
 
 __all__ = ["LossSpec", "LossResult", "evaluate_loss", "ForcePair", "force_pair", "best_offsets_mm",
-           "contact_offsets_mm", "end_state_offsets_mm", "trial_offsets_mm", "interp_rows"]
+           "contact_offsets_mm", "contact_beyond_bound", "end_state_offsets_mm", "trial_offsets_mm",
+           "unseen_offset_mm", "interp_rows"]
 
 
 @dataclass(frozen=True)

@@ -152,7 +152,24 @@ def test_evaluate_with_the_contact_from_the_end_state(tmp_path: Path, capsys: py
     capsys.readouterr()
     assert main(["evaluate", str(toml), "--set", "n=0.3", "--role", "all"]) == 0
     out = capsys.readouterr().out
-    assert "the contact offset its end state implies" in out
+    assert "the contact offset its end state implies ([loss] contact), within +-1 mm" in out
     assert re.search(r"60-bar-03 [+-]0\.00 mm", out) and re.search(r"60-center-07 [+-]0\.00 mm", out)
     assert re.search(r"without an end state, at the training trials' mean offset: 80-center-03 [+-]0\.00 mm", out)
     assert sorted(_rows(out)) == sorted(ids)
+
+
+def test_evaluate_shows_the_offset_a_trial_beyond_the_bound_implies(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Pressed with a ram that lags by a 1 s speed ramp, evaluated without it under a
+    0.05 mm bound: the trial is compared at the bound, and the line says what its end
+    state implied."""
+    assert main(["synth", str(THESIS_TOML), "--effect", "speed_ramp", "--truth", "ramp_time_s=1.0",
+                 "--seed", "1", "--only", "60-bar-03", "--out", str(tmp_path)]) == 0
+    toml = tmp_path / "project.toml"
+    toml.write_text(re.sub(r"contact_offset_mm = [0-9.]+", "contact_offset_mm = 0.05",
+                           toml.read_text(encoding="utf-8")), encoding="utf-8")
+    capsys.readouterr()
+    assert main(["evaluate", str(toml)]) == 0
+    out = capsys.readouterr().out
+    found = re.search(r"60-bar-03 ([+-]0\.05) mm \(on the bound; its end state implies ([+-]\d\.\d\d) mm\)", out)
+    assert found and abs(float(found.group(2))) > 0.05

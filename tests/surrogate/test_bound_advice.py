@@ -8,7 +8,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from smcbayes.errors import ParameterOnBoundWarning
+from smcbayes.errors import ContactOffsetWarning, ParameterOnBoundWarning
 from smcbayes.forward.parameters import BASE_PARAMETERS, ParameterSpace
 from smcbayes.report.sections_run import bound_advice
 from smcbayes.surrogate.calibration import on_bounds, warn_on_bounds
@@ -54,3 +54,11 @@ def test_the_report_says_it_also_for_summaries_written_without_the_advice() -> N
     texts = bound_advice({"on_bounds": old})
     assert texts == [b["advice"] for b in _on_bounds()]
     assert bound_advice({}) == []
+
+
+def test_the_report_also_names_the_trials_whose_contact_lies_beyond_the_bound() -> None:
+    contact = [{"config_id": "c1", "offset_mm": 1.4, "bound_mm": 1.0,
+                "advice": ContactOffsetWarning.advice("c1", 1.4, 1.0)}]
+    texts = bound_advice({"on_bounds": _on_bounds(), "contact_on_bound": contact})
+    assert texts[:-1] == [b["advice"] for b in _on_bounds()]
+    assert texts[-1].startswith("c1: its end state puts its contact +1.40 mm from the nominal stack height")

@@ -1,5 +1,6 @@
-"""A calibration whose loss profiles each trial's contact offset records each training
-trial's offset at the best point and draws the curves at it."""
+"""A calibration whose loss gives each trial a contact offset records each training trial's
+offset at the best point and draws the curves at it; with the offset from the end state
+and a bound, it names the trials whose end state lies beyond the bound."""
 
 from __future__ import annotations
 
