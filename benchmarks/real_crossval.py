@@ -34,8 +34,9 @@ The budgets default to the workflow's defaults (``[calibration]``, ``[diagnose]`
 ``[posterior]`` of settings.py).  Writes ``benchmarks/results/NAME.json`` (``--name``,
 default ``real_crossval``; merged with an existing file when ``--fold`` is given), copies
 each fold's band figure to ``benchmarks/results/NAME/fold-K.png`` and keeps the folds'
-work in ``NAME/work`` unless ``--workdir`` says otherwise.  Needs ../shared/data/thesis-press next to
-the repository (``--data-dir``); without it, prints why and exits 0.
+work in ``NAME/work`` unless ``--workdir`` says otherwise.  Needs
+../shared/data/thesis-press next to the repository (``--data-dir``); without it, prints
+why and exits 0.
 """
 
 from __future__ import annotations

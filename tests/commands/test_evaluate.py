@@ -171,5 +171,6 @@ def test_evaluate_shows_the_offset_a_trial_beyond_the_bound_implies(
     capsys.readouterr()
     assert main(["evaluate", str(toml)]) == 0
     out = capsys.readouterr().out
-    found = re.search(r"60-bar-03 ([+-]0\.05) mm \(on the bound; its end state implies ([+-]\d\.\d\d) mm\)", out)
+    found = re.search(r"60-bar-03 ([+-]0\.05) mm \(on the bound; its end state implies ([+-]\d\.\d\d) mm\)",
+                      out)
     assert found and abs(float(found.group(2))) > 0.05

@@ -166,7 +166,8 @@ def test_a_bound_clips_the_end_state_offset_and_names_the_trials_beyond_it(dhp, 
     bounded = LossSpec(contact="end_state", contact_offset_mm=0.15)
     np.testing.assert_allclose(end_state_offsets_mm(sims["c1"], ds["c1"], 0.15), 0.15)
     np.testing.assert_allclose(end_state_offsets_mm(sims["soft"], ds["c1"], 0.15), -0.1, atol=2e-3)
-    assert contact_beyond_bound({"c1": sims["c1"]}, ds, bounded, ["c1"]) == pytest.approx({"c1": 0.2}, abs=2e-3)
+    beyond = contact_beyond_bound({"c1": sims["c1"]}, ds, bounded, ["c1"])
+    assert beyond == pytest.approx({"c1": 0.2}, abs=2e-3)
     assert contact_beyond_bound({"c1": sims["soft"]}, ds, bounded, ["c1"]) == {}
     assert contact_beyond_bound({"c1": sims["c1"]}, ds, LossSpec(contact="end_state"), ["c1"]) == {}
     assert evaluate_loss({"c1": sims["c1"]}, ds, bounded).total[0] > \
