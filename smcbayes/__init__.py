@@ -36,8 +36,9 @@ _API = ("load_project", "calibrate", "sample_posterior", "diagnose_gap", "write_
         "CalibrationResult", "PosteriorResult", "DiagnosisResult")
 
 __all__ = [
-    "ConfigError", "ContactOffsetWarning", "ConvergenceWarning", "DataError", "ParameterOnBoundWarning", "SlowPathWarning",
-    "SmcBayesError", "SmcBayesWarning", "SolverError", "SurrogateError", "UnreliablePosteriorWarning",
+    "ConfigError", "ContactOffsetWarning", "ConvergenceWarning", "DataError", "ParameterOnBoundWarning",
+    "SlowPathWarning", "SmcBayesError", "SmcBayesWarning", "SolverError", "SurrogateError",
+    "UnreliablePosteriorWarning",
     "__version__", *_API,
 ]
 
