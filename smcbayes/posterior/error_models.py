@@ -5,8 +5,9 @@ leave-one-configuration-out residuals (:mod:`smcbayes.posterior.crossfit`); one 
 outside it (a new speed or charge: :mod:`smcbayes.posterior.extrapolation`) takes the one
 learnt from leave-group-out residuals that put training trials across the same kind of gap.
 Every refit runs in one batch of the forward model.  Where each trial has a contact offset
-of its own (profiled by the loss or measured from its end state), the residuals are taken at each trial's own offset and the training trials'
-offsets at the calibrated point are kept for the bands to mix over.
+of its own (profiled by the loss or measured from its end state), the residuals are taken
+at each trial's own offset and the training trials' offsets at the calibrated point are
+kept for the bands to mix over.
 """
 
 from __future__ import annotations
