@@ -8,9 +8,9 @@ the training residuals) an error drawn from the distribution of the point's phas
 closing, otherwise white Gaussian noise of one standard deviation per configuration.  Where
 each trial has a contact offset of its own (profiled by the loss or measured from its end
 state, ``[loss] contact``), every draw is also taken at each training trial's offset (its
-closing delayed by offset / set speed), so both bands carry the trial-to-trial scatter of the contact that a new trial's unknown offset brings.  Predictive
-draws are clipped to ``[0, F_limit]``: the press neither pulls nor exceeds its force limit
-during the closing.
+closing delayed by offset / set speed), so both bands carry the trial-to-trial scatter
+of the contact that a new trial's unknown offset brings.  Predictive draws are clipped to
+``[0, F_limit]``: the press neither pulls nor exceeds its force limit during the closing.
 
 Scores against a measured curve, at its points inside the band grid: coverage of the 50 %
 and 90 % bands; RMSE of the model's median curve; the CRPS (the mean over the points of
