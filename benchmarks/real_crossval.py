@@ -282,7 +282,7 @@ def run_fold(k: int, args: argparse.Namespace) -> dict[str, Any]:
     for cid in held_out:
         b = bands.get(cid, {})
         rows.append({"config_id": cid, "rmse_kN": rmse[cid], "rmse_median_kN": b.get("rmse_median_kN"),
-                     "coverage50": b.get("coverage50"), "coverage90": b.get("coverage90"),
+                     "rmse_mean_kN": b.get("rmse_mean_kN"), "coverage50": b.get("coverage50"), "coverage90": b.get("coverage90"),
                      "band_width90_kN": b.get("width90_kN"), "crps_kN": b.get("crps_kN"),
                      "interval_score90_kN": b.get("interval_score90_kN"),
                      "rmse_own_contact_kN": at_own.get(cid, {}).get("rmse_kN"),
@@ -310,7 +310,7 @@ def print_fold(f: dict[str, Any]) -> None:
                                                   if k != "workflow_s") + ")")
     print(f"  clipped loss at the calibrated point: {f['clipped_loss_sum_kN2']:.0f} kN^2 summed over 9 "
           f"(thesis best {THESIS_BEST_CLIPPED_KN2:.0f})")
-    print(f"  {'held out':<14}{'RMSE kN':>9}{'median':>8}{'cov50':>7}{'cov90':>7}{'width90':>9}"
+    print(f"  {'held out':<14}{'RMSE kN':>9}{'median':>8}{'mean':>7}{'cov50':>7}{'cov90':>7}{'width90':>9}"
           f"{'CRPS':>7}{'IS90':>8}{'own contact':>13}")
 
     def g(v: Any, spec: str) -> str:
@@ -319,6 +319,7 @@ def print_fold(f: dict[str, Any]) -> None:
 
     for r in f["rows"]:
         print(f"  {r['config_id']:<14}{g(r['rmse_kN'], '9.1f')}{g(r['rmse_median_kN'], '8.1f')}"
+              f"{g(r.get('rmse_mean_kN'), '7.1f')}"
               f"{g(r['coverage50'], '7.0%')}{g(r['coverage90'], '7.0%')}{g(r['band_width90_kN'], '9.0f')}"
               f"{g(r['crps_kN'], '7.1f')}{g(r['interval_score90_kN'], '8.0f')}"
               f"{g(r.get('rmse_own_contact_kN'), '7.1f')}{g(r.get('own_contact_offset_mm'), '+6.2f')}")
@@ -337,7 +338,8 @@ def totals(folds: list[dict[str, Any]]) -> dict[str, Any]:
     ok_cov = all(r["coverage90"] is not None and 0.80 <= r["coverage90"] <= 0.97 for r in rows)
     ok_width = all(r["band_width90_kN"] is not None and r["band_width90_kN"] <= 4 * r["rmse_kN"] for r in rows)
     return {"trials": len(rows), "mean_rmse_kN": mean("rmse_kN"), "max_rmse_kN": max(r["rmse_kN"] for r in rows),
-            "mean_rmse_median_kN": mean("rmse_median_kN"), "mean_coverage50": mean("coverage50"),
+            "mean_rmse_median_kN": mean("rmse_median_kN"),
+            "mean_rmse_mean_kN": mean("rmse_mean_kN"), "mean_coverage50": mean("coverage50"),
             "mean_coverage90": mean("coverage90"), "mean_band_width90_kN": mean("band_width90_kN"),
             "mean_crps_kN": mean("crps_kN"), "mean_rmse_own_contact_kN": mean("rmse_own_contact_kN"),
             "own_contact_le_70kN": sum(1 for r in rows if (r.get("rmse_own_contact_kN") or np.inf) <= 70.0),
@@ -415,7 +417,8 @@ def main() -> int:
            "totals": totals(all_folds), "wall_s_this_call": time.perf_counter() - start}
     tot = out["totals"]
     print(f"\n{tot['trials']} held-out trials: mean RMSE {tot['mean_rmse_kN']:.1f} kN (max "
-          f"{tot['max_rmse_kN']:.1f}), median-curve RMSE {tot['mean_rmse_median_kN']:.1f} kN, coverage "
+          f"{tot['max_rmse_kN']:.1f}), median-curve RMSE {tot['mean_rmse_median_kN']:.1f} kN, "
+          f"predictive-mean RMSE {tot['mean_rmse_mean_kN']:.1f} kN, coverage "
           f"50 % {tot['mean_coverage50']:.0%}, 90 % {tot['mean_coverage90']:.0%}, 90 % width "
           f"{tot['mean_band_width90_kN']:.0f} kN, CRPS {tot['mean_crps_kN']:.1f} kN")
     if np.isfinite(tot["mean_rmse_own_contact_kN"]):

@@ -85,7 +85,8 @@ def print_summary(info: dict[str, Any]) -> None:
     for cid, b in info["bands"].items():
         if b["coverage90"] == b["coverage90"]:
             sharp = "".join(f", {label} {b[key]:.3g} kN" for key, label in
-                            (("width90_kN", "90 % width"), ("crps_kN", "CRPS"))
+                            (("width90_kN", "90 % width"), ("crps_kN", "CRPS"),
+                             ("rmse_mean_kN", "predictive mean RMSE"))
                             if isinstance(b.get(key), (int, float)) and b[key] == b[key])
             print(f"coverage {cid}: 50 % band {b['coverage50']:.0%}, 90 % band {b['coverage90']:.0%}{sharp}")
     # the warnings themselves were shown as the library emitted them

@@ -65,8 +65,9 @@ def correlation_plot(matrix: Array, labels: Sequence[str], path: Path) -> list[P
 
 
 def bands_plot(bands: Mapping[str, Band], path: Path, title: str) -> list[Path]:
-    """Force bands (kN; model 50/90 %, predictive 90 %) vs time (s) per configuration, the
-    measured force in black; written as ``path`` .png and .svg, whose paths are returned."""
+    """Force bands (kN; model 50/90 %, predictive 90 %), the model's median and the
+    predictive mean (the point prediction) vs time (s) per configuration, the measured force
+    in black; written as ``path`` .png and .svg, whose paths are returned."""
     ids = list(bands)
     nrows, ncols = grid_shape(len(ids))
     fig, axes = subplots(nrows, ncols, figsize=(4.2 * ncols, 3.0 * nrows), squeeze=False)
@@ -76,7 +77,10 @@ def bands_plot(bands: Mapping[str, Band], path: Path, title: str) -> list[Path]:
                         label="predictive 90 %")
         ax.fill_between(b.time_s, b.force_kN[0], b.force_kN[4], color="tab:blue", alpha=0.3, label="model 90 %")
         ax.fill_between(b.time_s, b.force_kN[1], b.force_kN[3], color="tab:blue", alpha=0.5, label="model 50 %")
-        ax.plot(b.time_s, b.force_kN[2], color="tab:blue", lw=1.2, label="median")
+        ax.plot(b.time_s, b.force_kN[2], color="tab:blue", lw=1.2, label="model median")
+        if b.force_pred_mean_kN is not None:
+            ax.plot(b.time_s, b.force_pred_mean_kN, color="tab:orange", lw=1.2, ls="--",
+                    label="predictive mean")
         if b.measured is not None:
             ax.plot(*b.measured, color=MEASURED, lw=1.0, label="measured")
             ax.set_title(f"{cid}: coverage 50 % {b.coverage50:.0%}, 90 % {b.coverage90:.0%}", fontsize=9)

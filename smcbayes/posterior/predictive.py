@@ -12,8 +12,15 @@ closing delayed by offset / set speed), so both bands carry the trial-to-trial s
 of the contact that a new trial's unknown offset brings.  Predictive draws are clipped to
 ``[0, F_limit]``: the press neither pulls nor exceeds its force limit during the closing.
 
+The predictive mean curve (the mean of the predictive draws: parameter uncertainty, the
+contact scatter and the error model's bias where the training residuals lean to one side)
+is the point prediction: under squared error the mean of the predictive distribution is
+the optimal point forecast (Gneiting 2011, "Making and evaluating point forecasts", JASA
+106:746), where the model's median curve and the calibrated point's curve keep the
+model's own bias and a steep end of closing at one timing.
+
 Scores against a measured curve, at its points inside the band grid: coverage of the 50 %
-and 90 % bands; RMSE of the model's median curve; the CRPS (the mean over the points of
+and 90 % bands; RMSE of the model's median curve and of the predictive mean; the CRPS (the mean over the points of
 the continuous ranked probability score, computed from 50 predictive quantiles as twice
 their mean pinball loss; Gneiting & Raftery 2007, "Strictly proper scoring rules,
 prediction, and estimation", JASA 102:359, eq. 21); and the 90 % interval score, width
@@ -50,6 +57,8 @@ class Band:
         time_s: common time grid, ``(T,)``.
         force_kN, displacement_mm: model quantiles, ``(5, T)`` (5/25/50/75/95 %).
         force_pred_kN: predictive quantiles of force (model plus error), ``(5, T)``.
+        force_pred_mean_kN: predictive mean force, the point prediction, ``(T,)`` (None
+            when every draw failed).
         noise_kN: the white-noise standard deviation (kN) without an error model; with one,
             the mean half-width of its central 90 % interval over the grid.
         measured: measured ``(time_s, force_kN)`` or None.
@@ -57,6 +66,7 @@ class Band:
             without data).
         draws: number of successful draws.
         rmse_median_kN: RMSE of the model's median curve against the measurement (kN).
+        rmse_mean_kN: RMSE of the predictive mean curve (model plus error) (kN).
         crps_kN: mean CRPS of the predictive distribution at the measured points (kN).
         interval_score90_kN: mean 90 % interval score at the measured points (kN).
         error_model: ``"discrepancy"`` or ``"white noise"``.
@@ -73,9 +83,11 @@ class Band:
     coverage90: float
     draws: int
     rmse_median_kN: float = float("nan")
+    rmse_mean_kN: float = float("nan")
     crps_kN: float = float("nan")
     interval_score90_kN: float = float("nan")
     error_model: str = "white noise"
+    force_pred_mean_kN: Array | None = None
 
 
 def _curves_on_grid(time: Array, values: Array, grid: Array) -> Array:
@@ -104,12 +116,14 @@ def _predictive_draws(force: Array, grid: Array, switch_s: Array, travel_mm: Arr
 
 
 def _scores(grid: Array, median: Array, qpred: Array, levels: Array,
-            measured: tuple[Array, Array]) -> dict[str, float]:
-    """Coverage, median RMSE, CRPS and interval score at the measured points (see module doc).
+            measured: tuple[Array, Array], mean: Array) -> dict[str, float]:
+    """Coverage, median and mean RMSE, CRPS and interval score at the measured points (see
+    module doc).
 
     Args:
         median: the model's median force on ``grid`` ``(G,)``.
         qpred: predictive quantiles ``(L, G)`` at ``levels`` ``(L,)``, the five band levels first.
+        mean: the predictive mean force on ``grid`` ``(G,)``.
     """
     tm, fm = measured
     inside = tm <= grid[-1]
@@ -122,6 +136,7 @@ def _scores(grid: Array, median: Array, qpred: Array, levels: Array,
     return {"coverage90": float(np.mean((f >= lo90) & (f <= hi90))),
             "coverage50": float(np.mean((f >= lo50) & (f <= hi50))),
             "rmse_median_kN": float(np.sqrt(np.mean((np.interp(t, grid, median) - f) ** 2))),
+            "rmse_mean_kN": float(np.sqrt(np.mean((np.interp(t, grid, mean) - f) ** 2))),
             "crps_kN": float(2 * np.mean(pin)), "interval_score90_kN": float(np.mean(interval))}
 
 
@@ -189,9 +204,11 @@ def predictive_bands(model: Simulator, theta: Array, config_ids: Sequence[str],
         limit = float((force_limit_kN or {}).get(cid, np.inf))
         draws, scale = _predictive_draws(force, grid, switch, travel, sigma, disc, limit, rng)
         qpred = np.quantile(draws, levels, axis=0)
+        mean = draws.mean(axis=0)
         model_q = np.quantile(force, QUANTILES, axis=0)
-        scores = (_scores(grid, model_q[2], qpred, levels, measured[cid]) if cid in measured else
+        scores = (_scores(grid, model_q[2], qpred, levels, measured[cid], mean) if cid in measured else
                   {"coverage50": float("nan"), "coverage90": float("nan")})
         bands[cid] = Band(cid, grid, model_q, np.quantile(disp, QUANTILES, axis=0), qpred[:5], scale,
-                          measured.get(cid), draws=int(ok.sum()), error_model=kind, **scores)
+                          measured.get(cid), draws=int(ok.sum()), error_model=kind, force_pred_mean_kN=mean,
+                          **scores)
     return bands

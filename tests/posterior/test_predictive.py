@@ -110,6 +110,22 @@ def test_coverage_of_data_drawn_like_the_model_is_about_nominal() -> None:
     assert 0.84 < b.coverage90 < 0.96
 
 
+def test_the_point_prediction_is_the_predictive_mean_not_the_median() -> None:
+    """Draws of slopes 1, 2 and 6 without noise: the median curve is 2 t, the predictive mean
+    3 t.  A measurement of 3 t has zero RMSE against the mean and the RMSE of t against the
+    median."""
+    rng = np.random.default_rng(8)
+    theta = np.column_stack([[1.0, 2.0, 6.0], np.ones(3)])
+    tm = np.linspace(0.5, 9.5, 10)
+    b = predictive_bands(LinearModel(), theta, ["c"], {"c": (tm, 3.0 * tm)}, {"c": 0.0}, rng,
+                         grid_points=2201)["c"]
+    inside = b.time_s <= 10.0
+    np.testing.assert_allclose(b.force_pred_mean_kN[inside], 3.0 * b.time_s[inside], atol=1e-9)
+    np.testing.assert_allclose(b.force_kN[2][inside], 2.0 * b.time_s[inside], atol=1e-9)
+    assert b.rmse_mean_kN == pytest.approx(0.0, abs=1e-9)
+    assert b.rmse_median_kN == pytest.approx(float(np.sqrt(np.mean(tm**2))), rel=1e-9)
+
+
 def test_the_grid_extends_past_the_last_measured_point() -> None:
     """Measured points after the simulated switch are compared with the held end values."""
     rng = np.random.default_rng(6)
@@ -127,4 +143,4 @@ def test_a_configuration_where_every_draw_failed_gives_an_empty_band() -> None:
     rng = np.random.default_rng(7)
     theta = np.column_stack([np.linspace(1.0, 2.0, 3), np.ones(3)])
     bands = predictive_bands(LinearModel(failed=(0, 1, 2)), theta, ["c"], {}, {"c": 1.0}, rng)
-    assert bands["c"].draws == 0
+    assert bands["c"].draws == 0 and bands["c"].force_pred_mean_kN is None
