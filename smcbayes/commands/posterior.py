@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
         warnings.simplefilter("ignore", UnreliablePosteriorWarning)
         info = run_posterior(run_dir, settings, make_executor(args.workers, args.scheduler))
     print_summary(info)
-    print(f"posterior: {run_dir.root / 'posterior'} (posterior.nc, summary.csv, figures/)")
+    print(f"posterior: {run_dir.root / 'posterior'} (posterior.nc, summary.csv, bands/, figures/)")
     return 0
 
 
@@ -84,11 +84,11 @@ def print_summary(info: dict[str, Any]) -> None:
               f"{spread['max_quantile_shift']:.2f} of its range beyond the chains' own noise{pooled}")
     for cid, b in info["bands"].items():
         if b["coverage90"] == b["coverage90"]:
-            sharp = "".join(f", {label} {b[key]:.3g} kN" for key, label in
-                            (("width90_kN", "90 % width"), ("crps_kN", "CRPS"),
-                             ("rmse_mean_kN", "predictive mean RMSE"))
-                            if isinstance(b.get(key), (int, float)) and b[key] == b[key])
-            print(f"coverage {cid}: 50 % band {b['coverage50']:.0%}, 90 % band {b['coverage90']:.0%}{sharp}")
+            scores = "".join(f", {label} {b[key]:.3g} kN" for key, label in
+                             (("width90_kN", "90 % width"), ("crps_kN", "CRPS"),
+                              ("rmse_mean_kN", "predictive mean RMSE"))
+                             if isinstance(b.get(key), (int, float)) and b[key] == b[key])
+            print(f"coverage {cid}: 50 % band {b['coverage50']:.0%}, 90 % band {b['coverage90']:.0%}{scores}")
     # the warnings themselves were shown as the library emitted them
     rel = info.get("reliability") or {}
     verdict = "yes" if rel.get("reliable") else "no: " + "; ".join(rel.get("reasons") or [])

@@ -20,13 +20,13 @@ the optimal point forecast (Gneiting 2011, "Making and evaluating point forecast
 model's own bias and a steep end of closing at one timing.
 
 Scores against a measured curve, at its points inside the band grid: coverage of the 50 %
-and 90 % bands; RMSE of the model's median curve and of the predictive mean; the CRPS (the mean over the points of
-the continuous ranked probability score, computed from 50 predictive quantiles as twice
-their mean pinball loss; Gneiting & Raftery 2007, "Strictly proper scoring rules,
-prediction, and estimation", JASA 102:359, eq. 21); and the 90 % interval score, width
-plus 2/alpha times the distance by which the measurement falls outside (same paper,
-eq. 43).  The last two reward sharp bands and punish missed points, so they are read
-beside the coverage.
+and 90 % bands; RMSE of the model's median curve and of the predictive mean; the CRPS
+(the mean over the points of the continuous ranked probability score, computed from 50
+predictive quantiles as twice their mean pinball loss; Gneiting & Raftery 2007,
+"Strictly proper scoring rules, prediction, and estimation", JASA 102:359, eq. 21); and
+the 90 % interval score, width plus 2/alpha times the distance by which the measurement
+falls outside (same paper, eq. 43).  The last two reward sharp bands and punish missed
+points, so they are read beside the coverage.
 """
 
 from __future__ import annotations
@@ -206,9 +206,9 @@ def predictive_bands(model: Simulator, theta: Array, config_ids: Sequence[str],
         qpred = np.quantile(draws, levels, axis=0)
         mean = draws.mean(axis=0)
         model_q = np.quantile(force, QUANTILES, axis=0)
-        scores = (_scores(grid, model_q[2], qpred, levels, measured[cid], mean) if cid in measured else
-                  {"coverage50": float("nan"), "coverage90": float("nan")})
+        scores = (_scores(grid, model_q[2], qpred, levels, measured[cid], mean) if cid in measured
+                  else {"coverage50": float("nan"), "coverage90": float("nan")})
         bands[cid] = Band(cid, grid, model_q, np.quantile(disp, QUANTILES, axis=0), qpred[:5], scale,
-                          measured.get(cid), draws=int(ok.sum()), error_model=kind, force_pred_mean_kN=mean,
-                          **scores)
+                          measured.get(cid), draws=int(ok.sum()), error_model=kind,
+                          force_pred_mean_kN=mean, **scores)
     return bands

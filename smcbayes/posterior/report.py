@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import csv
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -18,7 +18,7 @@ from smcbayes.posterior.error_models import BandErrorModels, band_error_models
 from smcbayes.posterior.extrapolation import extrapolation_notes
 from smcbayes.posterior.likelihood import EmulatedPosterior
 from smcbayes.posterior.plots import bands_plot, corner_plot, correlation_plot
-from smcbayes.posterior.predictive import Band, predictive_bands
+from smcbayes.posterior.predictive import QUANTILES, Band, predictive_bands
 from smcbayes.posterior.refine import check_emulator
 from smcbayes.posterior.shape import shape_notes
 from smcbayes.posterior.summary import (
@@ -64,6 +64,23 @@ def write_table(path: Path, rows: list) -> None:
         w.writerow(["parameter", "unit", "mean", "sd", "q05", "q50", "q95", "r_hat", "ess"])
         for s in rows:
             w.writerow([s.name, s.unit] + [f"{v:.6g}" for v in (s.mean, s.sd, s.q05, s.q50, s.q95, s.r_hat, s.ess)])
+
+
+def write_band_curves(bands: Mapping[str, Band], folder: Path) -> None:
+    """One CSV per configuration, ``folder/<id>.csv``, on the band's time grid (s): the
+    model's and the predictive force quantiles (5/25/50/75/95 %) and the predictive mean
+    (the point prediction), in kN; a configuration whose draws all failed has empty cells."""
+    folder.mkdir(parents=True, exist_ok=True)
+    pct = [f"q{round(100 * q):02d}" for q in QUANTILES]
+    header = (["time_s"] + [f"force_{p}_kN" for p in pct] + [f"force_pred_{p}_kN" for p in pct]
+              + ["force_pred_mean_kN"])
+    for cid, b in bands.items():
+        mean = b.force_pred_mean_kN if b.force_pred_mean_kN is not None else np.full(b.time_s.size, np.nan)
+        cols = np.vstack([b.time_s[None, :], b.force_kN, b.force_pred_kN, mean[None, :]])
+        with (folder / f"{cid}.csv").open("w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow(header)
+            w.writerows([["" if v != v else f"{v:.6g}" for v in row] for row in cols.T])
 
 
 def correction_info(corrected: Any, settings: Any) -> dict[str, Any]:
@@ -132,6 +149,7 @@ def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any
         correlation_plot(t["corr"][0], t["corr"][1], fig / "correlations")
     kind = "validation" if val_ids else "training (no validation configuration)"
     bands_plot(bands, fig / "bands", f"posterior predictive bands on {kind} configurations")
+    write_band_curves(bands, out_dir / "bands")
     runs = int(draw_unit.shape[0]) * len(band_ids) + errors.runs
     return bands, runs, val_ids, errors
 

@@ -392,7 +392,8 @@ def bands_section(run: RunFiles) -> Section | None:
         sec.add(
             Figure(
                 fig,
-                "Predicted force bands (colour) and the measured force (black) per configuration.",
+                "Predicted force bands (colour), the predictive mean (dashed; the point "
+                "prediction) and the measured force (black) per configuration.",
             )
         )
     return sec

@@ -14,6 +14,7 @@ writes them through :class:`RunDir`.  Layout::
     truth-data/          synthetic measured curves of a check with known truth
     work/                work folders of the external simulator
     posterior/           the posterior stage: status.json, summary.json, outputs
+                         (bands/<id>.csv: the predictive bands and mean)
     diagnose/            the diagnosis stage (default folder): status.json, summary.json
 
 A stage folder's ``status.json`` says ``running`` from the stage's start until its

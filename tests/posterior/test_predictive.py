@@ -65,6 +65,8 @@ def test_predictive_bands_add_gaussian_noise_of_the_given_sd_clipped_at_zero() -
     np.testing.assert_allclose(np.median(b.force_pred_kN, axis=1), 5.0 * np.maximum(z, 0.0), atol=0.15)
     np.testing.assert_allclose(b.force_kN, 0.0)
     assert b.error_model == "white noise"
+    # the point prediction is the mean of the clipped draws: sigma / sqrt(2 pi), not 0
+    np.testing.assert_allclose(b.force_pred_mean_kN, 5.0 / np.sqrt(2.0 * np.pi), atol=0.2)
 
 
 def test_noise_of_a_configuration_without_its_own_is_the_mean_of_the_others() -> None:
@@ -124,6 +126,18 @@ def test_the_point_prediction_is_the_predictive_mean_not_the_median() -> None:
     np.testing.assert_allclose(b.force_kN[2][inside], 2.0 * b.time_s[inside], atol=1e-9)
     assert b.rmse_mean_kN == pytest.approx(0.0, abs=1e-9)
     assert b.rmse_median_kN == pytest.approx(float(np.sqrt(np.mean(tm**2))), rel=1e-9)
+
+
+def test_the_predictive_mean_averages_over_the_contact_delays() -> None:
+    """One draw, force t up to 10 s, taken at delays 0 and 2 s: the mean is the average of
+    t and (t - 2) clipped to [0, 10]."""
+    rng = np.random.default_rng(9)
+    theta = np.array([[1.0, 1.0]])
+    b = predictive_bands(LinearModel(), theta, ["c"], {}, {"c": 0.0}, rng, grid_points=1321,
+                         delays_s={"c": np.array([0.0, 2.0])})["c"]
+    t = b.time_s
+    expected = 0.5 * (np.minimum(t, 10.0) + np.clip(t - 2.0, 0.0, 10.0))
+    np.testing.assert_allclose(b.force_pred_mean_kN, expected, atol=1e-9)
 
 
 def test_the_grid_extends_past_the_last_measured_point() -> None:

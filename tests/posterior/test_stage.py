@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
 from types import SimpleNamespace
@@ -82,6 +83,14 @@ def test_outputs_written(run_dir: Path) -> None:
     assert info["discrepancy"]["residuals"] == "leave-one-configuration-out refits"
     # the bands' runs: 30 draws on the 5 configurations, and the refits' batch, (1 + 3 K) K
     assert info["forward_evaluations"]["bands"] == 30 * 5 + (1 + 3 * 5) * 5
+    # each band's curves as data: quantiles and the predictive mean on the band's grid
+    rows = list(csv.reader((out / "bands" / f"{next(iter(info['bands']))}.csv").open(encoding="utf-8")))
+    assert rows[0][0] == "time_s" and rows[0][-1] == "force_pred_mean_kN" and len(rows[0]) == 12
+    vals = np.array(rows[1:], dtype=float)
+    assert len(rows) - 1 == 300 and np.all(np.diff(vals[:, 0]) > 0)
+    assert np.all(np.diff(vals[:, 1:6], axis=1) >= -1e-9) and np.all(np.diff(vals[:, 6:11], axis=1) >= -1e-9)
+    # the mean of clipped draws lies in [0, force limit], not always inside its own 5-95 % band
+    assert np.all(vals[:, -1] >= 0.0) and np.all(vals[:, -1] <= vals[:, 6:11].max() + 1e-9)
 
 
 def test_correction_is_reported(run_dir: Path) -> None:
