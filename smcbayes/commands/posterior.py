@@ -27,7 +27,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "forward model (Pareto k-hat reported; by default with the built-in 1-D model, "
                     "not with an external simulator or the 2-D solver; --correct-draws sets or skips it), and write "
                     "RUN_DIR/posterior/: posterior.nc (arviz), summary table, correlations, corner "
-                    "plot, and predictive bands with coverage on the validation configurations. "
+                    "plot, and predictive bands with coverage on the validation configurations "
+                    "(figure, and bands/<id>.csv with the predictive mean, the point prediction). "
                     "Settings come from the project's [posterior] table; the options override it.")
     p.add_argument("run_dir", help="directory of a `smcbayes calibrate` run")
     for name, kind, metavar in (("walkers", int, None), ("steps", int, None), ("functions", int, None),
