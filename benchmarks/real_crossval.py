@@ -282,7 +282,8 @@ def run_fold(k: int, args: argparse.Namespace) -> dict[str, Any]:
     for cid in held_out:
         b = bands.get(cid, {})
         rows.append({"config_id": cid, "rmse_kN": rmse[cid], "rmse_median_kN": b.get("rmse_median_kN"),
-                     "rmse_mean_kN": b.get("rmse_mean_kN"), "coverage50": b.get("coverage50"), "coverage90": b.get("coverage90"),
+                     "rmse_mean_kN": b.get("rmse_mean_kN"), "coverage50": b.get("coverage50"),
+                     "coverage90": b.get("coverage90"),
                      "band_width90_kN": b.get("width90_kN"), "crps_kN": b.get("crps_kN"),
                      "interval_score90_kN": b.get("interval_score90_kN"),
                      "rmse_own_contact_kN": at_own.get(cid, {}).get("rmse_kN"),
@@ -420,8 +421,8 @@ def main() -> int:
     tot = out["totals"]
     print(f"\n{tot['trials']} held-out trials: mean RMSE {tot['mean_rmse_kN']:.1f} kN (max "
           f"{tot['max_rmse_kN']:.1f}), median-curve RMSE {tot['mean_rmse_median_kN']:.1f} kN, "
-          f"predictive-mean RMSE {tot['mean_rmse_mean_kN']:.1f} kN ({tot['le_70kN']['rmse_mean_kN']} within 70 kN, "
-          f"{tot['le_70kN']['rmse_kN']} at the calibrated point), coverage "
+          f"predictive-mean RMSE {tot['mean_rmse_mean_kN']:.1f} kN ({tot['le_70kN']['rmse_mean_kN']} "
+          f"within 70 kN, {tot['le_70kN']['rmse_kN']} at the calibrated point), coverage "
           f"50 % {tot['mean_coverage50']:.0%}, 90 % {tot['mean_coverage90']:.0%}, 90 % width "
           f"{tot['mean_band_width90_kN']:.0f} kN, CRPS {tot['mean_crps_kN']:.1f} kN")
     if np.isfinite(tot["mean_rmse_own_contact_kN"]):

@@ -45,7 +45,8 @@ def band_record(band: Band, role: str) -> dict[str, Any]:
     """The ``bands`` entry of one configuration in the summary: coverage beside sharpness."""
     return {"coverage50": band.coverage50, "coverage90": band.coverage90, "noise_kN": band.noise_kN,
             "width90_kN": band_width90(band), "rmse_median_kN": band.rmse_median_kN,
-            "rmse_mean_kN": band.rmse_mean_kN, "crps_kN": band.crps_kN, "interval_score90_kN": band.interval_score90_kN,
+            "rmse_mean_kN": band.rmse_mean_kN, "crps_kN": band.crps_kN,
+            "interval_score90_kN": band.interval_score90_kN,
             "error_model": band.error_model, "draws": band.draws, "role": role}
 
 
