@@ -30,7 +30,8 @@ def make_run(root: Path, discrepancy: dict | None) -> Path:
                                  "best_errors_kN2": {"bar-03": 100.0}, "settings": {"seed": 0},
                                  "loss": {"w_force": 1.0, "w_displacement": 0.0, "clip": "none"}})
     band = {"coverage50": 0.55, "coverage90": 0.88, "noise_kN": 30.0, "width90_kN": 123.4, "crps_kN": 17.25,
-            "interval_score90_kN": 211.0, "rmse_median_kN": 41.5, "rmse_mean_kN": 38.25, "draws": 10, "role": "validation",
+            "interval_score90_kN": 211.0, "rmse_median_kN": 41.5, "rmse_mean_kN": 38.25, "draws": 10,
+            "role": "validation",
             "error_model": "discrepancy" if discrepancy else "white noise"}
     write(run / "posterior" / "summary.json", {"parameters": [], "bands": {"bar-07": band},
                                               "discrepancy": discrepancy})
@@ -47,7 +48,8 @@ def test_bands_section_reports_sharpness_and_the_error_model(tmp_path: Path) -> 
     run = make_run(tmp_path, disc)
     write_report(run, formats=("md",))
     md = (run / "report.md").read_text(encoding="utf-8")
-    for words in ("CRPS (kN)", "17.2", "123", "211", "41.5", "predictive mean RMSE (kN)", "38.2", "remaining ram travel to the simulated end of closing",
+    for words in ("CRPS (kN)", "17.2", "123", "211", "41.5", "predictive mean RMSE (kN)", "38.2",
+                  "remaining ram travel to the simulated end of closing",
                   "below 0", "above 0", "-310", "clipped to 0 kN and the press's force limit",
                   "error model of bar-07, outside the training set", "-555",
                   "the 0.3 mm/s trials predicted from the faster ones"):
