@@ -148,13 +148,13 @@ def rmse_at(project: Any, run_dir: Path, ids: list[str], theta_by_name: dict[str
 
     Where each trial has a contact offset (profiled by the loss or measured from its end
     state), a training trial is compared at its own offset (as the calibration saw it) and
-    a held-out trial at the mean of the training trials' offsets: its own is unknown until
-    it is pressed.  The third result gives, per held-out trial, the RMSE at its own offset
+    a held-out trial by its curve averaged over the training trials' offsets
+    (:func:`smcbayes.data.loss.mixed_force_pair`): its own is unknown until it is pressed.  The third result gives, per held-out trial, the RMSE at its own offset
     (the best within the loss's range, or the one its end state implies; ``rmse_kN``,
     ``offset_mm``): the error left if the trial's contact were known (e.g.
     its stack height measured), which separates the model's error from the trials' scatter.
     """
-    from smcbayes.data.loss import contact_offsets_mm, force_pair, unseen_offset_mm
+    from smcbayes.data.loss import contact_offsets_mm, force_pair, given_force_pair
     from smcbayes.simulation.problem import build_problem
 
     problem = build_problem(project, run_dir, effects, fixed)
@@ -163,17 +163,17 @@ def rmse_at(project: Any, run_dir: Path, ids: list[str], theta_by_name: dict[str
     results = problem.model.simulate(theta, ids)
     full_spec = project.loss.model_copy(update={"clip": "none"})
     own = contact_offsets_mm(results, problem.dataset, project.loss, [c for c in ids if c in train_ids])
-    mean_offset = unseen_offset_mm(own)
+    unseen = tuple(own.values())
     held_out = [c for c in ids if c not in train_ids]
     known = contact_offsets_mm(results, problem.dataset, project.loss, held_out)
     rmse, clipped, at_own = {}, {}, {}
     for cid in ids:
         m = problem.dataset.measurements[cid]
-        offset = own.get(cid, mean_offset)
-        full = force_pair(results[cid], m, full_spec, offset_mm=offset)
+        offset = own.get(cid, unseen)
+        full = given_force_pair(results[cid], m, full_spec, offset)
         rmse[cid] = float(np.sqrt(np.mean((full.sim_kN[0] - full.meas_kN[0]) ** 2)))
         if m.flow_stop_s is not None:
-            cl = force_pair(results[cid], m, project.loss.model_copy(update={"clip": "flow_stop"}), offset_mm=offset)
+            cl = given_force_pair(results[cid], m, project.loss.model_copy(update={"clip": "flow_stop"}), offset)
             clipped[cid] = float(np.mean((cl.sim_kN[0] - cl.meas_kN[0]) ** 2))
         if cid in known:
             pair = force_pair(results[cid], m, full_spec, offset_mm=known[cid])

@@ -16,7 +16,6 @@ from smcbayes.data.loss import (
     contact_beyond_bound,
     contact_offsets_mm,
     evaluate_loss,
-    unseen_offset_mm,
 )
 from smcbayes.errors import DataError
 from smcbayes.forward.model import ForwardModel
@@ -40,17 +39,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _offsets_without_end_state(results: dict[str, SimulationResult], dataset: Dataset, spec: LossSpec,
-                               ids: list[str]) -> dict[str, float]:
-    """With the contact from the end state, the offset (mm) of each of ``ids`` that has no
-    end state: the mean of the training trials' (a trial not yet pressed, as predicted)."""
+                               ids: list[str]) -> dict[str, tuple[float, ...]]:
+    """With the contact from the end state, the offsets (mm) each of ``ids`` without an end
+    state is averaged over: the training trials' own (a trial not yet pressed, as
+    predicted; :func:`smcbayes.data.loss.mixed_force_pair`)."""
     if spec.contact_mode != "end_state":
         return {}
     missing = [c for c in ids if dataset[c].end_stack_mm is None]
     if not missing:
         return {}
-    own = contact_offsets_mm(results, dataset, spec, dataset.ids("train"))
-    mean = unseen_offset_mm(own)
-    return {c: mean for c in missing}
+    own = tuple(contact_offsets_mm(results, dataset, spec, dataset.ids("train")).values())
+    return {c: own for c in missing}
 
 
 def _offsets_line(results: dict[str, SimulationResult], dataset: Dataset, spec: LossSpec,
@@ -118,8 +117,8 @@ def run(args: argparse.Namespace) -> int:
     if line:
         print(line)
     if given:
-        print("without an end state, at the training trials' mean offset: "
-              + ", ".join(f"{c} {v:+.2f} mm" for c, v in given.items()))
+        print("without an end state, averaged over the training trials' offsets (mean "
+              + ", ".join(f"{c} {np.mean(v) if v else 0.0:+.2f} mm" for c, v in given.items()) + ")")
     print(f"global loss L (w_F={spec.w_force:g}, w_D={spec.w_displacement:g}, {spec.grid_points} "
           f"points): full {full.total[0]:.6g} kN^2 (RMSE {_rmse(full.total[0])} kN); clipped at "
           f"flow stop (thesis) {clipped.total[0]:.6g} kN^2 (RMSE {_rmse(clipped.total[0])} kN)")

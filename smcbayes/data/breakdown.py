@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from smcbayes.config.specs import LossSpec
 from smcbayes.data.dataset import Dataset
-from smcbayes.data.loss import force_pair
+from smcbayes.data.loss import given_force_pair
 from smcbayes.forward.result import PHASE_NAMES, SimulationResult
 
 Array = NDArray[np.float64]
@@ -92,17 +92,17 @@ def split_error(sim: Array, meas: Array, dt_s: Array, max_shift_fraction: float 
 
 def force_breakdown(results: Mapping[str, SimulationResult], dataset: Dataset,
                     spec: LossSpec = LossSpec(), ids: Sequence[str] | None = None,
-                    offsets_mm: Mapping[str, float] | None = None) -> ForceBreakdown:
+                    offsets_mm: Mapping[str, float | Sequence[float]] | None = None) -> ForceBreakdown:
     """Per-phase errors and the shift/amplitude/shape split of the force curves (each
-    configuration at its entry of ``offsets_mm`` (mm) where given, as in
-    :func:`smcbayes.data.loss.evaluate_loss`)."""
+    configuration at, or averaged over, its entry of ``offsets_mm`` (mm) where given, as
+    in :func:`smcbayes.data.loss.evaluate_loss`)."""
     ids = dataset.ids("train") if ids is None else list(ids)
     P = next(iter(results.values())).rows
     K, F = len(ids), len(PHASE_NAMES)
     pm, share = np.full((P, K, F), np.nan), np.full((P, K, F), np.nan)
     parts = np.full((5, P, K), np.nan)
     for k, cid in enumerate(ids):
-        pair = force_pair(results[cid], dataset[cid], spec, offset_mm=(offsets_mm or {}).get(cid))
+        pair = given_force_pair(results[cid], dataset[cid], spec, (offsets_mm or {}).get(cid))
         sq = (pair.sim_kN - pair.meas_kN) ** 2
         total = np.sum(sq, axis=1)
         for f in range(F):

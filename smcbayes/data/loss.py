@@ -39,7 +39,7 @@ Array = NDArray[np.float64]
 
 __all__ = ["LossSpec", "LossResult", "evaluate_loss", "ForcePair", "force_pair", "best_offsets_mm",
            "contact_offsets_mm", "contact_beyond_bound", "end_state_offsets_mm", "trial_offsets_mm",
-           "unseen_offset_mm", "interp_rows"]
+           "unseen_offset_mm", "mixed_force_pair", "given_force_pair", "interp_rows"]
 
 
 @dataclass(frozen=True)
@@ -137,11 +137,57 @@ def force_pair(res: SimulationResult, m: Measurement, spec: LossSpec,
         offset_mm = trial_offsets_mm(res, m, spec)
     offsets = np.broadcast_to(np.asarray(offset_mm, dtype=float), (res.rows,)).copy()
     grid, t, sim, meas, ts, ok = _compare(res, m, m.force, spec, offsets)
+    return ForcePair(grid, sim, meas, _phase_on(res, grid, t, ts), ok, offsets)
+
+
+def _phase_on(res: SimulationResult, grid: Array, t: Array, ts: Array) -> NDArray[np.int8]:
+    """The simulation's phase code ``(P, N)`` at each grid time of its (delayed) times ``t``
+    ``(P, T)``; force control beyond the (delayed) switch ``ts`` ``(P,)``."""
     idx = np.clip((interp_rows(grid, t, np.broadcast_to(np.arange(t.shape[1], dtype=float), t.shape))
                    + 1e-9).astype(int), 0, t.shape[1] - 1)
     phase = np.take_along_axis(res.phase.astype(np.int8), idx, axis=1)
-    phase = np.where(grid > ts[:, None], np.int8(PHASE_FORCE), phase).astype(np.int8)
-    return ForcePair(grid, sim, meas, phase, ok, offsets)
+    return np.where(grid > ts[:, None], np.int8(PHASE_FORCE), phase).astype(np.int8)
+
+
+def mixed_force_pair(res: SimulationResult, m: Measurement, spec: LossSpec,
+                     offsets_mm: Sequence[float]) -> ForcePair:
+    """The comparison of a trial whose contact is unknown (held out, or not yet pressed):
+    the mean of the simulated force over the contact offsets ``offsets_mm`` (mm, ``(S,)``:
+    the training trials' own), each equally likely, against the measured force.
+
+    The offset is a nuisance that varies from trial to trial (the charge's stack height);
+    with the training trials' offsets as its sample, this mean is the curve's expectation
+    over it, the best point forecast under squared error (Gneiting 2011, "Making and
+    evaluating point forecasts", J. Am. Stat. Assoc. 106:746-762), where the curve at the
+    mean offset keeps one timing of a near-vertical end of closing.  Every offset is
+    compared on the grid of the latest one, so the window holds each delayed switch.
+    ``offset_mm`` of the result is the mean offset; its phase is the curve's there.  One
+    offset gives :func:`force_pair` at it; none, the nominal contact.
+    """
+    offs = np.asarray(offsets_mm, dtype=float).ravel()
+    if offs.size == 0 or np.ptp(offs) == 0:
+        return force_pair(res, m, spec, float(offs[0]) if offs.size else 0.0)
+    if m.force is None:
+        raise DataError(f"configuration '{m.config_id}' has no measured force curve; "
+                        "leave it out of the loss or add data.force")
+    t0, f, _, ok = _safe(res)
+    ts0 = _switch(res, t0, ok)
+    delays = _delay_s(m, offs)
+    latest = np.full(res.rows, float(np.max(delays)))
+    grid, meas = _window(m.force, m, spec, ts0 + _window_delay(m, spec, latest))
+    sim = np.mean([_sim_on_grid(grid, t0 + d, f, ts0 + d, m, spec) for d in delays], axis=0)
+    mid = float(np.mean(delays))
+    phase = _phase_on(res, grid, t0 + mid, ts0 + mid)
+    return ForcePair(grid, sim, meas, phase, ok, np.full(res.rows, float(np.mean(offs))))
+
+
+def given_force_pair(res: SimulationResult, m: Measurement, spec: LossSpec,
+                     given: float | Sequence[float] | None) -> ForcePair:
+    """:func:`force_pair` at a given offset (mm), :func:`mixed_force_pair` over given
+    offsets, or at the trial's own (``None``)."""
+    if given is None or np.ndim(given) == 0:
+        return force_pair(res, m, spec, offset_mm=given)
+    return mixed_force_pair(res, m, spec, given)
 
 
 def _delay_s(m: Measurement, offsets_mm: Array) -> Array:
@@ -311,9 +357,11 @@ def contact_beyond_bound(results: Mapping[str, SimulationResult], dataset: Datas
 
 
 def unseen_offset_mm(offsets: Mapping[str, float]) -> float:
-    """The contact offset (mm) at which a trial without its own is compared (one held out,
-    or not yet pressed), from the training trials' ``offsets`` (:func:`contact_offsets_mm`):
-    their mean; 0 (the nominal contact) when there are none."""
+    """One contact offset (mm) for a trial without its own (one held out, or not yet
+    pressed), from the training trials' ``offsets`` (:func:`contact_offsets_mm`): their
+    mean; 0 (the nominal contact) when there are none.  Where one curve must stand for
+    such a trial (a figure, the diagnosis's residuals); its errors are judged over all the
+    offsets (:func:`mixed_force_pair`)."""
     return float(np.mean(list(offsets.values()))) if offsets else 0.0
 
 
@@ -338,7 +386,7 @@ def displacement_mse(res: SimulationResult, m: Measurement, spec: LossSpec) -> A
 
 def evaluate_loss(results: Mapping[str, SimulationResult], dataset: Dataset,
                   spec: LossSpec = LossSpec(), ids: Sequence[str] | None = None,
-                  offsets_mm: Mapping[str, float] | None = None) -> LossResult:
+                  offsets_mm: Mapping[str, float | Sequence[float]] | None = None) -> LossResult:
     """Loss of a batch of simulations against the measured data.
 
     Args:
@@ -346,9 +394,10 @@ def evaluate_loss(results: Mapping[str, SimulationResult], dataset: Dataset,
         dataset: the measured data.
         spec: weights, grid size and clipping.
         ids: configurations to compare (default: the dataset's training configurations).
-        offsets_mm: contact offsets (mm) of configurations compared at a given one (e.g. a
-            trial outside the loss at the training trials' mean); the others take the one
-            ``spec.contact_mode`` gives them.
+        offsets_mm: contact offsets (mm) of configurations compared at a given one, or
+            averaged over given ones (a trial outside the loss over the training trials'
+            own, :func:`mixed_force_pair`); the others take the one ``spec.contact_mode``
+            gives them.
 
     Returns:
         Per-configuration MSEs ``(P, K)`` and the global loss ``(P,)``.
@@ -371,7 +420,7 @@ def evaluate_loss(results: Mapping[str, SimulationResult], dataset: Dataset,
     ok = np.ones(P, dtype=bool)
     for k, cid in enumerate(ids):
         m = dataset[cid]
-        pair = force_pair(results[cid], m, spec, offset_mm=(offsets_mm or {}).get(cid))
+        pair = given_force_pair(results[cid], m, spec, (offsets_mm or {}).get(cid))
         ef[:, k] = np.where(pair.ok, np.mean((pair.sim_kN - pair.meas_kN) ** 2, axis=1), np.nan)
         if spec.w_displacement > 0 and m.hold is None:
             raise DataError(f"configuration '{cid}': w_displacement > 0 but no measured hold "

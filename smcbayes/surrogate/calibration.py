@@ -12,14 +12,14 @@ import logging
 import math
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from smcbayes.config import CalibrationSpec
-from smcbayes.data.loss import contact_beyond_bound, contact_offsets_mm, force_pair, unseen_offset_mm
+from smcbayes.data.loss import contact_beyond_bound, contact_offsets_mm, mixed_force_pair, unseen_offset_mm
 from smcbayes.data.readers.csv import write_curves
 from smcbayes.errors import ContactOffsetWarning, ParameterOnBoundWarning
 from smcbayes.forward.ranges import PHYSICAL_RANGES
@@ -119,15 +119,18 @@ def _save_gp(bo: BayesOpt, problem: Problem, run: RunDir) -> Any:
 
 
 def validation_errors(problem: Problem, results: dict[str, SimulationResult],
-                      offset_mm: float = 0.0) -> dict[str, dict[str, float]]:
+                      offsets_mm: Sequence[float] = ()) -> dict[str, dict[str, float]]:
     """Force MSE (kN^2) and RMSE (kN) of the best point on validation configurations with
-    data, each at contact offset ``offset_mm`` (a validation trial's own offset is not fitted)."""
+    data, each judged by its curve averaged over the training trials' contact offsets
+    ``offsets_mm`` (mm; a validation trial's own is not fitted,
+    :func:`~smcbayes.data.loss.mixed_force_pair`); at the nominal contact without any."""
 
     ids = [cid for cid in problem.model.ids("validation") if cid in problem.dataset.measurements
            and problem.dataset.measurements[cid].force is not None and cid in results]
     out = {}
     for cid in ids:
-        pair = force_pair(results[cid], problem.dataset.measurements[cid], problem.project.loss, offset_mm=offset_mm)
+        pair = mixed_force_pair(results[cid], problem.dataset.measurements[cid], problem.project.loss,
+                                offsets_mm)
         mse = float(np.mean((pair.sim_kN[0] - pair.meas_kN[0]) ** 2)) if bool(pair.ok[0]) else float("nan")
         out[cid] = {"mse_kN2": mse, "rmse_kN": math.sqrt(mse) if math.isfinite(mse) else float("nan")}
     return out
@@ -157,7 +160,7 @@ def _best_outputs(bo: BayesOpt, problem: Problem, run: RunDir, executor: Executo
             if offsets else None
         plot_simulation(results, problem.measured_force(ids), run.figures / "best_curves",
                         f"best point (loss {best['loss']:.4g} kN$^2$): {label}", delays_s=delays)
-    out: dict[str, Any] = {"validation_errors": validation_errors(problem, results, mean_offset)}
+    out: dict[str, Any] = {"validation_errors": validation_errors(problem, results, list(offsets.values()))}
     if offsets:
         out["contact_offsets_mm"] = offsets
     beyond = contact_beyond_bound(results, problem.dataset, problem.project.loss, problem.train_ids)

@@ -140,7 +140,7 @@ def test_evaluate_without_data_exits_2(tmp_path: Path, capsys: pytest.CaptureFix
 def test_evaluate_with_the_contact_from_the_end_state(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The thesis project takes each trial's contact from its end state; synthetic trials
     carry their own simulated parts, so at the truth their offsets are 0, and a trial
-    without its part is compared at the training trials' mean offset instead of failing."""
+    without its part is averaged over the training trials' offsets instead of failing."""
     ids = ["60-bar-03", "60-center-07", "80-center-03"]
     assert main(["synth", str(THESIS_TOML), "--truth", "n=0.3", "--noise-kN", "0", "--seed", "2",
                  "--only", *ids, "--out", str(tmp_path)]) == 0
@@ -154,7 +154,8 @@ def test_evaluate_with_the_contact_from_the_end_state(tmp_path: Path, capsys: py
     out = capsys.readouterr().out
     assert "the contact offset its end state implies ([loss] contact), within +-1 mm" in out
     assert re.search(r"60-bar-03 [+-]0\.00 mm", out) and re.search(r"60-center-07 [+-]0\.00 mm", out)
-    assert re.search(r"without an end state, at the training trials' mean offset: 80-center-03 [+-]0\.00 mm", out)
+    assert re.search(r"without an end state, averaged over the training trials' offsets \(mean "
+                     r"80-center-03 [+-]0\.00 mm\)", out)
     assert sorted(_rows(out)) == sorted(ids)
 
 

@@ -233,3 +233,37 @@ def test_a_contact_offset_needs_the_closing_speed(dh, tmp_path: Path) -> None:
         force_pair(sim, replace(m, speed_mm_s=None), LossSpec(contact_offset_mm=0.3))
     with pytest.raises(ValueError):
         LossSpec(contact_offset_mm=-0.1)
+
+
+def test_an_unseen_trial_is_the_mean_of_its_curves_over_the_training_offsets(dh, tmp_path: Path) -> None:
+    """Over offsets of -0.4 and +0.4 mm at 4 mm/s the simulated cubic comes 0.1 s early or
+    late: the mixed curve is the mean of the two, each held at its switch, on the grid of
+    the later one; it is not the curve at the mean offset, and (Jensen) its squared error is
+    at most the mean of the two curves' own."""
+    from smcbayes.data.loss import force_pair, given_force_pair, mixed_force_pair
+
+    m, sim = _cubic_case(dh, tmp_path, 0.0)
+    spec = LossSpec()
+    mixed = mixed_force_pair(sim, m, spec, [-0.4, 0.4])
+    late = force_pair(sim, m, spec, offset_mm=0.4)
+    np.testing.assert_allclose(mixed.time_s, late.time_s)
+    grid = mixed.time_s[0]
+    expected = np.mean([300 * (np.clip(grid - d, 0, 5) / 5) ** 3 for d in (-0.1, 0.1)], axis=0)
+    np.testing.assert_allclose(mixed.sim_kN[0], expected, rtol=1e-3, atol=1e-3)  # linear interpolation
+    assert mixed.offset_mm[0] == pytest.approx(0.0)
+    at_mean = force_pair(sim, m, spec, offset_mm=0.0)
+    assert np.max(np.abs(np.interp(grid, at_mean.time_s[0], at_mean.sim_kN[0]) - mixed.sim_kN[0])) > 1.0
+    e_mixed = np.mean((mixed.sim_kN[0] - mixed.meas_kN[0]) ** 2)
+    e_each = [np.mean((p.sim_kN[0] - p.meas_kN[0]) ** 2)
+              for p in (force_pair(sim, m, spec, offset_mm=o) for o in (-0.4, 0.4))]
+    assert 0.0 < e_mixed <= np.mean(e_each)
+    # one offset, or the same one twice, is the pair at it; none is the nominal contact
+    for given in ([0.4], (0.4, 0.4), 0.4):
+        np.testing.assert_allclose(given_force_pair(sim, m, spec, given).sim_kN, late.sim_kN)
+    np.testing.assert_allclose(mixed_force_pair(sim, m, spec, []).sim_kN, at_mean.sim_kN)
+    ds = load_dataset(dh.project(tmp_path, [dh.config(data={"force": "force/c1.csv"})]))
+    loss = evaluate_loss({"c1": sim}, ds, spec, offsets_mm={"c1": (-0.4, 0.4)})
+    assert loss.force_mse_kN2[0, 0] == pytest.approx(e_mixed)
+    parts = force_breakdown({"c1": sim}, ds, spec, ["c1"], offsets_mm={"c1": (-0.4, 0.4)})
+    total = parts.shift_kN2[0, 0] + parts.amplitude_kN2[0, 0] + parts.shape_kN2[0, 0]
+    assert total == pytest.approx(e_mixed, rel=1e-9)
