@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -68,9 +68,23 @@ def grid_shape(count: int, cols: int = 3) -> tuple[int, int]:
     return math.ceil(count / cols), cols
 
 
+def mixed_force(time_s: Array, force_kN: Array, delays_s: Array, t_end_s: float,
+                points: int = 600) -> tuple[Array, Array]:
+    """The mean of one simulated force curve ``(T,)`` delayed by each of ``delays_s``
+    ``(S,)`` (its first value before, its last after), on ``points`` times over [0,
+    ``t_end_s``]: ``(time_s, force_kN)``."""
+    ok = np.isfinite(time_s) & np.isfinite(force_kN)
+    t, f = time_s[ok], force_kN[ok]
+    grid = np.linspace(0.0, t_end_s, points)
+    if not t.size:
+        return grid, np.full(points, np.nan)
+    return grid, np.mean([np.interp(grid - d, t, f) for d in delays_s], axis=0)
+
+
 def plot_simulation(results: Mapping[str, SimulationResult],
                     measured: Mapping[str, tuple[Array, Array]], path: str | Path,
-                    title: str, row: int = 0, delays_s: Mapping[str, float] | None = None) -> list[Path]:
+                    title: str, row: int = 0, delays_s: Mapping[str, float] | None = None,
+                    mixed_delays_s: Mapping[str, Sequence[float]] | None = None) -> list[Path]:
     """Force and ram displacement vs time per configuration over the closing phase.
 
     Args:
@@ -80,6 +94,10 @@ def plot_simulation(results: Mapping[str, SimulationResult],
         title: figure title (e.g. parameters and effects that were on).
         delays_s: per configuration, a delay (s) of the simulated closing (a contact
             offset over the set speed), drawn and named in the panel's title.
+        mixed_delays_s: per configuration without a contact of its own (a trial not
+            fitted), the delays (s) of the training trials' contacts: its force is drawn
+            as the mean of the curves at each (as its errors are judged,
+            :func:`smcbayes.data.loss.mixed_force_pair`), its displacement at their mean.
     """
     ids = list(results)
     nrows, ncols = grid_shape(len(ids))
@@ -88,18 +106,25 @@ def plot_simulation(results: Mapping[str, SimulationResult],
     for k, cid in enumerate(ids):
         ax = axes[k // ncols][k % ncols]
         res = results[cid]
-        delay = float((delays_s or {}).get(cid, 0.0))
+        mixed = np.asarray((mixed_delays_s or {}).get(cid, ()), dtype=float)
+        delay = float(np.mean(mixed)) if mixed.size else float((delays_s or {}).get(cid, 0.0))
         t, f, d = res.time_s[row] + delay, res.force_kN[row], res.displacement_mm[row]
-        switch = res.switch_time_s[row] + delay
+        switch = res.switch_time_s[row] + (float(np.max(mixed)) if mixed.size else delay)
         t_end = switch * 1.15 if np.isfinite(switch) else t[-1]
         if cid in measured:
             tm, fm = measured[cid]
             ax.plot(tm, fm, color=MEASURED, lw=1.2, label="measured force")
             t_end = max(t_end, tm[-1] * 1.05)
         mask = t <= t_end
-        ax.plot(t[mask], f[mask], color=colours(0), lw=1.5, label="simulated force")
+        if mixed.size > 1:
+            tf, ff = mixed_force(res.time_s[row], f, mixed, t_end)
+            ax.plot(tf, ff, color=colours(0), lw=1.5, label="simulated force")
+            ax.set_title(f"{cid} (mean over {mixed.size} training contacts)", fontsize=10)
+        else:
+            ax.plot(t[mask], f[mask], color=colours(0), lw=1.5, label="simulated force")
+            ax.set_title(cid if delays_s is None and not mixed.size
+                         else f"{cid} (contact offset: closing {delay:+.2f} s later)", fontsize=10)
         ax.set_xlim(0, t_end)
-        ax.set_title(cid if delays_s is None else f"{cid} (contact offset: closing {delay:+.2f} s later)", fontsize=10)
         ax.set_xlabel("time (s)")
         ax.set_ylabel("force (kN)")
         ax2 = ax.twinx()

@@ -230,7 +230,9 @@ def calibration_section(run: RunFiles, validation: dict[str, dict[str, float]]) 
             Figure(
                 fig,
                 "Simulated force (colour) at the best point against the measured force "
-                "(black), per configuration; dashed: simulated ram displacement.",
+                "(black), per configuration; dashed: simulated ram displacement.  Where each "
+                "trial has a contact of its own, a validation trial's force is the mean of "
+                "its curves at the training trials' contacts.",
             )
         )
     if cal.get("best_errors_kN2"):

@@ -156,10 +156,12 @@ def _best_outputs(bo: BayesOpt, problem: Problem, run: RunDir, executor: Executo
     mean_offset = unseen_offset_mm(offsets)
     if figures:
         label = ", ".join(f"{k}={v:.4g}" for k, v in best["params"].items())
-        delays = {c: offsets.get(c, mean_offset) / problem.project.get(c).press.speed_mm_s for c in ids} \
-            if offsets else None
+        speed = {c: problem.project.get(c).press.speed_mm_s for c in ids}
+        delays = {c: offsets.get(c, mean_offset) / speed[c] for c in ids} if offsets else None
+        mixed = {c: [o / speed[c] for o in offsets.values()] for c in ids if c not in offsets} if offsets else None
         plot_simulation(results, problem.measured_force(ids), run.figures / "best_curves",
-                        f"best point (loss {best['loss']:.4g} kN$^2$): {label}", delays_s=delays)
+                        f"best point (loss {best['loss']:.4g} kN$^2$): {label}", delays_s=delays,
+                        mixed_delays_s=mixed)
     out: dict[str, Any] = {"validation_errors": validation_errors(problem, results, list(offsets.values()))}
     if offsets:
         out["contact_offsets_mm"] = offsets

@@ -54,6 +54,16 @@ def test_validation_without_hold_is_simulated_and_scored_on_force_only(data: Pat
     assert results["bar-11"].ok.all()
     val = validation_errors(problem, results)
     assert list(val) == ["bar-11"] and 0.5 < val["bar-11"]["rmse_kN"] < 20.0
+    # over the training trials' contacts the curve is their mean, not the one at their mean
+    from smcbayes.data.loss import force_pair, mixed_force_pair
+
+    m, spec = problem.dataset.measurements["bar-11"], problem.project.loss
+    mixed = mixed_force_pair(results["bar-11"], m, spec, [-0.5, 0.5])
+    assert validation_errors(problem, results, [-0.5, 0.5])["bar-11"]["mse_kN2"] == \
+        pytest.approx(float(np.mean((mixed.sim_kN[0] - mixed.meas_kN[0]) ** 2)))
+    at_mean = force_pair(results["bar-11"], m, spec, offset_mm=0.0)
+    assert abs(np.mean((at_mean.sim_kN[0] - at_mean.meas_kN[0]) ** 2) - val["bar-11"]["mse_kN2"]) < 1e-9
+    assert validation_errors(problem, results, [-0.5, 0.5])["bar-11"]["rmse_kN"] > val["bar-11"]["rmse_kN"]
 
 
 def test_an_unreadable_validation_file_is_left_out_with_a_warning(data: Path, tmp_path: Path) -> None:
