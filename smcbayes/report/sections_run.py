@@ -188,10 +188,14 @@ def _error_table(cal: dict[str, Any], validation: dict[str, dict[str, float]]) -
         rows.append((cid, "train", fmt(e), rmse))
     for cid, e in validation.items():
         rows.append((cid, "validation (not fitted)", fmt(e["mse_kN2"]), fmt(e["rmse_kN"], 3)))
+    caption = "errors of the best point per configuration"
+    if validation and cal.get("contact_offsets_mm"):
+        caption += ("; a validation trial's from its curves averaged over the training trials' "
+                    "contact offsets (its own is not known)")
     return Table(
         ("configuration", "role", "error e_k (kN²)", "force RMSE (kN)"),
         tuple(rows),
-        caption="errors of the best point per configuration",
+        caption=caption,
         numeric=(2, 3),
     )
 

@@ -76,3 +76,14 @@ def test_no_data_folder_gives_no_dataset(tmp_path: Path) -> None:
     project = build_project({**RAW, "data_dir": "missing"}, "<test>", tmp_path)
     assert load_measured(project) is None
     assert project_of({"project": {"name": "x"}}) is None
+
+
+def test_the_error_table_says_how_a_validation_trial_without_its_contact_is_judged() -> None:
+    from smcbayes.report.sections_run import _error_table
+
+    validation = {"b": {"mse_kN2": 9.0, "rmse_kN": 3.0}}
+    with_contacts = _error_table({"best_errors_kN2": {"a": 4.0}, "contact_offsets_mm": {"a": 0.1}}, validation)
+    assert "averaged over the training trials' contact offsets" in with_contacts.caption
+    assert [r[1] for r in with_contacts.rows] == ["train", "validation (not fitted)"]
+    nominal = _error_table({"best_errors_kN2": {"a": 4.0}}, validation)
+    assert "averaged" not in nominal.caption
