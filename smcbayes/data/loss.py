@@ -359,8 +359,8 @@ def contact_beyond_bound(results: Mapping[str, SimulationResult], dataset: Datas
 def unseen_offset_mm(offsets: Mapping[str, float]) -> float:
     """One contact offset (mm) for a trial without its own (one held out, or not yet
     pressed), from the training trials' ``offsets`` (:func:`contact_offsets_mm`): their
-    mean; 0 (the nominal contact) when there are none.  Where one curve must stand for
-    such a trial (a figure, the diagnosis's residuals); its errors are judged over all the
+    mean; 0 (the nominal contact) when there are none.  Where one delay must stand for
+    such a trial (a figure's displacement curve); its errors are judged over all the
     offsets (:func:`mixed_force_pair`)."""
     return float(np.mean(list(offsets.values()))) if offsets else 0.0
 

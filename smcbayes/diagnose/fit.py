@@ -52,10 +52,9 @@ from smcbayes.data.dataset import Dataset, Measurement
 from smcbayes.data.loss import (
     contact_offsets_mm,
     displacement_mse,
-    force_pair,
+    given_force_pair,
     interp_rows,
     trial_offsets_mm,
-    unseen_offset_mm,
 )
 from smcbayes.data.preprocess import crossing_time
 from smcbayes.errors import ConfigError
@@ -394,29 +393,30 @@ class _Tally:
 
 
 def held_out_offsets(ctx: DiagnosisContext, extra: Sequence[str], theta: Array,
-                     held_out: Sequence[str]) -> dict[str, float] | None:
-    """The contact offset (mm) each held-out trial is judged at: the mean of the fitting
-    trials' offsets at ``theta``'s first row (profiled or measured from their end states: a
-    held-out trial's own is not known before it is pressed); None at the nominal contact."""
+                     held_out: Sequence[str]) -> dict[str, tuple[float, ...]] | None:
+    """The contact offsets (mm) each held-out trial's curve is averaged over: the fitting
+    trials' own at ``theta``'s first row (profiled or measured from their end states: a
+    held-out trial's own is not known before it is pressed;
+    :func:`smcbayes.data.loss.mixed_force_pair`); None at the nominal contact."""
     spec = ctx.project.loss
     if not spec.per_trial_contact:
         return None
     fit_ids = [c for c in ctx.ids if c not in held_out]
     offsets = contact_offsets_mm(ctx.simulate(extra, theta[:1], fit_ids), ctx.dataset, spec, fit_ids)
-    mean = unseen_offset_mm(offsets)
-    return {c: mean for c in held_out}
+    return {c: tuple(offsets.values()) for c in held_out}
 
 
 def fixed_offset_losses(ctx: DiagnosisContext, extra: Sequence[str], theta: Array, ids: Sequence[str],
-                        offsets_mm: Mapping[str, float]) -> Array:
-    """Per-configuration loss terms ``(P, K)`` (kN^2) with each configuration at a given
-    contact offset (mm) instead of its own; NaN where a run failed."""
+                        offsets_mm: Mapping[str, Sequence[float]]) -> Array:
+    """Per-configuration loss terms ``(P, K)`` (kN^2) with each configuration's curve
+    averaged over given contact offsets (mm) instead of taken at its own; NaN where a run
+    failed."""
     spec = ctx.project.loss
     results = ctx.simulate(extra, theta, ids)
     out = np.full((np.atleast_2d(theta).shape[0], len(ids)), np.nan)
     for k, cid in enumerate(ids):
         m = ctx.dataset[cid]
-        pair = force_pair(results[cid], m, spec, offset_mm=offsets_mm[cid])
+        pair = given_force_pair(results[cid], m, spec, tuple(offsets_mm[cid]))
         term = spec.w_force * np.mean((pair.sim_kN - pair.meas_kN) ** 2, axis=1)
         if spec.w_displacement > 0:
             term = term + spec.w_displacement * displacement_mse(results[cid], m, spec)
@@ -425,13 +425,16 @@ def fixed_offset_losses(ctx: DiagnosisContext, extra: Sequence[str], theta: Arra
 
 
 def residual_stack(ctx: DiagnosisContext, extra: Sequence[str], theta: Array, ids: Sequence[str],
-                   ends: Mapping[str, float] | None = None, offsets_mm: Mapping[str, float] | None = None
+                   ends: Mapping[str, float] | None = None,
+                   offsets_mm: Mapping[str, Sequence[float]] | None = None
                    ) -> tuple[dict[str, Array], dict[str, float]]:
-    """Residuals ``(P, N)`` per configuration on fixed windows (row 0's window by default).
+    """Residuals ``(P, N)`` per configuration on fixed windows (row 0's window by default,
+    sized for the latest contact).
 
-    Where each trial has a contact offset of its own, every row is taken at one offset:
-    the configuration's entry of ``offsets_mm`` (a held-out trial's, :func:`held_out_offsets`),
-    else row 0's (profiled or measured).  Residuals at a fixed offset give the Jacobian in the parameters
+    Where each trial has a contact offset of its own, every row is taken at row 0's
+    (profiled or measured), or, for a configuration in ``offsets_mm`` (a held-out trial,
+    :func:`held_out_offsets`), its curve is averaged over those offsets (the mean of the
+    residuals at each).  Residuals at fixed offsets give the Jacobian in the parameters
     alone; the steps built from it are judged by the loss itself."""
     results = ctx.simulate(extra, theta, ids)
     spec = ctx.project.loss
@@ -439,15 +442,15 @@ def residual_stack(ctx: DiagnosisContext, extra: Sequence[str], theta: Array, id
     out, used = {}, {}
     for cid in ids:
         m = ctx.dataset[cid]
-        delay = 0.0
-        if offsets_mm is not None and cid in offsets_mm and m.speed_mm_s:
-            delay = offsets_mm[cid] / m.speed_mm_s
+        delays = np.zeros(1)
+        if offsets_mm is not None and cid in offsets_mm and m.speed_mm_s and len(offsets_mm[cid]):
+            delays = np.asarray(offsets_mm[cid], dtype=float) / m.speed_mm_s
         elif spec.per_trial_contact and m.speed_mm_s and bool(results[cid].ok[0]):
-            delay = float(trial_offsets_mm(results[cid], m, spec)[0]) / m.speed_mm_s
-        end = ends[cid] if ends else float(window_end(results[cid], m, clip, delay)[0])
+            delays = trial_offsets_mm(results[cid], m, spec)[:1] / m.speed_mm_s
+        end = ends[cid] if ends else float(window_end(results[cid], m, clip, float(np.max(delays)))[0])
         if not np.isfinite(end):
             end = float(m.force.time_s[-1])
-        out[cid] = residuals_on(results[cid], m, clip, end, points, delay)[1]
+        out[cid] = np.mean([residuals_on(results[cid], m, clip, end, points, d)[1] for d in delays], axis=0)
         used[cid] = end
     return out, used
 

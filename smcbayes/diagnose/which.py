@@ -136,8 +136,8 @@ class HeldOutTest:
 
 def held_out_test(ctx: DiagnosisContext, base: Fit, cand: Fit, ids: Sequence[str]) -> HeldOutTest:
     """Diebold-Mariano comparison of ``cand`` against ``base`` on the held-out ``ids``
-    (where each trial has a contact offset, each model's held-out trials at the mean of
-    its fitting trials' offsets)."""
+    (where each trial has a contact offset, each model's held-out trials by their curves
+    averaged over its fitting trials' offsets)."""
     off_b = held_out_offsets(ctx, base.effects, base.theta, ids)
     off_c = held_out_offsets(ctx, cand.effects, cand.theta, ids)
     _, ends_b = residual_stack(ctx, base.effects, base.theta, ids, offsets_mm=off_b)
@@ -165,7 +165,7 @@ def held_out_test(ctx: DiagnosisContext, base: Fit, cand: Fit, ids: Sequence[str
 
 def n_eff_of(ctx: DiagnosisContext, fit: Fit, ids: Sequence[str], held_out: bool = False) -> float:
     """Effective independent points of ``fit``'s force residuals on ``ids`` (summed); held-out
-    trials at the fitting trials' mean contact offset where each trial has one."""
+    trials' curves averaged over the fitting trials' contact offsets where each trial has one."""
     offsets = held_out_offsets(ctx, fit.effects, fit.theta, ids) if held_out else None
     res, _ = residual_stack(ctx, fit.effects, fit.theta, ids, offsets_mm=offsets)
     _, n_eff = effective_points([np.nan_to_num(res[c][0]) for c in ids])
