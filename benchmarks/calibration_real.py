@@ -35,9 +35,9 @@ can reach in its box, to tell the physics' error from the BO budget's.
 ``--profile-offset 0.3`` fits with the loss's ``contact_offset_mm = 0.3``
 (each training trial at its best contact offset within +-0.3 mm; the printed loss is this
 profiled one), then reports each training trial's offset at the optimum, their mean, and
-every trial's force RMSE at that mean: the prediction for a trial whose own offset is
-unknown.  The force RMSE column then holds a training trial's RMSE at its own offset and a
-held-out trial's at the mean.  The
+every trial's force RMSE of its curve averaged over those offsets: the prediction for a
+trial whose own offset is unknown.  The force RMSE column then holds a training trial's
+RMSE at its own offset and a held-out trial's over the training offsets.  The
 per-trial offset is a nuisance parameter of each pressed charge (hand-cut stacks); profiling
 it keeps it from bending the shared parameters (profile likelihood: Murphy & van der Vaart
 2000, "On profile likelihood", J. Am. Stat. Assoc. 95:449-465).
@@ -112,21 +112,22 @@ def contact_scan(problem, effects: list[str], fixed: dict, best: dict, ids: list
 
 def offset_report(problem, theta: np.ndarray, ids: list[str]) -> dict:
     """At one vector, where the loss profiles contact offsets: each training configuration's
-    offset, their mean, and every configuration's force RMSE (kN) at that mean (the
-    prediction for a trial whose own offset is unknown) and at its own offset (training)."""
-    from smcbayes.data.loss import contact_offsets_mm, force_pair, unseen_offset_mm
+    offset, their mean, and every configuration's force RMSE (kN) of its curve averaged
+    over the training offsets (the prediction for a trial whose own offset is unknown,
+    :func:`smcbayes.data.loss.mixed_force_pair`) and at its own offset (training)."""
+    from smcbayes.data.loss import contact_offsets_mm, given_force_pair
 
     spec = problem.project.loss.model_copy(update={"clip": "none"})
     res = problem.model.simulate(theta[None, :], ids)
     own = contact_offsets_mm(res, problem.dataset, spec, problem.train_ids)
-    mean = unseen_offset_mm(own)
 
-    def rmse(cid: str, offset: float) -> float:
-        pair = force_pair(res[cid], problem.dataset.measurements[cid], spec, offset_mm=offset)
+    def rmse(cid: str, offset: float | tuple[float, ...]) -> float:
+        pair = given_force_pair(res[cid], problem.dataset.measurements[cid], spec, offset)
         return float(np.sqrt(np.mean((pair.sim_kN[0] - pair.meas_kN[0]) ** 2)))
 
-    return {"max_mm": spec.contact_offset_mm, "offsets_mm": own, "mean_train_mm": mean,
-            "rmse_at_mean_kN": {c: rmse(c, mean) for c in ids},
+    return {"max_mm": spec.contact_offset_mm, "offsets_mm": own,
+            "mean_train_mm": float(np.mean(list(own.values()))) if own else 0.0,
+            "rmse_unseen_kN": {c: rmse(c, tuple(own.values())) for c in ids},
             "rmse_own_kN": {c: rmse(c, own[c]) for c in own}}
 
 
@@ -190,8 +191,8 @@ def run_variant(name: str, run_dir: Path, budget: int, init: int, holdout: str |
     if report is None:
         _, full_errs = loss_at(problem, theta, "none", with_data)
         rmse = {c: float(np.sqrt(v)) for c, v in full_errs.items()}
-    else:  # a training trial at its own offset, a held-out one at the training trials' mean
-        rmse = {c: report["rmse_own_kN"].get(c, report["rmse_at_mean_kN"][c]) for c in with_data}
+    else:  # a training trial at its own offset, a held-out one over the training trials'
+        rmse = {c: report["rmse_own_kN"].get(c, report["rmse_unseen_kN"][c]) for c in with_data}
     held = [c for c in with_data if c not in problem.train_ids]
     out = {"optimiser": f"differential evolution ({de} generations)" if de else "BO",
            "effects": effects, "fixed": fixed, "loss_clip": clip, "holdout": holdout, "train_ids": problem.train_ids,
@@ -224,7 +225,7 @@ def print_variant(name: str, res: dict) -> None:
               f"{off['mean_train_mm']:+.2f} mm")
     print(f"  {'configuration':<16}{'force RMSE (kN)':>16}{'clipped MSE (kN^2)':>20}"
           + (f"{'best contact (mm)':>19}{'RMSE there (kN)':>17}" if scan else "")
-          + (f"{'own offset (mm)':>17}{'RMSE at mean offset (kN)':>26}" if off else ""))
+          + (f"{'own offset (mm)':>17}{'RMSE over offsets (kN)':>26}" if off else ""))
     for c, v in res["rmse_kN"].items():
         clipped = res["clipped_errors_kN2"].get(c)
         role = "  (held out)" if c in res["held_out_ids"] else ""
@@ -232,7 +233,7 @@ def print_variant(name: str, res: dict) -> None:
                  if c in scan else "")
         if off:
             own = off["offsets_mm"].get(c)
-            extra += f"{'-' if own is None else f'{own:+.2f}':>17}{off['rmse_at_mean_kN'][c]:>26.1f}"
+            extra += f"{'-' if own is None else f'{own:+.2f}':>17}{off['rmse_unseen_kN'][c]:>26.1f}"
         print(f"  {c:<16}{v:>16.1f}{'-' if clipped is None else f'{clipped:.1f}':>20}{extra}{role}")
 
 

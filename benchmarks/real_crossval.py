@@ -149,7 +149,8 @@ def rmse_at(project: Any, run_dir: Path, ids: list[str], theta_by_name: dict[str
     Where each trial has a contact offset (profiled by the loss or measured from its end
     state), a training trial is compared at its own offset (as the calibration saw it) and
     a held-out trial by its curve averaged over the training trials' offsets
-    (:func:`smcbayes.data.loss.mixed_force_pair`): its own is unknown until it is pressed.  The third result gives, per held-out trial, the RMSE at its own offset
+    (:func:`smcbayes.data.loss.mixed_force_pair`): its own is unknown until it is pressed.
+    The third result gives, per held-out trial, the RMSE at its own offset
     (the best within the loss's range, or the one its end state implies; ``rmse_kN``,
     ``offset_mm``): the error left if the trial's contact were known (e.g.
     its stack height measured), which separates the model's error from the trials' scatter.
@@ -173,7 +174,8 @@ def rmse_at(project: Any, run_dir: Path, ids: list[str], theta_by_name: dict[str
         full = given_force_pair(results[cid], m, full_spec, offset)
         rmse[cid] = float(np.sqrt(np.mean((full.sim_kN[0] - full.meas_kN[0]) ** 2)))
         if m.flow_stop_s is not None:
-            cl = given_force_pair(results[cid], m, project.loss.model_copy(update={"clip": "flow_stop"}), offset)
+            thesis = project.loss.model_copy(update={"clip": "flow_stop"})
+            cl = given_force_pair(results[cid], m, thesis, offset)
             clipped[cid] = float(np.mean((cl.sim_kN[0] - cl.meas_kN[0]) ** 2))
         if cid in known:
             pair = force_pair(results[cid], m, full_spec, offset_mm=known[cid])

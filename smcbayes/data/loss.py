@@ -39,7 +39,7 @@ Array = NDArray[np.float64]
 
 __all__ = ["LossSpec", "LossResult", "evaluate_loss", "ForcePair", "force_pair", "best_offsets_mm",
            "contact_offsets_mm", "contact_beyond_bound", "end_state_offsets_mm", "trial_offsets_mm",
-           "unseen_offset_mm", "mixed_force_pair", "given_force_pair", "interp_rows"]
+           "mixed_force_pair", "given_force_pair", "interp_rows"]
 
 
 @dataclass(frozen=True)
@@ -103,7 +103,8 @@ class ForcePair:
         phase: the simulation's phase code at each grid time, shape ``(P, N)``.
         ok: rows with a usable simulation, shape ``(P,)``.
         offset_mm: each row's contact offset (mm; the simulated closing delayed by offset /
-            set speed), shape ``(P,)``: zeros unless the loss profiles it or it was given.
+            set speed), shape ``(P,)``: zeros unless the loss profiles it or it was given;
+            the mean of the offsets a curve was averaged over (:func:`mixed_force_pair`).
     """
 
     time_s: Array
@@ -165,6 +166,8 @@ def mixed_force_pair(res: SimulationResult, m: Measurement, spec: LossSpec,
     offset gives :func:`force_pair` at it; none, the nominal contact.
     """
     offs = np.asarray(offsets_mm, dtype=float).ravel()
+    if not np.all(np.isfinite(offs)):
+        raise DataError(f"configuration '{m.config_id}': contact offsets must be finite, got {offs.tolist()}")
     if offs.size == 0 or np.ptp(offs) == 0:
         return force_pair(res, m, spec, float(offs[0]) if offs.size else 0.0)
     if m.force is None:
@@ -183,8 +186,10 @@ def mixed_force_pair(res: SimulationResult, m: Measurement, spec: LossSpec,
 
 def given_force_pair(res: SimulationResult, m: Measurement, spec: LossSpec,
                      given: float | Sequence[float] | None) -> ForcePair:
-    """:func:`force_pair` at a given offset (mm), :func:`mixed_force_pair` over given
-    offsets, or at the trial's own (``None``)."""
+    """:func:`force_pair` at one given offset (mm, a number: every row at it),
+    :func:`mixed_force_pair` over a sequence of offsets (the curve averaged over them, not
+    one offset per row: pass those to :func:`force_pair`), or at the trial's own
+    (``None``)."""
     if given is None or np.ndim(given) == 0:
         return force_pair(res, m, spec, offset_mm=given)
     return mixed_force_pair(res, m, spec, given)
@@ -354,15 +359,6 @@ def contact_beyond_bound(results: Mapping[str, SimulationResult], dataset: Datas
         return {}
     raw = contact_offsets_mm(results, dataset, spec.model_copy(update={"contact_offset_mm": 0.0}), ids, row)
     return {c: v for c, v in raw.items() if abs(v) > spec.contact_offset_mm}
-
-
-def unseen_offset_mm(offsets: Mapping[str, float]) -> float:
-    """One contact offset (mm) for a trial without its own (one held out, or not yet
-    pressed), from the training trials' ``offsets`` (:func:`contact_offsets_mm`): their
-    mean; 0 (the nominal contact) when there are none.  Where one delay must stand for
-    such a trial (a figure's displacement curve); its errors are judged over all the
-    offsets (:func:`mixed_force_pair`)."""
-    return float(np.mean(list(offsets.values()))) if offsets else 0.0
 
 
 def displacement_mse(res: SimulationResult, m: Measurement, spec: LossSpec) -> Array:

@@ -442,9 +442,10 @@ def residual_stack(ctx: DiagnosisContext, extra: Sequence[str], theta: Array, id
     out, used = {}, {}
     for cid in ids:
         m = ctx.dataset[cid]
-        delays = np.zeros(1)
-        if offsets_mm is not None and cid in offsets_mm and m.speed_mm_s and len(offsets_mm[cid]):
-            delays = np.asarray(offsets_mm[cid], dtype=float) / m.speed_mm_s
+        delays = np.zeros(1)  # given no offsets (none measured): the nominal contact, as in the loss
+        if offsets_mm is not None and cid in offsets_mm:
+            if m.speed_mm_s and len(offsets_mm[cid]):
+                delays = np.asarray(offsets_mm[cid], dtype=float) / m.speed_mm_s
         elif spec.per_trial_contact and m.speed_mm_s and bool(results[cid].ok[0]):
             delays = trial_offsets_mm(results[cid], m, spec)[:1] / m.speed_mm_s
         end = ends[cid] if ends else float(window_end(results[cid], m, clip, float(np.max(delays)))[0])

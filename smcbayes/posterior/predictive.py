@@ -16,8 +16,8 @@ The predictive mean curve (the mean of the predictive draws: parameter uncertain
 contact scatter and the error model's bias where the training residuals lean to one side)
 is the point prediction: under squared error the mean of the predictive distribution is
 the optimal point forecast (Gneiting 2011, "Making and evaluating point forecasts", JASA
-106:746), where the model's median curve and the calibrated point's curve keep the
-model's own bias and a steep end of closing at one timing.
+106:746), where the model's median curve keeps the model's own bias and a steep end of
+closing at one timing.
 
 Scores against a measured curve, at its points inside the band grid: coverage of the 50 %
 and 90 % bands; RMSE of the model's median curve and of the predictive mean; the CRPS

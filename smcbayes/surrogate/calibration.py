@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from smcbayes.config import CalibrationSpec
-from smcbayes.data.loss import contact_beyond_bound, contact_offsets_mm, mixed_force_pair, unseen_offset_mm
+from smcbayes.data.loss import contact_beyond_bound, contact_offsets_mm, mixed_force_pair
 from smcbayes.data.readers.csv import write_curves
 from smcbayes.errors import ContactOffsetWarning, ParameterOnBoundWarning
 from smcbayes.forward.ranges import PHYSICAL_RANGES
@@ -153,12 +153,13 @@ def _best_outputs(bo: BayesOpt, problem: Problem, run: RunDir, executor: Executo
         path.parent.mkdir(exist_ok=True)
         write_curves(res, 0, path)
     offsets = contact_offsets_mm(results, problem.dataset, problem.project.loss, problem.train_ids)
-    mean_offset = unseen_offset_mm(offsets)
     if figures:
         label = ", ".join(f"{k}={v:.4g}" for k, v in best["params"].items())
         speed = {c: problem.project.get(c).press.speed_mm_s for c in ids}
-        delays = {c: offsets.get(c, mean_offset) / speed[c] for c in ids} if offsets else None
-        mixed = {c: [o / speed[c] for o in offsets.values()] for c in ids if c not in offsets} if offsets else None
+        # a trial with its own offset is drawn at it, one without as its mean over theirs
+        delays = {c: o / speed[c] for c, o in offsets.items()} if offsets else None
+        mixed = ({c: [o / speed[c] for o in offsets.values()] for c in ids if c not in offsets}
+                 if offsets else None)
         plot_simulation(results, problem.measured_force(ids), run.figures / "best_curves",
                         f"best point (loss {best['loss']:.4g} kN$^2$): {label}", delays_s=delays,
                         mixed_delays_s=mixed)

@@ -15,7 +15,6 @@ from smcbayes.data.loss import (
     end_state_offsets_mm,
     evaluate_loss,
     force_pair,
-    unseen_offset_mm,
 )
 from smcbayes.errors import ConfigError, ContactOffsetWarning, DataError
 from smcbayes.forward.result import SimulationResult
@@ -174,8 +173,3 @@ def test_a_bound_clips_the_end_state_offset_and_names_the_trials_beyond_it(dhp, 
         10 * evaluate_loss({"c1": sims["c1"]}, ds, LossSpec(contact="end_state")).total[0]
     text = ContactOffsetWarning.advice("c1", 0.2, 0.15)
     assert "+0.20 mm" in text and "+-0.15 mm" in text
-
-
-def test_a_trial_without_its_own_offset_takes_the_training_mean() -> None:
-    assert unseen_offset_mm({"a": 0.2, "b": 0.5, "c": -0.1}) == pytest.approx(0.2)
-    assert unseen_offset_mm({}) == 0.0

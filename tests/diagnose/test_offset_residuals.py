@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from smcbayes.data.curve import Curve
 from smcbayes.data.dataset import Measurement
@@ -58,3 +59,13 @@ def test_a_held_out_trials_residual_is_that_of_its_curve_mixed_over_the_offsets(
     np.testing.assert_allclose(resid["c"][0], mixed.meas_kN[0] - mixed.sim_kN[0], atol=1e-9)
     single, _ = residual_stack(ctx, (), np.zeros((1, 1)), ["c"], offsets_mm={"c": (0.25,)})
     assert np.max(np.abs(single["c"][0] - resid["c"][0])) > 1.0
+    # its held-out loss is the loss of the same averaged curve
+    from smcbayes.diagnose.fit import fixed_offset_losses
+
+    loss = fixed_offset_losses(ctx, (), np.zeros((1, 1)), ["c"], {"c": (0.0, 0.5)})
+    assert loss[0, 0] == pytest.approx(float(np.mean((mixed.meas_kN[0] - mixed.sim_kN[0]) ** 2)))
+    # no fitting trial gave an offset: the nominal contact, not the trial's own (it has no
+    # end state to take one from)
+    none, ends_none = residual_stack(ctx, (), np.zeros((1, 1)), ["c"], offsets_mm={"c": ()})
+    assert ends_none["c"] == 5.2
+    np.testing.assert_allclose(none["c"], residuals_on(res, m, "none", 5.2, spec.grid_points)[1])

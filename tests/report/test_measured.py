@@ -82,7 +82,8 @@ def test_the_error_table_says_how_a_validation_trial_without_its_contact_is_judg
     from smcbayes.report.sections_run import _error_table
 
     validation = {"b": {"mse_kN2": 9.0, "rmse_kN": 3.0}}
-    with_contacts = _error_table({"best_errors_kN2": {"a": 4.0}, "contact_offsets_mm": {"a": 0.1}}, validation)
+    cal = {"best_errors_kN2": {"a": 4.0}, "contact_offsets_mm": {"a": 0.1}}
+    with_contacts = _error_table(cal, validation)
     assert "averaged over the training trials' contact offsets" in with_contacts.caption
     assert [r[1] for r in with_contacts.rows] == ["train", "validation (not fitted)"]
     nominal = _error_table({"best_errors_kN2": {"a": 4.0}}, validation)
