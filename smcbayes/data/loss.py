@@ -167,12 +167,10 @@ def mixed_force_pair(res: SimulationResult, m: Measurement, spec: LossSpec,
     """
     offs = np.asarray(offsets_mm, dtype=float).ravel()
     if not np.all(np.isfinite(offs)):
-        raise DataError(f"configuration '{m.config_id}': contact offsets must be finite, got {offs.tolist()}")
-    if offs.size == 0 or np.ptp(offs) == 0:
+        raise DataError(f"configuration '{m.config_id}': contact offsets must be finite, "
+                        f"got {offs.tolist()}")
+    if offs.size == 0 or np.ptp(offs) == 0 or m.force is None:  # force_pair says what is missing
         return force_pair(res, m, spec, float(offs[0]) if offs.size else 0.0)
-    if m.force is None:
-        raise DataError(f"configuration '{m.config_id}' has no measured force curve; "
-                        "leave it out of the loss or add data.force")
     t0, f, _, ok = _safe(res)
     ts0 = _switch(res, t0, ok)
     delays = _delay_s(m, offs)
