@@ -91,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
     print(summary["decision"]["statement"])
     left_out = summary["selection"].get("left_out") or []
     if left_out:
-        print(f"selection: {', '.join(left_out)} not tried (alone they absorbed none of the gap)")
+        print(f"selection: {', '.join(left_out)} not tried (alone, their parameters could not move the "
+              "curves along the gap and the held-out loss changed by less than 1 %)")
     for step in summary["selection"]["steps"]:
         verdict = f"added {step['added']}" if step["added"] else f"stop ({step['best_candidate']} not significant)"
         if step.get("chosen_over"):

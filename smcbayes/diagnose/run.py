@@ -285,8 +285,8 @@ def _select(ctx: DiagnosisContext, settings: DiagnoseSettings, decision: dict[st
     others = [r["effect"] for r in singles if not inert(r)]
     left_out = [r["effect"] for r in singles if inert(r)]
     if left_out:
-        log(f"selection: {', '.join(left_out)} not tried (alone, the curves could not absorb the gap "
-            f"and the held-out loss shrank by less than {INERT_SHRINK_PCT:g} %)")
+        log(f"selection: {', '.join(left_out)} not tried (alone, their parameters could not move the "
+            f"curves along the gap and the held-out loss changed by less than {INERT_SHRINK_PCT:g} %)")
     selected, steps, grown = forward_selection(
         ctx, fits[best], others, ids[0], ids[1], settings.fit, rng,
         (evidence["n_eff_fit"], evidence["n_eff_holdout"]), settings.min_score, settings.max_effects, log)

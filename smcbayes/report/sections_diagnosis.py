@@ -121,7 +121,7 @@ def _selection(diag: dict[str, Any]) -> list:
     left_out = (diag.get("selection") or {}).get("left_out") or []
     if left_out:
         lines += (f"not tried: {', '.join(map(str, left_out))} (alone, their parameters could not move "
-                  "the curves along the gap and the held-out loss shrank by less than 1 %)",)
+                  "the curves along the gap and the held-out loss changed by less than 1 %)",)
     blocks: list = []
     if lines:
         blocks += [Paragraph(f"Forward selection from {best}:"), Bullets(lines)]
