@@ -192,7 +192,7 @@ def leave_out_residuals(model: Simulator, space: ParameterSpace, fit: LocalFit,
                 # each trial at its own contact offset at its refit point: the residual
                 # left once the trial's own offset is known; the bands draw offsets separately
                 curves.append(residual_curve(cid, results[cid], row, force.time_s, force.values,
-                                             float(delays[cid][row])))
+                                             float(delays[cid][row]), measurements[cid].force_limit_kN))
         out.append(curves)
     logger.info("leave-out refits of %d group(s): step scales %s", len(groups), [scale_of(p) for p in picks])
     return out, rows.shape[0] * len(ids)

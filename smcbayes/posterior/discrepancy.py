@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from smcbayes.data.dataset import END_NEAR_LIMIT
 from smcbayes.forward.result import SimulationResult
 from smcbayes.simulation.objective import Simulator
 
@@ -222,16 +223,50 @@ def fit_discrepancy(curves: Sequence[ResidualCurve]) -> PhaseDiscrepancy | None:
 
 
 def residual_curve(config_id: str, res: SimulationResult, row: int, time_s: Array,
-                   force_kN: Array, delay_s: float = 0.0) -> ResidualCurve:
+                   force_kN: Array, delay_s: float = 0.0, limit_kN: float | None = None) -> ResidualCurve:
     """Residuals of row ``row`` of one configuration's simulation result at the measured
     ``time_s`` ``(N,)`` with measured ``force_kN`` ``(N,)`` (the simulated force held at its
     last value beyond its record), the simulated closing delayed by ``delay_s`` (a contact
-    offset over the set speed; :func:`smcbayes.data.loss.force_pair`)."""
+    offset over the set speed; :func:`smcbayes.data.loss.force_pair`).
+
+    With the press's force limit ``limit_kN`` (kN), a measured closing that ended at the
+    limit (:func:`held_at_limit`) continues at it to the horizon of the bands' grid, so the
+    residuals after either end of closing are those of every trial, not only of the trials
+    still closing.
+    """
     t, f, disp = res.time_s[row] + delay_s, res.force_kN[row], res.displacement_mm[row]
     ts = float(res.switch_time_s[row]) + delay_s
-    tm = np.asarray(time_s, float)
-    return ResidualCurve(config_id, tm, np.asarray(force_kN, float) - np.interp(tm, t, f),
+    tm, fm = np.asarray(time_s, float), np.asarray(force_kN, float)
+    if limit_kN is not None and np.isfinite(ts):
+        tm, fm = held_at_limit(tm, fm, limit_kN, GRID_REACH * max(ts, float(tm[-1])))
+    return ResidualCurve(config_id, tm, fm - np.interp(tm, t, f),
                          ts, delayed_travel_mm(float(np.interp(ts, t, disp)), ts - delay_s, delay_s))
+
+
+GRID_REACH = 1.1
+"""The bands' time grid reaches this multiple of the latest end of closing (simulated or
+measured): the horizon to which a measured closing is continued at the force limit."""
+
+
+def held_at_limit(time_s: Array, force_kN: Array, limit_kN: float, until_s: float) -> tuple[Array, Array]:
+    """A measured closing force ``(N,)`` continued at ``limit_kN`` from its end to ``until_s``
+    (s) at its median sampling step, when it ended at the switch to force control (it
+    reaches :data:`~smcbayes.data.dataset.END_NEAR_LIMIT` of the limit; the press then holds
+    the limit); otherwise, or with nothing to add, the curve as given.
+
+    The force files of a closing stop at the limit, so without this the residuals after
+    the simulated end of closing would be those of the trials still closing alone: all
+    below the limit, and an error model learnt from them would pull every prediction past
+    the simulated switch below the limit, whatever the time.
+    """
+    t, f = np.asarray(time_s, float), np.asarray(force_kN, float)
+    if t.size < 2 or not f[-1] >= END_NEAR_LIMIT * limit_kN or until_s <= t[-1]:
+        return t, f
+    step = float(np.median(np.diff(t)))
+    if not step > 0:
+        return t, f
+    extra = t[-1] + step * np.arange(1, int(np.ceil((until_s - t[-1]) / step)) + 1)
+    return np.concatenate((t, extra)), np.concatenate((f, np.full(extra.size, float(limit_kN))))
 
 
 def delayed_travel_mm(travel_mm: Array | float, switch_s: Array | float, delay_s: Array | float) -> Array:
@@ -245,17 +280,19 @@ def delayed_travel_mm(travel_mm: Array | float, switch_s: Array | float, delay_s
 
 def training_residuals(model: Simulator, theta: Array, config_ids: Sequence[str],
                        measured: Mapping[str, tuple[Array, Array]],
-                       delays_s: Mapping[str, float] | None = None) -> list[ResidualCurve]:
+                       delays_s: Mapping[str, float] | None = None,
+                       limits_kN: Mapping[str, float] | None = None) -> list[ResidualCurve]:
     """Residuals of ``config_ids`` at one parameter vector ``theta`` ``(1, d)`` (user units).
 
     The simulated force is read at the measured times (held at its last value beyond the
     simulated record), each configuration's closing delayed by its ``delays_s`` entry (s;
-    default none); a configuration whose run fails is left out.
+    default none) and its measured closing continued at its ``limits_kN`` entry (kN; see
+    :func:`residual_curve`); a configuration whose run fails is left out.
     """
     ids = [c for c in config_ids if c in measured]
     if not ids:
         return []
     results = model.simulate(np.atleast_2d(theta), ids)
-    delays = delays_s or {}
-    return [residual_curve(cid, results[cid], 0, *measured[cid], delay_s=delays.get(cid, 0.0)) for cid in ids
-            if bool(np.asarray(results[cid].ok)[0])]
+    delays, limits = delays_s or {}, limits_kN or {}
+    return [residual_curve(cid, results[cid], 0, *measured[cid], delay_s=delays.get(cid, 0.0),
+                           limit_kN=limits.get(cid)) for cid in ids if bool(np.asarray(results[cid].ok)[0])]

@@ -189,3 +189,76 @@ def test_residuals_of_a_delayed_closing() -> None:
     assert curve.travel_mm == pytest.approx(TRAVEL + 0.5 * TRAVEL / T_END)
     d_plain = remaining_travel_mm(tm[10:20], plain.switch_s, plain.travel_mm)
     np.testing.assert_allclose(remaining_travel_mm(tm[10:20] + 0.5, curve.switch_s, curve.travel_mm), d_plain)
+
+
+def test_a_closing_that_ended_at_the_limit_is_held_there_to_the_horizon() -> None:
+    from smcbayes.posterior.discrepancy import held_at_limit
+
+    t = np.linspace(0.0, 10.0, 21)  # step 0.5 s
+    at_limit = np.linspace(0.0, 1400.0, 21)
+    tt, ff = held_at_limit(t, at_limit, 1400.0, 12.0)
+    np.testing.assert_allclose(tt[21:], [10.5, 11.0, 11.5, 12.0])
+    np.testing.assert_allclose(ff[21:], 1400.0)
+    np.testing.assert_array_equal(tt[:21], t)
+    # a curve stopping at 97 % of the limit ended at the switch too; the press then holds the limit
+    assert held_at_limit(t, 0.97 * at_limit, 1400.0, 12.0)[1][-1] == 1400.0
+    # a curve cut short of the limit is not continued, nor one reaching the horizon already
+    assert held_at_limit(t, 0.9 * at_limit, 1400.0, 12.0)[0].size == 21
+    assert held_at_limit(t, at_limit, 1400.0, 10.0)[0].size == 21
+
+
+def test_residuals_after_both_ends_of_closing_are_zero_and_before_a_late_switch_positive() -> None:
+    """Measured closings end at the limit (1000 kN at 10 s for the ramp of 100 kN/s); the
+    simulated one switches at 10 s too or, delayed by 1 s, at 11 s.  Continued at the limit,
+    the residuals are 0 once both have switched and limit - simulated in between."""
+    from smcbayes.posterior.discrepancy import residual_curve
+
+    res = RampModel().simulate(np.array([[100.0, 1.0]]), ["a"])["a"]
+    tm = np.linspace(0.0, T_END, 41)
+    measured = 100.0 * tm
+    same = residual_curve("a", res, 0, tm, measured, limit_kN=1000.0)
+    assert same.time_s[-1] == pytest.approx(1.1 * T_END, abs=0.25)
+    np.testing.assert_allclose(same.residual_kN, 0.0, atol=1e-9)
+    late = residual_curve("a", res, 0, tm, measured, delay_s=1.0, limit_kN=1000.0)
+    after = late.time_s > T_END
+    expected = 1000.0 - 100.0 * np.clip(late.time_s[after] - 1.0, 0.0, T_END)
+    np.testing.assert_allclose(late.residual_kN[after], expected, atol=1e-9)
+    assert np.all(late.residual_kN[after][late.time_s[after] < T_END + 1.0] > 0.0)
+    # without the limit the residuals stop with the measured curve, as before
+    assert residual_curve("a", res, 0, tm, measured).time_s.size == tm.size
+
+
+def test_the_error_model_after_the_switch_is_not_the_trials_still_closing_alone() -> None:
+    """Six trials of the ramp end at the limit 0-0.8 s after the simulated switch.  Learnt from
+    the closings alone, the errors after the switch are at most 0 (the measurement still
+    rises), and a prediction long after it stays below the limit; with the closings held at
+    the limit the errors there are zero and the predictive force reaches the limit."""
+    res = RampModel().simulate(np.array([[100.0, 1.0]]), ["a"])["a"]
+    lags = np.linspace(0.0, 0.8, 6)
+    plain, held = [], []
+    for k, lag in enumerate(lags):
+        tm = np.linspace(0.0, T_END + lag, 200)
+        measured = 1000.0 * tm / (T_END + lag)  # the same limit, reached lag seconds late
+        plain.append(residual_curve_of(res, tm, measured, None, k))
+        held.append(residual_curve_of(res, tm, measured, 1000.0, k))
+    late = np.array([-0.1 * TRAVEL])  # 2 s after the simulated switch
+    q_plain, q_held = fit_discrepancy(plain), fit_discrepancy(held)
+    assert q_plain is not None and q_held is not None
+    assert q_plain.quantile(late, np.array([0.5]))[0] < -15.0
+    assert q_held.quantile(late, np.array([0.5]))[0] == pytest.approx(0.0, abs=1e-9)
+    theta = np.array([[100.0, 1.0]])
+    bands = predictive_bands(RampModel(), theta, ["c"], {}, {}, np.random.default_rng(5), discrepancy=q_held,
+                             force_limit_kN={"c": 1000.0})["c"]
+    end = bands.time_s > 1.08 * T_END
+    np.testing.assert_allclose(bands.force_pred_kN[2, end], 1000.0, atol=1e-6)
+    assert np.all(bands.force_pred_mean_kN[end] > 995.0)
+    before = predictive_bands(RampModel(), theta, ["c"], {}, {}, np.random.default_rng(5), discrepancy=q_plain,
+                              force_limit_kN={"c": 1000.0})["c"]
+    assert np.all(before.force_pred_kN[2, end] < 985.0)
+
+
+def residual_curve_of(res: SimpleNamespace, tm: np.ndarray, fm: np.ndarray, limit: float | None,
+                      k: int) -> ResidualCurve:
+    from smcbayes.posterior.discrepancy import residual_curve
+
+    return residual_curve(f"c{k}", res, 0, tm, fm, limit_kN=limit)
