@@ -38,7 +38,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.forward.nodes import interp_rows
-from smcbayes.posterior.discrepancy import PhaseDiscrepancy, delayed_travel_mm, remaining_travel_mm
+from smcbayes.posterior.discrepancy import (
+    GRID_REACH,
+    PhaseDiscrepancy,
+    delayed_travel_mm,
+    remaining_travel_mm,
+)
 from smcbayes.simulation.objective import Simulator
 
 Array = NDArray[np.float64]
@@ -183,7 +188,7 @@ def predictive_bands(model: Simulator, theta: Array, config_ids: Sequence[str],
         kind = "white noise" if disc is None else "discrepancy"
         ok = res.ok
         late = float(np.max(delays_s.get(cid, 0.0), initial=0.0)) if delays_s is not None else 0.0
-        t_end = (np.nanmax(res.switch_time_s[ok]) + late) * 1.1 if np.any(ok) else 1.0
+        t_end = (np.nanmax(res.switch_time_s[ok]) + late) * GRID_REACH if np.any(ok) else 1.0
         if cid in measured:
             t_end = max(t_end, measured[cid][0][-1] * 1.02)
         grid = np.linspace(0.0, t_end, grid_points)
