@@ -318,21 +318,24 @@ def horizon_scores(band_csv: Path, time_s: np.ndarray, force_kN: np.ndarray,
                    limit_kN: float) -> dict[str, float]:
     """The predictive mean's RMSE (kN) and the 90 % band's coverage and mean width (kN) over
     the whole band grid of ``band_csv``, the measured closing ``(N,)`` continued at the force
-    limit past its end, as the press holds it.
+    limit past its end, as the press holds it (``held_at_limit``); empty when the band has
+    no predictive curves (every draw failed).
 
     The library scores a band on the measured closing alone, whose end is the outcome
-    itself: past the simulated switch it scores only trials still closing.  This window is
-    fixed by the band's grid instead, so a band is also judged on predicting the limit once
-    the closing has ended.
+    itself: past the simulated switch it scores only trials still closing.  This window
+    runs to the end of the band's grid instead (1.1 times the latest simulated switch, or
+    just past the measured end when that is later), so a band is also judged on predicting
+    the limit once the closing has ended.
     """
-    rows = np.loadtxt(band_csv, delimiter=",", skiprows=1, ndmin=2)
+    from smcbayes.posterior.discrepancy import held_at_limit
+
+    rows = np.genfromtxt(band_csv, delimiter=",", skip_header=1, ndmin=2)
     head = band_csv.read_text(encoding="utf-8").splitlines()[0].split(",")
     col = {h: i for i, h in enumerate(head)}
+    if not np.all(np.isfinite(rows[:, col["force_pred_mean_kN"]])):
+        return {}
     grid = rows[:, 0]
-    t, f = np.asarray(time_s, float), np.asarray(force_kN, float)
-    step = float(np.median(np.diff(t)))
-    tail = np.arange(t[-1] + step, grid[-1] + 1e-9, step)
-    t, f = np.concatenate((t, tail)), np.concatenate((f, np.full(tail.size, limit_kN)))
+    t, f = held_at_limit(np.asarray(time_s, float), np.asarray(force_kN, float), limit_kN, float(grid[-1]))
     t, f = t[t <= grid[-1]], f[t <= grid[-1]]
     mean, lo, hi = (np.interp(t, grid, rows[:, col[k]])
                     for k in ("force_pred_mean_kN", "force_pred_q05_kN", "force_pred_q95_kN"))
@@ -471,9 +474,10 @@ def main() -> int:
               f"{tot['mean_rmse_own_contact_kN']:.1f} kN, {tot['own_contact_le_70kN']} of {tot['trials']} "
               "within 70 kN")
     if np.isfinite(tot["mean_rmse_mean_horizon_kN"]):
+        within = tot["le_70kN"]["rmse_mean_horizon_kN"]
         print(f"over each band's grid, the closing held at the force limit past its end: predictive-mean "
-              f"RMSE {tot['mean_rmse_mean_horizon_kN']:.1f} kN ({tot['le_70kN']['rmse_mean_horizon_kN']} within "
-              f"70 kN), 90 % coverage {tot['mean_coverage90_horizon']:.0%} at "
+              f"RMSE {tot['mean_rmse_mean_horizon_kN']:.1f} kN ({within} within 70 kN), 90 % coverage "
+              f"{tot['mean_coverage90_horizon']:.0%} at "
               f"{tot['mean_band_width90_horizon_kN']:.0f} kN")
     verdict = {True: "met", False: "MISSED", None: "not judged (reused folds are not timed)"}
     print("targets: " + ", ".join(f"{k} {verdict[v]}" for k, v in tot["targets"].items()))

@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     """Execute ``diagnose``."""
     # the stage loads torch and scipy.optimize: only when it runs, not at start-up
     from smcbayes.diagnose.load import context_from_run
-    from smcbayes.diagnose.run import diagnose, settings_for
+    from smcbayes.diagnose.run import INERT_SHRINK_PCT, diagnose, settings_for
 
     candidates(args.effects)  # a misspelt effect is reported before the run is read
     run_dir = RunDir(args.run_dir)
@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     left_out = summary["selection"].get("left_out") or []
     if left_out:
         print(f"selection: {', '.join(left_out)} not tried (alone, their parameters could not move the "
-              "curves along the gap and the held-out loss changed by less than 1 %)")
+              f"curves along the gap and the held-out loss changed by less than {INERT_SHRINK_PCT:g} %)")
     for step in summary["selection"]["steps"]:
         verdict = f"added {step['added']}" if step["added"] else f"stop ({step['best_candidate']} not significant)"
         if step.get("chosen_over"):

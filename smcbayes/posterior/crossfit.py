@@ -161,7 +161,8 @@ def leave_out_residuals(model: Simulator, space: ParameterSpace, fit: LocalFit,
 
     One batch: every candidate row of :func:`candidate_rows` on every configuration of
     ``fit`` (``(1 + S G) K`` forward runs for ``G`` groups, ``S = 3`` nonzero
-    :data:`SCALES`).  The residuals are read at the measured times, as
+    :data:`SCALES`).  The residuals are read at the measured times, a closing that ended at
+    the force limit continued there, as
     :func:`~smcbayes.posterior.discrepancy.training_residuals` does at the calibrated point;
     a configuration whose refit run failed is left out.
 

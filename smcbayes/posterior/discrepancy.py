@@ -18,7 +18,8 @@ across charges and speeds.
 
 Fit (:func:`fit_discrepancy`): the residuals ``measured - simulated`` (kN) of the training
 configurations (at the calibrated point, or each at a refit that left it out:
-:mod:`smcbayes.posterior.crossfit`), at the measured times, are pooled into bins of
+:mod:`smcbayes.posterior.crossfit`), at the measured times (a closing that ended at the
+force limit continued there, as the press holds it), are pooled into bins of
 ``d`` (quantile edges, split at ``d = 0``, merged until each bin holds enough points of
 enough configurations); each bin keeps the weighted quantiles of its residuals, every
 configuration weighing the same.  Prediction (:meth:`PhaseDiscrepancy.sample`): a draw
@@ -55,6 +56,10 @@ MIN_POINTS = 40
 """Fewest residual points per bin."""
 MIN_CONFIGS = 2
 """Fewest configurations contributing to each bin (when the fit has that many)."""
+GRID_REACH = 1.1
+"""A band's time grid reaches this multiple of the latest simulated switch (further when its
+measured closing ends later); a training closing that ended at the force limit is continued
+there to this multiple of its later end of closing, simulated or measured."""
 
 
 @dataclass(frozen=True)
@@ -64,10 +69,15 @@ class ResidualCurve:
 
     Attributes:
         config_id: configuration id.
-        time_s: measured times ``(N,)``.
+        time_s: measured times ``(N,)`` (s), continued past the end of a closing that ended
+            at the force limit (:func:`held_at_limit`).
         residual_kN: measured minus simulated force ``(N,)``.
-        switch_s: simulated time of the switch to force control.
-        travel_mm: simulated ram travel at the switch.
+        switch_s: simulated time of the switch to force control (s).
+        travel_mm: simulated ram travel at the switch (mm).
+        held: the measured closing ended at the force limit and continues there, past the
+            simulated switch too: beyond ``time_s[-1]`` both curves sit at the limit and the
+            residual is 0 (:func:`fit_discrepancy` pads it so down to the pooled curves'
+            furthest remaining travel).
     """
 
     config_id: str
@@ -75,6 +85,7 @@ class ResidualCurve:
     residual_kN: Array
     switch_s: float
     travel_mm: float
+    held: bool = False
 
 
 def remaining_travel_mm(time_s: Array, switch_s: Array | float, travel_mm: Array | float) -> Array:
@@ -198,19 +209,36 @@ def _edges(d: Array, owner: Array, n_configs: int) -> Array:
     return edges
 
 
+def _zero_pad(d_mm: Array, furthest_mm: float) -> Array:
+    """Remaining travels (mm) from past the last of ``d_mm`` ``(N,)`` down to ``furthest_mm``
+    at the curve's median spacing, ``(M,)`` (empty when nothing is left to cover)."""
+    last = float(np.min(d_mm))
+    step = float(np.median(np.abs(np.diff(d_mm)))) if d_mm.size > 1 else 0.0
+    if not step > 0 or furthest_mm >= last:
+        return np.empty(0)
+    return last - step * np.arange(1, int(np.floor((last - furthest_mm) / step)) + 1)
+
+
 def fit_discrepancy(curves: Sequence[ResidualCurve]) -> PhaseDiscrepancy | None:
-    """The error model from the training residuals; ``None`` without any finite residual."""
-    ds, rs, ws, owner = [], [], [], []
-    for k, c in enumerate(curves):
-        keep = np.isfinite(c.residual_kN)
-        if not np.any(keep) or not (np.isfinite(c.switch_s) and np.isfinite(c.travel_mm)):
-            continue
-        ds.append(remaining_travel_mm(c.time_s[keep], c.switch_s, c.travel_mm))
-        rs.append(c.residual_kN[keep])
-        ws.append(np.full(int(keep.sum()), 1.0 / keep.sum()))
-        owner.append(np.full(int(keep.sum()), k))
-    if not ds:
+    """The error model from the training residuals; ``None`` without any finite residual.
+
+    A held curve (:attr:`ResidualCurve.held`) is padded with zero residuals down to the
+    furthest remaining travel any curve reaches, so the far bins past the switch hold every
+    trial that ended at the limit, not only the latest ones.
+    """
+    used = [c for c in curves if np.any(np.isfinite(c.residual_kN))
+             and np.isfinite(c.switch_s) and np.isfinite(c.travel_mm)]
+    if not used:
         return None
+    ds = [remaining_travel_mm(c.time_s[np.isfinite(c.residual_kN)], c.switch_s, c.travel_mm) for c in used]
+    rs = [c.residual_kN[np.isfinite(c.residual_kN)] for c in used]
+    furthest = min(float(np.min(x)) for x in ds)
+    for k, c in enumerate(used):
+        if c.held:
+            pad = _zero_pad(ds[k], furthest)
+            ds[k], rs[k] = np.concatenate((ds[k], pad)), np.concatenate((rs[k], np.zeros(pad.size)))
+    ws = [np.full(x.size, 1.0 / x.size) for x in ds]
+    owner = [np.full(x.size, k) for k, x in enumerate(ds)]
     d, r, w, who = (np.concatenate(a) for a in (ds, rs, ws, owner))
     edges = _edges(d, who, len(ds))
     b = np.searchsorted(edges, d, side="right")
@@ -230,29 +258,29 @@ def residual_curve(config_id: str, res: SimulationResult, row: int, time_s: Arra
     offset over the set speed; :func:`smcbayes.data.loss.force_pair`).
 
     With the press's force limit ``limit_kN`` (kN), a measured closing that ended at the
-    limit (:func:`held_at_limit`) continues at it to the horizon of the bands' grid, so the
-    residuals after either end of closing are those of every trial, not only of the trials
-    still closing.
+    limit continues at it (:func:`held_at_limit`) to :data:`GRID_REACH` times its later end
+    of closing, simulated or measured, and the curve is marked ``held``: the residuals past
+    either end of closing are then those of every trial, not only of the trials still
+    closing.
     """
     t, f, disp = res.time_s[row] + delay_s, res.force_kN[row], res.displacement_mm[row]
     ts = float(res.switch_time_s[row]) + delay_s
     tm, fm = np.asarray(time_s, float), np.asarray(force_kN, float)
-    if limit_kN is not None and np.isfinite(ts):
+    held = False
+    if limit_kN is not None and np.isfinite(ts) and tm.size >= 2:
+        n = tm.size
         tm, fm = held_at_limit(tm, fm, limit_kN, GRID_REACH * max(ts, float(tm[-1])))
+        held = tm.size > n
     return ResidualCurve(config_id, tm, fm - np.interp(tm, t, f),
-                         ts, delayed_travel_mm(float(np.interp(ts, t, disp)), ts - delay_s, delay_s))
-
-
-GRID_REACH = 1.1
-"""The bands' time grid reaches this multiple of the latest end of closing (simulated or
-measured): the horizon to which a measured closing is continued at the force limit."""
+                         ts, delayed_travel_mm(float(np.interp(ts, t, disp)), ts - delay_s, delay_s), held)
 
 
 def held_at_limit(time_s: Array, force_kN: Array, limit_kN: float, until_s: float) -> tuple[Array, Array]:
-    """A measured closing force ``(N,)`` continued at ``limit_kN`` from its end to ``until_s``
-    (s) at its median sampling step, when it ended at the switch to force control (it
-    reaches :data:`~smcbayes.data.dataset.END_NEAR_LIMIT` of the limit; the press then holds
-    the limit); otherwise, or with nothing to add, the curve as given.
+    """A measured closing force ``force_kN`` ``(N,)`` at ``time_s`` ``(N,)`` continued at
+    ``limit_kN`` (kN) from its end to ``until_s`` (s) at its median sampling step (the last
+    point at ``until_s``), ``(N + M,)`` each, when it ended at the switch to force control
+    (it reaches :data:`~smcbayes.data.dataset.END_NEAR_LIMIT` of the limit; the press then
+    holds the limit); otherwise, or with nothing to add, the curve as given.
 
     The force files of a closing stop at the limit, so without this the residuals after
     the simulated end of closing would be those of the trials still closing alone: all
@@ -265,7 +293,9 @@ def held_at_limit(time_s: Array, force_kN: Array, limit_kN: float, until_s: floa
     step = float(np.median(np.diff(t)))
     if not step > 0:
         return t, f
-    extra = t[-1] + step * np.arange(1, int(np.ceil((until_s - t[-1]) / step)) + 1)
+    extra = t[-1] + step * np.arange(1, int(np.floor((until_s - t[-1]) / step)) + 1)
+    if extra.size == 0 or extra[-1] < until_s:
+        extra = np.append(extra, until_s)
     return np.concatenate((t, extra)), np.concatenate((f, np.full(extra.size, float(limit_kN))))
 
 

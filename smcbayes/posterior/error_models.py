@@ -120,8 +120,8 @@ def band_error_models(ctx: RunContext, fit: LocalFit | None, band_ids: Sequence[
     delays = {c: o / p.dataset.measurements[c].speed_mm_s for c, o in offsets.items()
               if p.dataset.measurements[c].speed_mm_s}
     limits = {c: m.force_limit_kN for c, m in p.dataset.measurements.items()}
-    curves = training_residuals(ctx.runner, ctx.best_theta, p.train_ids, p.measured_force(p.train_ids), delays,
-                                limits)
+    curves = training_residuals(ctx.runner, ctx.best_theta, p.train_ids, p.measured_force(p.train_ids),
+                                delays, limits)
     base = fit_discrepancy(curves)
     return BandErrorModels({cid: base for cid in band_ids}, {cid: "calibrated point" for cid in band_ids},
                            base, "calibrated point", runs + len(p.train_ids), offsets_mm=offsets)

@@ -241,20 +241,39 @@ def test_the_error_model_after_the_switch_is_not_the_trials_still_closing_alone(
         measured = 1000.0 * tm / (T_END + lag)  # the same limit, reached lag seconds late
         plain.append(residual_curve_of(res, tm, measured, None, k))
         held.append(residual_curve_of(res, tm, measured, 1000.0, k))
-    late = np.array([-0.1 * TRAVEL])  # 2 s after the simulated switch
+    late = np.array([-0.1 * TRAVEL])  # 1 s after the simulated switch
     q_plain, q_held = fit_discrepancy(plain), fit_discrepancy(held)
     assert q_plain is not None and q_held is not None
     assert q_plain.quantile(late, np.array([0.5]))[0] < -15.0
     assert q_held.quantile(late, np.array([0.5]))[0] == pytest.approx(0.0, abs=1e-9)
     theta = np.array([[100.0, 1.0]])
-    bands = predictive_bands(RampModel(), theta, ["c"], {}, {}, np.random.default_rng(5), discrepancy=q_held,
-                             force_limit_kN={"c": 1000.0})["c"]
+    bands = predictive_bands(RampModel(), theta, ["c"], {}, {}, np.random.default_rng(5),
+                             discrepancy=q_held, force_limit_kN={"c": 1000.0})["c"]
     end = bands.time_s > 1.08 * T_END
     np.testing.assert_allclose(bands.force_pred_kN[2, end], 1000.0, atol=1e-6)
     assert np.all(bands.force_pred_mean_kN[end] > 995.0)
-    before = predictive_bands(RampModel(), theta, ["c"], {}, {}, np.random.default_rng(5), discrepancy=q_plain,
-                              force_limit_kN={"c": 1000.0})["c"]
+    before = predictive_bands(RampModel(), theta, ["c"], {}, {}, np.random.default_rng(5),
+                              discrepancy=q_plain, force_limit_kN={"c": 1000.0})["c"]
     assert np.all(before.force_pred_kN[2, end] < 985.0)
+
+
+def test_the_far_bins_past_the_switch_hold_every_trial_that_ended_at_the_limit() -> None:
+    """Four trials end at the limit with the simulated switch, two 1.5 and 2 s later:
+    1.2 s after the switch (d = -0.6 mm, past the on-time trials' own horizon of 1.1 times
+    their closing) four of six sit at the limit, so the median error is 0, while the two
+    still closing keep the lower quantiles below it.  Each curve continued only to its own
+    horizon would leave that bin to the late trials alone."""
+    res = RampModel().simulate(np.array([[100.0, 1.0]]), ["a"])["a"]
+    curves = []
+    for k, lag in enumerate((0.0, 0.0, 0.0, 0.0, 1.5, 2.0)):
+        tm = np.linspace(0.0, T_END + lag, 200)
+        curves.append(residual_curve_of(res, tm, 1000.0 * tm / (T_END + lag), 1000.0, k))
+    assert all(c.held for c in curves)
+    model = fit_discrepancy(curves)
+    assert model is not None
+    far = np.array([-0.12 * TRAVEL])
+    assert model.quantile(far, np.array([0.5]))[0] == pytest.approx(0.0, abs=1e-9)
+    assert model.quantile(far, np.array([0.05]))[0] < -20.0
 
 
 def residual_curve_of(res: SimpleNamespace, tm: np.ndarray, fm: np.ndarray, limit: float | None,
