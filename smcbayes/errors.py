@@ -71,17 +71,22 @@ class ParameterOnBoundWarning(SmcBayesWarning):
         it cannot be widened, only physics added; one inside it can be widened up to it.
         """
         where = "above" if side == "upper" else "below"
-        head = (f"{name} = {value:.4g} lies on its {side} search bound: the data want {name} "
-                f"{where} {limit:.4g}; ")
+        return (f"{name} = {value:.4g} lies on its {side} search bound: the data want {name} "
+                f"{where} {limit:.4g}; " + ParameterOnBoundWarning.remedy(name, side, limit, physical))
+
+    @staticmethod
+    def remedy(name: str, side: str, limit: float, physical: float | None = None) -> str:
+        """The second half of :meth:`advice`: widen the bound ``limit`` of ``name`` on its
+        ``side``, or, where it is the physical limit ``physical``, add physics."""
         missing = "add the missing physics (smcbayes diagnose lists candidate effects)"
         if physical is None:
-            return head + f"widen the bound in [parameters.{name}] if that is physical, or {missing}"
+            return f"widen the bound in [parameters.{name}] if that is physical, or {missing}"
         beyond = limit >= physical if side == "upper" else limit <= physical
         if beyond:
-            return head + (f"that is the end of its physical range ({physical:.4g}), so do not "
-                           f"widen the bound: {missing}")
-        return head + (f"widen the bound in [parameters.{name}] (its physical range ends at "
-                       f"{physical:.4g}), or {missing}")
+            return (f"that is the end of its physical range ({physical:.4g}), so do not "
+                    f"widen the bound: {missing}")
+        return (f"widen the bound in [parameters.{name}] (its physical range ends at "
+                f"{physical:.4g}), or {missing}")
 
 
 class ContactOffsetWarning(SmcBayesWarning):

@@ -3,7 +3,8 @@ separated modes, and near-collinear ridges.
 
 None of these makes a posterior wrong (the sample may be a faithful draw from a posterior
 that is truncated, bimodal or ridge-shaped), but each changes how its summary must be read,
-and each has a remedy the user should hear about: widen the bound, look at the corner plot
+and each has a remedy the user should hear about: widen the bound (or, at the end of the
+parameter's physical range, add physics), look at the corner plot
 rather than the mean and sd, fix one of two parameters the data identify only together.
 All tests run on unit-cube coordinates (log10 where a parameter is searched so), so the
 thresholds are shares of the search range.
@@ -14,7 +15,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from smcbayes.errors import ParameterOnBoundWarning
 from smcbayes.forward.parameters import ParameterSpace
+from smcbayes.forward.ranges import PHYSICAL_RANGES
 
 Array = NDArray[np.float64]
 
@@ -42,9 +45,11 @@ def _bound_notes(space: ParameterSpace, unit: Array) -> list[str]:
         for hit, side, bound, want in ((q05[k] < EDGE, "lower", p.lower, "below"),
                                        (q95[k] > 1.0 - EDGE, "upper", p.upper, "above")):
             if hit:
+                known = PHYSICAL_RANGES.get(p.name)
+                physical = None if known is None else (known.lower if side == "lower" else known.upper)
                 notes.append(f"the posterior of {p.name} piles up at its {side} bound "
                              f"({bound:g} {p.unit}): the data want {p.name} {want} {bound:g}; "
-                             "widen the bound or add physics")
+                             + ParameterOnBoundWarning.remedy(p.name, side, bound, physical))
     return notes
 
 

@@ -39,6 +39,18 @@ def test_mass_at_a_bound_is_named_with_what_to_do() -> None:
     assert "widen the bound" in notes[0]
 
 
+def test_mass_at_the_end_of_the_physical_range_asks_for_physics_not_a_wider_bound() -> None:
+    raw = {**RAW, "parameters": {"n": {"value": 0.5, "bounds": [0.2, 1.0]}}}  # 1: a Newtonian bulk
+    space = ForwardModel(build_project(raw, "<t>", Path("."))).space
+    rng = np.random.default_rng(1)
+    unit = rng.uniform(0.3, 0.5, size=(4000, space.dim))
+    k = space.free_names.index("n")
+    unit[:, k] = 1.0 - rng.uniform(0.0, 0.2, 4000) ** 2
+    (note,) = shape_notes(space, unit)
+    assert "posterior of n piles up at its upper bound" in note
+    assert "end of its physical range (1), so do not widen the bound" in note
+
+
 def test_a_wide_posterior_is_not_said_to_pile_at_a_bound() -> None:
     space = _space()
     unit = np.random.default_rng(2).uniform(0.0, 1.0, size=(4000, space.dim))
