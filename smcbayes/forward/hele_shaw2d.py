@@ -18,10 +18,14 @@ finite volumes on a structured grid with a fill-fraction (control-volume) flow f
 Mirror symmetry of the layout about the mould's centre lines is used to solve a half or a
 quarter of the mould.  Parameter sets are solved one after another.
 
-The base model and the ``compressibility`` effect are supported; other effects are not.
-A porous charge has a local solid fraction per cell (:mod:`smcbayes.forward.compaction2d`):
-each filled cell compacts under its own pressure by the effect's law, the solid moves
-with the flow, and the solid volume is conserved to round-off.
+The base model and the ``compressibility``, ``heating`` and ``curing`` effects are
+supported; the press effects (``press_compliance``, ``speed_ramp``) are not.  A porous
+charge has a local solid fraction per cell (:mod:`smcbayes.forward.compaction2d`): each
+filled cell compacts under its own pressure by the effect's law, the solid moves with the
+flow, and the solid volume is conserved to round-off.  Heating and curing act on the whole
+charge as in the 1-D solver: one mean temperature and degree of cure per parameter set,
+advanced over each step at its start gap, scale the viscosity of every cell
+(:class:`~smcbayes.forward.stepper2d.ChargeEffects`).
 """
 
 from __future__ import annotations
@@ -44,12 +48,13 @@ from smcbayes.forward.nodes import Nodes, to_result
 from smcbayes.forward.result import SimulationResult
 from smcbayes.forward.spill2d import spill
 from smcbayes.forward.squeeze1d import material_table
-from smcbayes.forward.stepper2d import HeleShaw2DOptions, Law, Run, Stepper
+from smcbayes.forward.stepper2d import ChargeEffects, HeleShaw2DOptions, Law, Run, Stepper
 
-__all__ = ["FillHistory", "HeleShaw2D", "HeleShaw2DOptions", "cell_compaction", "make_grid", "spill", "whole_mould"]
+__all__ = ["FillHistory", "HeleShaw2D", "HeleShaw2DOptions", "cell_compaction", "charge_effects", "make_grid",
+           "spill", "whole_mould"]
 
 Array = NDArray[np.float64]
-SUPPORTED_EFFECTS = ("compressibility",)
+SUPPORTED_EFFECTS = ("compressibility", "heating", "curing")
 
 
 @dataclass
@@ -133,8 +138,9 @@ class HeleShaw2D:
         Args:
             case: the configuration in SI (``case.pieces`` holds the charge layout).
             p: SI parameters by symbol, each ``(P,)``.
-            effects: the enabled effects: none, or ``compressibility`` (pore compaction
-                with a local solid fraction per cell).
+            effects: the enabled effects: any of ``compressibility`` (pore compaction
+                with a local solid fraction per cell), ``heating`` and ``curing`` (one
+                charge-mean state per row).
             material: slip coefficient and threshold exponent.
         """
         other = [n for n in effects.names if n not in SUPPORTED_EFFECTS]
@@ -150,7 +156,8 @@ class HeleShaw2D:
         for r in range(rows):
             # one parameter set that fails must not take the other rows of the batch with it
             try:
-                runs.append(self.run_row(case, table, float(p["B"][r]), r, cell_compaction(case, p, effects, r)))
+                row_effects = cell_compaction(case, p, effects, r), charge_effects(case, p, effects, r)
+                runs.append(self.run_row(case, table, float(p["B"][r]), r, *row_effects))
             except SolverError as err:
                 runs.append(Run(t=[0.0, 1.0], gap=[case.gap0] * 2, area=[case.area0] * 2,
                                 force=[0.0, 0.0], solid=[1.0, 1.0], switch=1.0, status=f"failed: {err}"))
@@ -169,7 +176,7 @@ class HeleShaw2D:
         return FillHistory(np.array(run.snap_t), np.array(fills), xf * 1e3, yf * 1e3, solid)
 
     def run_row(self, case: Case, table: MaterialTable, eta0: float, row: int,
-                compaction: CellCompaction | None = None) -> Run:
+                compaction: CellCompaction | None = None, charge: ChargeEffects | None = None) -> Run:
         """Simulate one parameter set (row ``row`` of ``table``); returns its node record.
 
         Args:
@@ -178,15 +185,26 @@ class HeleShaw2D:
             eta0: zero-shear viscosity of the row (Pa s).
             row: row of ``table``.
             compaction: per-cell pore compaction, or None for an incompressible charge.
+            charge: the viscosity effects of the row, or None.
         """
         o = self.options
         grid, h0 = make_grid(case, o.cells, o.use_symmetry)
-        law = Law(self.tau, table.slip[row], table.shear[row] / (2.0 * eta0 * self.tau**2))
-        stepper = Stepper(case, grid, law, o, compaction)
+        law = Law(self.tau, table.slip[row], table.shear[row] / (2.0 * eta0 * self.tau**2),
+                  table.take(np.array([row])), eta0)
+        stepper = Stepper(case, grid, law, o, compaction, charge)
         state, rates = stepper.speed_phase(stepper.initial(h0))
         if rates is not None:
             stepper.force_phase(state)
         return stepper.run
+
+
+def charge_effects(case: Case, p: dict[str, Array], effects: EffectStack, row: int) -> ChargeEffects | None:
+    """The viscosity effects of row ``row`` on the whole charge, or None when no enabled
+    effect carries a state (no ``heating`` or ``curing``)."""
+    p_row = {k: np.asarray(v)[row:row + 1] for k, v in p.items()}
+    if not effects.initial_state(case, p_row, 1):
+        return None
+    return ChargeEffects(case, p_row, effects)
 
 
 def cell_compaction(case: Case, p: dict[str, Array], effects: EffectStack, row: int) -> CellCompaction | None:

@@ -30,6 +30,8 @@ from smcbayes.forward.compaction2d import (
     solid_fraction,
     solid_inflow,
 )
+from smcbayes.forward.effects.base import EffectStack
+from smcbayes.forward.flux import MaterialTable
 from smcbayes.forward.grid2d import FULL, Fluidity, Grid, PressureSolution, solve_pressure
 from smcbayes.forward.programme import PressProgramme
 from smcbayes.forward.result import STATUS_OK
@@ -87,12 +89,15 @@ class HeleShaw2DOptions:
 @dataclass
 class State:
     """State of one run: time (s), gap (m), charge thickness per cell (m) and solid
-    volume per unit area (m), both ``(nx, ny)``."""
+    volume per unit area (m), both ``(nx, ny)``, and the effects' state of the whole
+    charge (the mean temperature of ``heating``, the degree of cure of ``curing``; each
+    ``(1,)``)."""
 
     t: float
     gap: float
     h: Array
     sigma: Array
+    extra: dict[str, Array] = field(default_factory=dict)
 
 
 @dataclass
@@ -115,14 +120,61 @@ class Run:
 
 @dataclass
 class Law:
-    """Flux law of one parameter set: q(tau) = H slip + H^2 coeff (m^2/s), ``(M,)``."""
+    """Flux law of one parameter set: q(tau) = H slip + H^2 coeff (m^2/s), ``(M,)``.
+
+    ``coeff`` is the shear part at the row's own zero-shear viscosity; ``table`` (the
+    row's one-row :class:`~smcbayes.forward.flux.MaterialTable`) and ``eta0`` (Pa s) give it
+    again under the viscosity and cure factors of the effects (:meth:`at`).
+    """
 
     tau: Array
     slip: Array
     coeff: Array
+    table: MaterialTable | None = None
+    eta0: float = 1.0
 
-    def at(self, gap: float) -> Fluidity:
-        return Fluidity(self.tau, gap * self.slip + gap * gap * self.coeff, gap)
+    def at(self, gap: float, eta_f: float = 1.0, cure: float = 1.0) -> Fluidity:
+        """The law at ``gap`` (m) with the viscosity factor ``eta_f`` and cure factor ``cure``."""
+        coeff = self.coeff
+        if (eta_f != 1.0 or cure != 1.0) and self.table is not None:
+            shear = self.table.shear_at(np.array([cure]))[0]
+            coeff = shear / (2.0 * self.eta0 * eta_f * self.tau**2)
+        return Fluidity(self.tau, gap * self.slip + gap * gap * coeff, gap)
+
+
+@dataclass
+class ChargeEffects:
+    """The viscosity effects of one parameter set on the whole charge (``heating`` and
+    ``curing``): their state at first contact, its advance over a step and the factors
+    on the zero-shear viscosity and the cure factor, through the effects' own hooks (the
+    1-D solver's, one charge-mean state: the cells share the charge's mean temperature
+    and degree of cure).
+
+    Attributes:
+        case: the configuration in SI.
+        p: the row's SI parameters by symbol, each ``(1,)``.
+        effects: the enabled effects.
+    """
+
+    case: Case
+    p: dict[str, Array]
+    effects: EffectStack
+
+    def initial(self) -> dict[str, Array]:
+        return self.effects.initial_state(self.case, self.p, 1)
+
+    def advance(self, extra: dict[str, Array], gap: float, dt: float) -> dict[str, Array]:
+        """The state after ``dt`` (s) at the step's start gap ``gap`` (m)."""
+        if not extra:
+            return extra
+        return self.effects.advance(self.case, self.p, extra, np.array([gap]), np.array([dt]))
+
+    def factors(self, extra: dict[str, Array]) -> tuple[float, float]:
+        """(viscosity factor, cure factor) of the state ``extra``."""
+        if not extra:
+            return 1.0, 1.0
+        eta_f, cure = self.effects.viscosity_factors(self.case, self.p, extra, 1)
+        return float(eta_f[0]), float(cure[0])
 
 
 @dataclass
@@ -138,11 +190,13 @@ class Rates:
 
 
 class Stepper:
-    """Time stepping of one parameter set; ``compaction`` None for an incompressible charge."""
+    """Time stepping of one parameter set; ``compaction`` None for an incompressible charge,
+    ``charge`` None without viscosity effects."""
 
     def __init__(self, case: Case, grid: Grid, law: Law, options: HeleShaw2DOptions,
-                 compaction: CellCompaction | None) -> None:
+                 compaction: CellCompaction | None, charge: ChargeEffects | None = None) -> None:
         self.case, self.grid, self.law, self.o, self.comp = case, grid, law, options, compaction
+        self.charge = charge
         self.press = PressProgramme.of(case, options.jump_time_s)
         self.run = Run()
         self.guess: Array | None = None
@@ -157,7 +211,13 @@ class Stepper:
     def initial(self, h0: Array) -> State:
         """State at first contact from the charge thickness per cell (m)."""
         s0 = 1.0 if self.comp is None else self.comp.solid0
-        return State(0.0, self.case.gap0, h0, s0 * h0)
+        extra = {} if self.charge is None else self.charge.initial()
+        return State(0.0, self.case.gap0, h0, s0 * h0, extra)
+
+    def fluidity(self, st: State) -> Fluidity:
+        """The flux law at ``st``'s gap, under its viscosity and cure factors."""
+        factors = (1.0, 1.0) if self.charge is None else self.charge.factors(st.extra)
+        return self.law.at(st.gap, *factors)
 
     def solid(self, st: State) -> Array:
         """Solid fraction per cell, ``(nx, ny)`` (s0 in empty cells)."""
@@ -194,7 +254,7 @@ class Stepper:
                 return Rates(F_lim, 0.0, None)  # every cell bears F / A: the press rests
         speed, force = (None, F_lim) if force_control else (c.speed, None)
         try:
-            sol = solve_pressure(self.grid, st.h / st.gap, self.law.at(st.gap), speed, force,
+            sol = solve_pressure(self.grid, st.h / st.gap, self.fluidity(st), speed, force,
                                  self.guess, self.speed_guess, sink=sink, speed_floor=1e-6 * c.speed)
         except SolverError:
             if not force_control or sink is None:
@@ -208,7 +268,7 @@ class Stepper:
         return Rates(sol.force - self._lag(st, sol, sink), sol.speed, sol, sink)
 
     def _speed_solve(self, st: State, sink: CompactionSink, V: float) -> PressureSolution:
-        sol = solve_pressure(self.grid, st.h / st.gap, self.law.at(st.gap), V, None, self.guess, sink=sink)
+        sol = solve_pressure(self.grid, st.h / st.gap, self.fluidity(st), V, None, self.guess, sink=sink)
         self.guess = sol.p
         return sol
 
@@ -280,20 +340,21 @@ class Stepper:
         """State after ``dt`` (s): filled cells lose V dt, front cells gain their inflow,
         the solid moves with the face fluxes, the excess spills."""
         gap = max(st.gap - r.speed * dt, self.gap_end)
+        extra = st.extra if self.charge is None else self.charge.advance(st.extra, st.gap, dt)
         if r.sol is None:
-            return State(st.t + dt, gap, st.h, st.sigma)
+            return State(st.t + dt, gap, st.h, st.sigma, extra)
         full = st.h >= st.gap * FULL
         h = np.where(full, st.h - r.speed * dt, st.h + r.sol.inflow * dt / self.grid.cell_area)
         if self.comp is None:
             h = spill_with(h, gap, None)[0]
-            return State(st.t + dt, gap, h, h)
+            return State(st.t + dt, gap, h, h, extra)
         sigma = st.sigma + solid_inflow(r.sol, self.solid(st)) * dt / self.grid.cell_area
         h, sigma = spill_with(h, gap, sigma, absorb=True)
         if float(np.sum(gap - h)) <= SNAP * gap:
             # the last open capacity is round-off of the semi-implicit compaction: call the
             # cavity full (the solid stays; s of the last cells drops by at most SNAP)
             h = np.full_like(h, gap)
-        return State(st.t + dt, gap, h, sigma)
+        return State(st.t + dt, gap, h, sigma, extra)
 
     def step_size(self, st: State, r: Rates, dt_max: float) -> float:
         """Largest step (s) within :meth:`regular_step`, the filling of the cavity and the
@@ -419,7 +480,8 @@ class Stepper:
     def hold(self, st: State, t_end: float) -> None:
         """Close the record with the force limit held until ``t_end`` (s)."""
         if t_end > self.run.t[-1] or self.run.force[-1] != self.case.force_limit:
-            self.record(State(max(t_end, self.run.t[-1]), st.gap, st.h, st.sigma), self.case.force_limit)
+            self.record(State(max(t_end, self.run.t[-1]), st.gap, st.h, st.sigma, st.extra),
+                        self.case.force_limit)
         if self.run.t[-1] < self.run.switch + self.press.hold:
-            self.record(State(self.run.switch + self.press.hold, st.gap, st.h, st.sigma),
+            self.record(State(self.run.switch + self.press.hold, st.gap, st.h, st.sigma, st.extra),
                         self.case.force_limit)
