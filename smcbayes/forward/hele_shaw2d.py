@@ -18,14 +18,15 @@ finite volumes on a structured grid with a fill-fraction (control-volume) flow f
 Mirror symmetry of the layout about the mould's centre lines is used to solve a half or a
 quarter of the mould.  Parameter sets are solved one after another.
 
-The base model and the ``compressibility``, ``heating`` and ``curing`` effects are
-supported; the press effects (``press_compliance``, ``speed_ramp``) are not.  A porous
+The base model and the ``compressibility``, ``heating``, ``curing`` and ``speed_ramp``
+effects are supported; ``press_compliance`` is not.  A porous
 charge has a local solid fraction per cell (:mod:`smcbayes.forward.compaction2d`): each
 filled cell compacts under its own pressure by the effect's law, the solid moves with the
 flow, and the solid volume is conserved to round-off.  Heating and curing act on the whole
 charge as in the 1-D solver: one mean temperature and degree of cure per parameter set,
 advanced over each step at its start gap, scale the viscosity of every cell
-(:class:`~smcbayes.forward.stepper2d.ChargeEffects`).
+(:class:`~smcbayes.forward.law2d.ChargeEffects`); with ``speed_ramp`` the closing
+speed of each step under speed control is the ram's, slowed by the step's force.
 """
 
 from __future__ import annotations
@@ -40,21 +41,22 @@ from smcbayes.config import MaterialSpec, SolverSpec
 from smcbayes.errors import ConfigError, SolverError
 from smcbayes.forward.case import Case
 from smcbayes.forward.compaction2d import CellCompaction
-from smcbayes.forward.effects.base import EffectStack
+from smcbayes.forward.effects.base import Effect, EffectStack
 from smcbayes.forward.flux import MaterialTable, log_grid
 from smcbayes.forward.grid2d import Grid
+from smcbayes.forward.law2d import ChargeEffects, Law
 from smcbayes.forward.layout import coverage, symmetric
 from smcbayes.forward.nodes import Nodes, to_result
 from smcbayes.forward.result import SimulationResult
 from smcbayes.forward.spill2d import spill
 from smcbayes.forward.squeeze1d import material_table
-from smcbayes.forward.stepper2d import ChargeEffects, HeleShaw2DOptions, Law, Run, Stepper
+from smcbayes.forward.stepper2d import HeleShaw2DOptions, Run, Stepper
 
 __all__ = ["FillHistory", "HeleShaw2D", "HeleShaw2DOptions", "cell_compaction", "charge_effects", "make_grid",
            "spill", "whole_mould"]
 
 Array = NDArray[np.float64]
-SUPPORTED_EFFECTS = ("compressibility", "heating", "curing")
+SUPPORTED_EFFECTS = ("compressibility", "heating", "curing", "speed_ramp")
 
 
 @dataclass
@@ -140,7 +142,7 @@ class HeleShaw2D:
             p: SI parameters by symbol, each ``(P,)``.
             effects: the enabled effects: any of ``compressibility`` (pore compaction
                 with a local solid fraction per cell), ``heating`` and ``curing`` (one
-                charge-mean state per row).
+                charge-mean state per row) and ``speed_ramp``.
             material: slip coefficient and threshold exponent.
         """
         other = [n for n in effects.names if n not in SUPPORTED_EFFECTS]
@@ -199,10 +201,11 @@ class HeleShaw2D:
 
 
 def charge_effects(case: Case, p: dict[str, Array], effects: EffectStack, row: int) -> ChargeEffects | None:
-    """The viscosity effects of row ``row`` on the whole charge, or None when no enabled
-    effect carries a state (no ``heating`` or ``curing``)."""
+    """The effects of row ``row`` on the whole charge and the ram, or None when no enabled
+    effect carries a state or moves the ram (no ``heating``, ``curing`` or ``speed_ramp``)."""
     p_row = {k: np.asarray(v)[row:row + 1] for k, v in p.items()}
-    if not effects.initial_state(case, p_row, 1):
+    ram = any(type(e).ram_speed is not Effect.ram_speed for e in effects.effects)
+    if not ram and not effects.initial_state(case, p_row, 1):
         return None
     return ChargeEffects(case, p_row, effects)
 

@@ -30,9 +30,8 @@ from smcbayes.forward.compaction2d import (
     solid_fraction,
     solid_inflow,
 )
-from smcbayes.forward.effects.base import EffectStack
-from smcbayes.forward.flux import MaterialTable
 from smcbayes.forward.grid2d import FULL, Fluidity, Grid, PressureSolution, solve_pressure
+from smcbayes.forward.law2d import ChargeEffects, Law
 from smcbayes.forward.programme import PressProgramme
 from smcbayes.forward.result import STATUS_OK
 from smcbayes.forward.spill2d import spill_with
@@ -119,65 +118,6 @@ class Run:
 
 
 @dataclass
-class Law:
-    """Flux law of one parameter set: q(tau) = H slip + H^2 coeff (m^2/s), ``(M,)``.
-
-    ``coeff`` is the shear part at the row's own zero-shear viscosity; ``table`` (the
-    row's one-row :class:`~smcbayes.forward.flux.MaterialTable`) and ``eta0`` (Pa s) give it
-    again under the viscosity and cure factors of the effects (:meth:`at`).
-    """
-
-    tau: Array
-    slip: Array
-    coeff: Array
-    table: MaterialTable | None = None
-    eta0: float = 1.0
-
-    def at(self, gap: float, eta_f: float = 1.0, cure: float = 1.0) -> Fluidity:
-        """The law at ``gap`` (m) with the viscosity factor ``eta_f`` and cure factor ``cure``."""
-        coeff = self.coeff
-        if (eta_f != 1.0 or cure != 1.0) and self.table is not None:
-            shear = self.table.shear_at(np.array([cure]))[0]
-            coeff = shear / (2.0 * self.eta0 * eta_f * self.tau**2)
-        return Fluidity(self.tau, gap * self.slip + gap * gap * coeff, gap)
-
-
-@dataclass
-class ChargeEffects:
-    """The viscosity effects of one parameter set on the whole charge (``heating`` and
-    ``curing``): their state at first contact, its advance over a step and the factors
-    on the zero-shear viscosity and the cure factor, through the effects' own hooks (the
-    1-D solver's, one charge-mean state: the cells share the charge's mean temperature
-    and degree of cure).
-
-    Attributes:
-        case: the configuration in SI.
-        p: the row's SI parameters by symbol, each ``(1,)``.
-        effects: the enabled effects.
-    """
-
-    case: Case
-    p: dict[str, Array]
-    effects: EffectStack
-
-    def initial(self) -> dict[str, Array]:
-        return self.effects.initial_state(self.case, self.p, 1)
-
-    def advance(self, extra: dict[str, Array], gap: float, dt: float) -> dict[str, Array]:
-        """The state after ``dt`` (s) at the step's start gap ``gap`` (m)."""
-        if not extra:
-            return extra
-        return self.effects.advance(self.case, self.p, extra, np.array([gap]), np.array([dt]))
-
-    def factors(self, extra: dict[str, Array]) -> tuple[float, float]:
-        """(viscosity factor, cure factor) of the state ``extra``."""
-        if not extra:
-            return 1.0, 1.0
-        eta_f, cure = self.effects.viscosity_factors(self.case, self.p, extra, 1)
-        return float(eta_f[0]), float(cure[0])
-
-
-@dataclass
 class Rates:
     """Force (N) and gap closing speed V (m/s) at a state, with the flow solution there
     (None when nothing moves: an incompressible charge fills the cavity, or a porous one
@@ -244,7 +184,7 @@ class Stepper:
                 s = self.solid(st)
                 if float(np.sum((1.0 - s) * st.h)) <= POROUS * float(st.h.sum()):
                     return None  # pores closed to round-off: as incompressible
-                V = c.speed if not force_control else (self.speed_guess or c.speed)
+                V = self.ram_speed(st.t)[0] if not force_control else (self.speed_guess or c.speed)
                 self.dt = min(self.dt, PORE_STEP * self.refine * float(np.min((1.0 - s) / s)) * st.gap / V)
             sink = self.comp.sink(self.solid(st), full, st.gap, self.dt, self.grid)
         if full.all():
@@ -252,10 +192,14 @@ class Stepper:
                 return None
             if force_control and F_lim / self.case.area_mould <= float(sink.threshold.min()):
                 return Rates(F_lim, 0.0, None)  # every cell bears F / A: the press rests
-        speed, force = (None, F_lim) if force_control else (c.speed, None)
+        free, beta = self.ram_speed(st.t)
         try:
-            sol = solve_pressure(self.grid, st.h / st.gap, self.fluidity(st), speed, force,
-                                 self.guess, self.speed_guess, sink=sink, speed_floor=1e-6 * c.speed)
+            if force_control or beta == 0.0:
+                speed, force = (None, F_lim) if force_control else (free, None)
+                sol = solve_pressure(self.grid, st.h / st.gap, self.fluidity(st), speed, force, self.guess,
+                                     self.speed_guess, sink=sink, speed_floor=1e-6 * c.speed)
+            else:
+                sol = self._slowed(st, sink, free, beta)
         except SolverError:
             if not force_control or sink is None:
                 raise
@@ -267,7 +211,48 @@ class Stepper:
             return Rates(F_lim if force_control else sol.force, sol.speed, sol, sink)
         return Rates(sol.force - self._lag(st, sol, sink), sol.speed, sol, sink)
 
-    def _speed_solve(self, st: State, sink: CompactionSink, V: float) -> PressureSolution:
+    def ram_speed(self, t: float) -> tuple[float, float]:
+        """The ram's free speed (m/s) at ``t`` (s) and its load slowdown (-): the set speed
+        and 0 without ``speed_ramp``.  At least a millionth of the set speed: a ram at rest
+        (``speed_ramp`` at first contact) leaves no pressure to solve for."""
+        if self.charge is None:
+            return self.case.speed, 0.0
+        free, beta = self.charge.ram_speed(t)
+        return max(free, 1e-6 * self.case.speed), beta
+
+    def _slowed(self, st: State, sink: CompactionSink | None, free: float, beta: float) -> PressureSolution:
+        """Speed control by a ram that slows under load: the closing speed V with
+        V = free (1 - beta F(V) / F_limit), by Illinois regula falsi on V.
+
+        V - free (1 - beta F(V) / F_limit) rises with V; it is >= 0 at V = free and <= 0
+        at the speed the force at V = free leaves (F rises with V), which brackets the root.
+        """
+        F_lim = self.case.force_limit
+
+        def excess(V: float) -> tuple[float, PressureSolution]:
+            sol = self._speed_solve(st, sink, V)
+            return V - free * (1.0 - beta * sol.force / F_lim), sol
+
+        hi = (free, *excess(free))
+        if hi[1] <= 1e-9 * free:
+            return hi[2]
+        V = max(free * (1.0 - beta * hi[2].force / F_lim), 1e-6 * self.case.speed)
+        lo = (V, *excess(V))
+        side = 0
+        for _ in range(60):
+            if lo[1] >= -1e-9 * free:
+                return lo[2]
+            V = hi[0] - hi[1] * (hi[0] - lo[0]) / (hi[1] - lo[1])
+            new = (V, *excess(V))
+            if abs(new[1]) <= 1e-9 * free:
+                return new[2]
+            if new[1] < 0:
+                lo, hi, side = new, (hi if side != -1 else (hi[0], hi[1] / 2, hi[2])), -1
+            else:
+                hi, lo, side = new, (lo if side != 1 else (lo[0], lo[1] / 2, lo[2])), 1
+        raise SolverError(f"configuration '{self.case.id}': the ram's load slowdown did not converge")
+
+    def _speed_solve(self, st: State, sink: CompactionSink | None, V: float) -> PressureSolution:
         sol = solve_pressure(self.grid, st.h / st.gap, self.fluidity(st), V, None, self.guess, sink=sink)
         self.guess = sol.p
         return sol

@@ -73,12 +73,16 @@ def test_full_width_bar_matches_planar_1d_over_the_closing() -> None:
 
 @pytest.mark.parametrize(("effect", "values"), [
     ("heating", {"T_start_C": 60.0, "T_b_K": 6000.0, "diffusivity_mm2_s": 0.3}),
-    ("curing", {"k1_1_s": 2e-2, "k2_1_s": 0.2, "alpha_g": 0.3})])
-def test_full_width_bar_with_a_viscosity_effect_matches_planar_1d(effect: str,
+    ("curing", {"k1_1_s": 2e-2, "k2_1_s": 0.2, "alpha_g": 0.3}),
+    ("speed_ramp", {"ramp_time_s": 2.0, "load_slowdown": 0.6})])
+def test_full_width_bar_with_an_effect_matches_planar_1d(effect: str,
                                                                    values: dict[str, float]) -> None:
-    """Heating and curing act on the charge-mean state in both solvers: the 2-D bar follows
-    the 1-D one, and the effect moves the force far more than the two solvers differ."""
-    project = _project({"shape": "bar", "coverage_pct": 60.0}, speed_mm_s=0.3, cells=48)
+    """Heating and curing act on the charge-mean state in both solvers, the speed ramp on the
+    closing speed: the 2-D bar follows the 1-D one, and the effect moves the force far more
+    than the two solvers differ."""
+    # 120 steps: the 2-D solver takes the ram's accelerating speed at the start of each
+    # step, first order in time (1.7 % RMS from the 1-D solution at 60 steps, 0.7 % at 120)
+    project = _project({"shape": "bar", "coverage_pct": 60.0}, speed_mm_s=0.3, cells=48, steps=120)
     case = ForwardModel(project).cases["c"]
     t = np.linspace(0.0, 0.99 * (case.gap0 - case.gap_full) / case.speed, 300)
 
@@ -93,7 +97,7 @@ def test_full_width_bar_with_a_viscosity_effect_matches_planar_1d(effect: str,
 
     f1, f2, base2 = force("1d", [effect]), force("2d", [effect]), force("2d", [])
     scale = np.sqrt(np.mean(f1**2))
-    assert np.sqrt(np.mean((f2 - f1) ** 2)) / scale < 0.02
+    assert np.sqrt(np.mean((f2 - f1) ** 2)) / scale < 0.01
     assert np.sqrt(np.mean((f2 - base2) ** 2)) / scale > 0.2
 
 
@@ -171,7 +175,6 @@ def test_layout_pieces_outside_the_mould_are_config_errors() -> None:
 
 def test_effects_are_refused_with_a_clear_message() -> None:
     project = _project({"shape": "center", "coverage_pct": 60.0, "mass_g": 400.0})
-    for effect in ("press_compliance", "speed_ramp"):
-        model = ForwardModel(project, effects=[effect], fidelity="2d")
-        with pytest.raises(ConfigError, match=f"2-D solver.*switch off {effect}"):
-            model.simulate(None)
+    model = ForwardModel(project, effects=["press_compliance"], fidelity="2d")
+    with pytest.raises(ConfigError, match="2-D solver.*switch off press_compliance"):
+        model.simulate(None)
