@@ -41,7 +41,7 @@ from smcbayes.config import MaterialSpec, SolverSpec
 from smcbayes.errors import ConfigError, SolverError
 from smcbayes.forward.case import Case
 from smcbayes.forward.compaction2d import CellCompaction
-from smcbayes.forward.effects.base import Effect, EffectStack
+from smcbayes.forward.effects.base import EffectStack
 from smcbayes.forward.flux import MaterialTable, log_grid
 from smcbayes.forward.grid2d import Grid
 from smcbayes.forward.law2d import ChargeEffects, Law
@@ -187,7 +187,7 @@ class HeleShaw2D:
             eta0: zero-shear viscosity of the row (Pa s).
             row: row of ``table``.
             compaction: per-cell pore compaction, or None for an incompressible charge.
-            charge: the viscosity effects of the row, or None.
+            charge: the row's effects on the whole charge and the ram, or None.
         """
         o = self.options
         grid, h0 = make_grid(case, o.cells, o.use_symmetry)
@@ -204,8 +204,7 @@ def charge_effects(case: Case, p: dict[str, Array], effects: EffectStack, row: i
     """The effects of row ``row`` on the whole charge and the ram, or None when no enabled
     effect carries a state or moves the ram (no ``heating``, ``curing`` or ``speed_ramp``)."""
     p_row = {k: np.asarray(v)[row:row + 1] for k, v in p.items()}
-    ram = any(type(e).ram_speed is not Effect.ram_speed for e in effects.effects)
-    if not ram and not effects.initial_state(case, p_row, 1):
+    if "speed_ramp" not in effects.names and not effects.initial_state(case, p_row, 1):
         return None
     return ChargeEffects(case, p_row, effects)
 

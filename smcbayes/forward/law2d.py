@@ -31,19 +31,21 @@ class Law:
 
     ``coeff`` is the shear part at the row's own zero-shear viscosity; ``table`` (the
     row's one-row :class:`~smcbayes.forward.flux.MaterialTable`) and ``eta0`` (Pa s) give it
-    again under the viscosity and cure factors of the effects (:meth:`at`).
+    again under the viscosity and cure factors of the effects (:meth:`at`).  Shapes: the
+    stress grid ``tau`` (Pa), ``slip`` (m/s) and ``coeff`` (m^2/s per m^2 of gap), each
+    ``(M,)``.
     """
 
     tau: Array
     slip: Array
     coeff: Array
-    table: MaterialTable | None = None
-    eta0: float = 1.0
+    table: MaterialTable
+    eta0: float
 
     def at(self, gap: float, eta_f: float = 1.0, cure: float = 1.0) -> Fluidity:
         """The law at ``gap`` (m) with the viscosity factor ``eta_f`` and cure factor ``cure``."""
         coeff = self.coeff
-        if (eta_f != 1.0 or cure != 1.0) and self.table is not None:
+        if eta_f != 1.0 or cure != 1.0:
             shear = self.table.shear_at(np.array([cure]))[0]
             coeff = shear / (2.0 * self.eta0 * eta_f * self.tau**2)
         return Fluidity(self.tau, gap * self.slip + gap * gap * coeff, gap)
@@ -68,6 +70,7 @@ class ChargeEffects:
     effects: EffectStack
 
     def initial(self) -> dict[str, Array]:
+        """The effects' state at first contact, each ``(1,)`` (empty without heating or curing)."""
         return self.effects.initial_state(self.case, self.p, 1)
 
     def advance(self, extra: dict[str, Array], gap: float, dt: float) -> dict[str, Array]:

@@ -1,7 +1,8 @@
 """Time stepping of the 2-D solver through the press protocol (one parameter set).
 
-Speed control at the set speed until the force limit (located inside a step by regula
-falsi in the step size), then force control (the closing speed that gives F = F_limit,
+Speed control at the ram's speed (the set speed; with ``speed_ramp`` the ramped speed
+slowed by the force) until the force limit (located inside a step by regula falsi in the
+step size), then force control (the closing speed that gives F = F_limit,
 solved together with the pressure) for the hold time.  An incompressible charge that
 fills the cavity stops the press and the force jumps to the limit; a porous charge keeps
 closing by compaction alone (:mod:`smcbayes.forward.compaction2d`) until the limit and
@@ -131,7 +132,8 @@ class Rates:
 
 class Stepper:
     """Time stepping of one parameter set; ``compaction`` None for an incompressible charge,
-    ``charge`` None without viscosity effects."""
+    ``charge`` None without effects on the whole charge or the ram (``heating``,
+    ``curing``, ``speed_ramp``)."""
 
     def __init__(self, case: Case, grid: Grid, law: Law, options: HeleShaw2DOptions,
                  compaction: CellCompaction | None, charge: ChargeEffects | None = None) -> None:
@@ -221,30 +223,31 @@ class Stepper:
         return max(free, 1e-6 * self.case.speed), beta
 
     def _slowed(self, st: State, sink: CompactionSink | None, free: float, beta: float) -> PressureSolution:
-        """Speed control by a ram that slows under load: the closing speed V with
-        V = free (1 - beta F(V) / F_limit), by Illinois regula falsi on V.
+        """Speed control by a ram that slows under load: the closing speed V (m/s) with
+        V = free (1 - beta F(V) / F_limit), ``free`` the ram's free speed (m/s) and
+        ``beta`` its load slowdown (-), by Illinois regula falsi on V.
 
         V - free (1 - beta F(V) / F_limit) rises with V; it is >= 0 at V = free and <= 0
         at the speed the force at V = free leaves (F rises with V), which brackets the root.
+        The pressure solve holds F to about 1e-6, so the root is taken to that precision
+        (and the bracket's better end once it has shrunk to round-off).
         """
-        F_lim = self.case.force_limit
+        F_lim, tol, fluidity = self.case.force_limit, 1e-6 * free, self.fluidity(st)
 
-        def excess(V: float) -> tuple[float, PressureSolution]:
-            sol = self._speed_solve(st, sink, V)
-            return V - free * (1.0 - beta * sol.force / F_lim), sol
+        def excess(V: float) -> tuple[float, float, PressureSolution]:
+            sol = self._speed_solve(st, sink, V, fluidity)
+            return V, V - free * (1.0 - beta * sol.force / F_lim), sol
 
-        hi = (free, *excess(free))
-        if hi[1] <= 1e-9 * free:
+        hi = excess(free)
+        if hi[1] <= tol:
             return hi[2]
-        V = max(free * (1.0 - beta * hi[2].force / F_lim), 1e-6 * self.case.speed)
-        lo = (V, *excess(V))
+        lo = excess(max(free * (1.0 - beta * hi[2].force / F_lim), 1e-6 * self.case.speed))
         side = 0
         for _ in range(60):
-            if lo[1] >= -1e-9 * free:
-                return lo[2]
-            V = hi[0] - hi[1] * (hi[0] - lo[0]) / (hi[1] - lo[1])
-            new = (V, *excess(V))
-            if abs(new[1]) <= 1e-9 * free:
+            if lo[1] >= -tol or hi[0] - lo[0] <= 1e-9 * free:
+                return min(lo, hi, key=lambda end: abs(end[1]))[2]
+            new = excess(hi[0] - hi[1] * (hi[0] - lo[0]) / (hi[1] - lo[1]))
+            if abs(new[1]) <= tol:
                 return new[2]
             if new[1] < 0:
                 lo, hi, side = new, (hi if side != -1 else (hi[0], hi[1] / 2, hi[2])), -1
@@ -252,8 +255,10 @@ class Stepper:
                 hi, lo, side = new, (lo if side != 1 else (lo[0], lo[1] / 2, lo[2])), 1
         raise SolverError(f"configuration '{self.case.id}': the ram's load slowdown did not converge")
 
-    def _speed_solve(self, st: State, sink: CompactionSink | None, V: float) -> PressureSolution:
-        sol = solve_pressure(self.grid, st.h / st.gap, self.fluidity(st), V, None, self.guess, sink=sink)
+    def _speed_solve(self, st: State, sink: CompactionSink | None, V: float,
+                     fluidity: Fluidity | None = None) -> PressureSolution:
+        fluidity = self.fluidity(st) if fluidity is None else fluidity
+        sol = solve_pressure(self.grid, st.h / st.gap, fluidity, V, None, self.guess, sink=sink)
         self.guess = sol.p
         return sol
 
