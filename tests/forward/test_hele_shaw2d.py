@@ -91,7 +91,7 @@ def test_full_width_bar_with_an_effect_matches_planar_1d(effects: list[str], val
     closing speed: over the whole speed-controlled closing the 2-D bar follows the 1-D one,
     and the effect moves the force far more than the two solvers differ."""
     # 120 steps: the 2-D solver takes the ram's accelerating speed at the start of each
-    # step, first order in time (1.7 % RMS from the 1-D solution at 60 steps, 0.7 % at 120)
+    # step, first order in time (1.8 % RMS from the 1-D solution at 60 steps, 0.7 % at 120)
     project = _project({"shape": "bar", "coverage_pct": 60.0}, speed_mm_s=0.3, cells=48, steps=120)
     gap_full_mm = ForwardModel(project).cases["c"].gap_full / 1e-3
 
