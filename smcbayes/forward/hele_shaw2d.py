@@ -18,8 +18,8 @@ finite volumes on a structured grid with a fill-fraction (control-volume) flow f
 Mirror symmetry of the layout about the mould's centre lines is used to solve a half or a
 quarter of the mould.  Parameter sets are solved one after another.
 
-The base model and the ``compressibility``, ``heating``, ``curing`` and ``speed_ramp``
-effects are supported; ``press_compliance`` is not.  A porous
+The base model, measured ram profiles and the ``compressibility``, ``heating``, ``curing``
+and ``speed_ramp`` effects are supported; ``press_compliance`` is not.  A porous
 charge has a local solid fraction per cell (:mod:`smcbayes.forward.compaction2d`): each
 filled cell compacts under its own pressure by the effect's law, the solid moves with the
 flow, and the solid volume is conserved to round-off.  Heating and curing act on the whole
@@ -149,9 +149,6 @@ class HeleShaw2D:
         if other:
             raise ConfigError(f"the 2-D solver supports the effects {', '.join(SUPPORTED_EFFECTS)} only; "
                               f"switch off {', '.join(other)} or use --fidelity 1d")
-        if case.profile is not None:
-            raise ConfigError(f"configuration '{case.id}': the 2-D solver needs a constant set "
-                              "speed; remove press.profile or use --fidelity 1d")
         table = material_table(p, material, self.tau)
         rows = p["n"].shape[0]
         runs = []

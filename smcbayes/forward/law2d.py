@@ -88,6 +88,8 @@ class ChargeEffects:
 
     def ram_speed(self, t: float) -> tuple[float, float]:
         """The ram's free speed (m/s) at ``t`` (s) and its load slowdown beta (-): under a
-        force F it closes at free (1 - beta F / F_limit) (``speed_ramp``)."""
-        free, beta = self.effects.ram_speed(self.case, self.p, np.array([t]), np.array([self.case.speed]))
+        force F it closes at free (1 - beta F / F_limit) (``speed_ramp``, on the set speed
+        or the measured ram profile's)."""
+        at = np.array([t])
+        free, beta = self.effects.ram_speed(self.case, self.p, at, self.case.set_speed(at))
         return float(free[0]), float(beta[0])

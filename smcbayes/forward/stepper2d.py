@@ -1,7 +1,7 @@
 """Time stepping of the 2-D solver through the press protocol (one parameter set).
 
-Speed control at the ram's speed (the set speed; with ``speed_ramp`` the ramped speed
-slowed by the force) until the force limit (located inside a step by regula falsi in the
+Speed control at the ram's speed (the set speed or a measured ram profile's; with
+``speed_ramp`` ramped up and slowed by the force) until the force limit (located inside a step by regula falsi in the
 step size), then force control (the closing speed that gives F = F_limit,
 solved together with the pressure) for the hold time.  An incompressible charge that
 fills the cavity stops the press and the force jumps to the limit; a porous charge keeps
@@ -145,7 +145,9 @@ class Stepper:
         self.speed_guess: float | None = None
         self.snap_area = list(np.linspace(case.area0, case.area_mould, options.snapshots))
         self.gap_end = case.gap_full * (1.0 if compaction is None else compaction.solid0)
-        self.dt_max = (case.gap0 - self.gap_end) / (case.speed * options.closing_steps)
+        # a measured profile sets the pace by its mean speed, as in the 1-D solver
+        v_ref = case.speed if case.profile is None else case.profile.position[-1] / case.profile.time[-1]
+        self.dt_max = (case.gap0 - self.gap_end) / (v_ref * options.closing_steps)
         self.refine = 100.0 / options.closing_steps
         self.dt = self.dt_max
         """Step (s) the semi-implicit compaction of the next pressure solve is taken over."""
@@ -215,11 +217,13 @@ class Stepper:
 
     def ram_speed(self, t: float) -> tuple[float, float]:
         """The ram's free speed (m/s) at ``t`` (s) and its load slowdown (-): the set speed
-        and 0 without ``speed_ramp``.  At least a millionth of the set speed: a ram at rest
-        (``speed_ramp`` at first contact) leaves no pressure to solve for."""
+        (or the measured ram profile's) and 0 without ``speed_ramp``.  At least a millionth
+        of the set speed: a ram at rest (``speed_ramp`` at first contact, a pause in a
+        profile) leaves no pressure to solve for."""
         if self.charge is None:
-            return self.case.speed, 0.0
-        free, beta = self.charge.ram_speed(t)
+            free, beta = float(self.case.set_speed(np.array([t]))[0]), 0.0
+        else:
+            free, beta = self.charge.ram_speed(t)
         return max(free, 1e-6 * self.case.speed), beta
 
     def _slowed(self, st: State, sink: CompactionSink | None, free: float, beta: float) -> PressureSolution:

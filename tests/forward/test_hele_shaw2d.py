@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from smcbayes.config import MaterialSpec, build_project
+from smcbayes.config import MaterialSpec, ProjectConfig, build_project
 from smcbayes.errors import ConfigError
-from smcbayes.forward.case import Case
+from smcbayes.forward.case import Case, SpeedProfile
 from smcbayes.forward.hele_shaw2d import HeleShaw2D, HeleShaw2DOptions, make_grid, spill
 from smcbayes.forward.model import ForwardModel
+from smcbayes.forward.parameters import to_si
 from smcbayes.forward.result import SimulationResult
 from smcbayes.forward.squeeze1d import material_table
 
@@ -50,7 +52,7 @@ def test_grid_order_of_newtonian_square_is_second() -> None:
     assert 1.7 < order < 2.3
 
 
-def _project(charge: dict, speed_mm_s: float = 0.7, cells: int = 24, steps: int = 60) -> ForwardModel:
+def _project(charge: dict, speed_mm_s: float = 0.7, cells: int = 24, steps: int = 60) -> ProjectConfig:
     raw = {"solver": {"cells_2d": cells, "closing_steps_2d": steps},
            "configuration": [{"id": "c", "charge": {"stack_height_mm": 8.0, **charge},
                               "press": {"speed_mm_s": speed_mm_s, "hold_s": 20.0}}]}
@@ -110,6 +112,36 @@ def test_full_width_bar_with_an_effect_matches_planar_1d(effects: list[str], val
     scale = np.sqrt(np.mean(f1**2))
     assert np.sqrt(np.mean((f2 - f1) ** 2)) / scale < 0.01
     assert np.sqrt(np.mean((f2 - fb) ** 2)) / scale > 0.2
+
+
+def test_full_width_bar_follows_a_measured_ram_profile_as_the_1d_solver() -> None:
+    """A ram that closes fast, slows, pauses and closes again: the 2-D bar's gap and switch
+    follow the 1-D solution (2000 steps; the force jumps with the speed at each break, so
+    the force is compared loosely), and differ from those at the constant set speed."""
+    t_s = np.array([0.0, 2.0, 5.0, 6.0, 30.0])
+    x_mm = np.array([0.0, 1.6, 2.2, 2.2, 2.2 + 24.0 * 0.8])
+    project = _project({"shape": "bar", "coverage_pct": 60.0}, speed_mm_s=0.5, cells=48, steps=120)
+    fine = project.model_copy(update={"solver": project.solver.model_copy(update={"closing_steps": 2000})})
+
+    def run(proj: ProjectConfig, fidelity: str, profiled: bool) -> SimulationResult:
+        model = ForwardModel(proj, fidelity=fidelity)
+        case = model.cases["c"]
+        if profiled:
+            case = dataclasses.replace(case, profile=SpeedProfile(t_s, x_mm * 1e-3))
+        theta = {**model.space.defaults(), **SHEAR}
+        p = to_si({k: np.array([v]) for k, v in theta.items()}, model.space.parameters)
+        res = model.solver.solve(case, p, model.effects, model.project.material)
+        assert res.status[0] == "ok", res.status
+        return res
+
+    r1, r2, steady = run(fine, "1d", True), run(project, "2d", True), run(project, "2d", False)
+    t = np.linspace(0.0, 0.99 * r1.switch_time_s[0], 300)
+    gap1, gap2 = (np.interp(t, r.time_s[0], r.gap_mm[0]) for r in (r1, r2))
+    f1, f2 = (np.interp(t, r.time_s[0], r.force_kN[0]) for r in (r1, r2))
+    assert np.abs(gap2 - gap1).max() < 0.02
+    assert r2.switch_time_s[0] == pytest.approx(r1.switch_time_s[0], rel=2e-3)
+    assert np.sqrt(np.mean((f2 - f1) ** 2)) / np.sqrt(np.mean(f1**2)) < 0.05
+    assert abs(steady.switch_time_s[0] - r2.switch_time_s[0]) > 0.5
 
 
 def test_load_slowdown_converges_across_the_prior() -> None:
