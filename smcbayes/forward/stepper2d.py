@@ -1,9 +1,9 @@
 """Time stepping of the 2-D solver through the press protocol (one parameter set).
 
 Speed control at the ram's speed (the set speed or a measured ram profile's; with
-``speed_ramp`` ramped up and slowed by the force) until the force limit (located inside a step by regula falsi in the
-step size), then force control (the closing speed that gives F = F_limit,
-solved together with the pressure) for the hold time.  An incompressible charge that
+``speed_ramp`` ramped up and slowed by the force) until the force limit (located inside a
+step by regula falsi in the step size), then force control (the closing speed that gives
+F = F_limit, solved together with the pressure) for the hold time.  An incompressible charge that
 fills the cavity stops the press and the force jumps to the limit; a porous charge keeps
 closing by compaction alone (:mod:`smcbayes.forward.compaction2d`) until the limit and
 then creeps under it.
