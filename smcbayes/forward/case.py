@@ -34,10 +34,27 @@ class SpeedProfile:
     position: Array
 
     def speed(self, t: Array) -> Array:
-        """Closing speed (m/s) at times ``t`` (s): slope of the segment holding ``t``."""
+        """Closing speed (m/s) at times ``t`` (s): slope of the segment holding ``t`` (past
+        the last sample, the last segment's; 0 where the ram opens)."""
         slopes = np.diff(self.position) / np.diff(self.time)
         idx = np.clip(np.searchsorted(self.time, t, side="right") - 1, 0, slopes.size - 1)
         return np.maximum(slopes[idx], 0.0)
+
+    def ends_at_rest(self, t: float) -> bool:
+        """The log is over at ``t`` (s) and the ram no longer closes: it can never reach
+        more travel than it has."""
+        return t >= self.time[-1] and float(self.speed(np.array([t]))[0]) <= 0.0
+
+    def pace(self, travel: float) -> float:
+        """Mean closing speed (m/s) over the first ``travel`` (m) of the ram: the speed that
+        sets a solver's step.  A log that runs on into the hold would give a mean over all
+        of it far below the closing's; one that never covers ``travel`` gives its mean."""
+        reach = np.maximum.accumulate(self.position)
+        if reach[-1] >= travel > 0.0:
+            i = max(int(np.searchsorted(reach, travel, side="left")), 1)  # first sample at it
+            frac = (travel - reach[i - 1]) / (reach[i] - reach[i - 1])
+            return travel / float(self.time[i - 1] + frac * (self.time[i] - self.time[i - 1]))
+        return float(reach[-1] / self.time[-1])
 
     @classmethod
     def read(cls, path: Path) -> SpeedProfile:
@@ -49,6 +66,9 @@ class SpeedProfile:
             raise ConfigError(f"{path}: cannot read ram profile (need columns time_s, position_mm): {err}") from None
         if t.size < 2 or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(x)):
             raise ConfigError(f"{path}: ram profile needs >= 2 rows with strictly increasing time_s")
+        if not np.max(x - x[0]) > 0.0:
+            raise ConfigError(f"{path}: the ram profile never closes (position_mm never rises above its first "
+                              "value; closing is positive)")
         return cls(t, x - x[0])
 
 

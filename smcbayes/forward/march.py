@@ -248,7 +248,7 @@ def _setup(case: Case, p: dict[str, Array], effects: EffectStack, table: Materia
     # a row whose charge has no pores (s0 >= 1) runs exactly as the incompressible model
     compressible = solid0 < 1.0
     gap_end = solid0 * case.gap_full
-    v_ref = case.speed if case.profile is None else case.profile.position[-1] / case.profile.time[-1]
+    v_ref = case.speed if case.profile is None else case.profile.pace(case.gap0 - float(np.min(gap_end)))
     dt_close = (case.gap0 - gap_end) / (v_ref * steps)
     inv_k = effects.compliance(case, p, P)
     return _Context(case, PressProgramme.of(case, options.jump_time_s), p, effects, table, solid0,

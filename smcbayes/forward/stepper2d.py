@@ -145,8 +145,8 @@ class Stepper:
         self.speed_guess: float | None = None
         self.snap_area = list(np.linspace(case.area0, case.area_mould, options.snapshots))
         self.gap_end = case.gap_full * (1.0 if compaction is None else compaction.solid0)
-        # a measured profile sets the pace by its mean speed, as in the 1-D solver
-        v_ref = case.speed if case.profile is None else case.profile.position[-1] / case.profile.time[-1]
+        # a measured profile sets the pace by its mean speed over the closing, as in 1-D
+        v_ref = case.speed if case.profile is None else case.profile.pace(case.gap0 - self.gap_end)
         self.dt_max = (case.gap0 - self.gap_end) / (v_ref * options.closing_steps)
         self.refine = 100.0 / options.closing_steps
         self.dt = self.dt_max
@@ -410,6 +410,9 @@ class Stepper:
         case, press = self.case, self.press
         r = self.rates(st, False)
         while r is not None and not press.reaches_limit(r.force):
+            if case.profile is not None and case.profile.ends_at_rest(st.t):
+                raise SolverError(f"configuration '{case.id}': the measured ram profile ends at rest "
+                                  "before the force limit")
             dt, r2 = self.sized(st, r, self.dt_max, False)
             r = r2 if r2 is not None else r
             self.record(st, r.force)

@@ -11,7 +11,7 @@ import pytest
 from numpy.typing import NDArray
 
 from smcbayes.config import MaterialSpec, ProjectConfig
-from smcbayes.forward.case import Case
+from smcbayes.forward.case import Case, SpeedProfile
 from smcbayes.forward.effects import EffectStack, get_effect
 from smcbayes.forward.march import march
 from smcbayes.forward.model import ForwardModel
@@ -134,6 +134,24 @@ def test_marching_and_kinematic_paths_agree_under_speed_control(
     n = int(np.searchsorted(kin.time[0], kin.switch[0]))  # nodes strictly before the switch
     np.testing.assert_allclose(mar.force[0, :n], kin.force[0, :n], rtol=1e-9)
     np.testing.assert_allclose(mar.gap[0, :n], kin.gap[0, :n], rtol=1e-9)
+
+
+def test_a_ram_profile_logged_into_the_hold_paces_the_closing_by_its_own_speed(
+        make_project: Callable[..., ProjectConfig]) -> None:
+    """A measured profile at the set speed whose log runs on through a long hold gives the
+    constant-speed run: its steps follow the closing's mean speed, not the whole log's
+    (paced by the log, 300 steps became 6 nodes before the limit here, and the limit came
+    0.03 s early)."""
+    case = _case(make_project)
+    closing_s = (case.gap0 - case.gap_full) / case.speed
+    log_s = np.array([0.0, 1.5 * closing_s, 1.5 * closing_s + 500.0])
+    log_m = np.array([0.0, 1.5 * closing_s * case.speed, 1.5 * closing_s * case.speed])
+    profiled = dataclasses.replace(case, profile=SpeedProfile(log_s, log_m))
+    kin, mar = _kinematic_nodes(case, closing_steps=300), _marching_nodes(profiled, 300)
+    assert mar.switch[0] == pytest.approx(kin.switch[0], rel=1e-3)
+    t = np.linspace(0.0, 0.99 * kin.switch[0], 200)
+    force = [np.interp(t, n.time[0, :n.count[0]], n.force[0, :n.count[0]]) for n in (kin, mar)]
+    np.testing.assert_allclose(force[1], force[0], rtol=1e-2, atol=1e-3 * case.force_limit)
 
 
 def test_slower_speed_reaches_the_limit_later(make_project: Callable[..., ProjectConfig]) -> None:
