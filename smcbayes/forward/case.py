@@ -67,8 +67,8 @@ class SpeedProfile:
         if t.size < 2 or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(x)):
             raise ConfigError(f"{path}: ram profile needs >= 2 rows with strictly increasing time_s")
         if not np.max(x - x[0]) > 0.0:
-            raise ConfigError(f"{path}: the ram profile never closes (position_mm never rises above its first "
-                              "value; closing is positive)")
+            raise ConfigError(f"{path}: the ram profile never closes (position_mm never rises above "
+                              "its first value; closing is positive)")
         return cls(t, x - x[0])
 
 

@@ -10,8 +10,9 @@ finite volumes on a structured grid with a fill-fraction (control-volume) flow f
   area; a cell whose content exceeds the gap passes the excess on to its neighbours, so
   the charge volume is conserved to round-off;
 * the press protocol is the 1-D solver's (:mod:`smcbayes.forward.stepper2d`): speed
-  control at the set speed until the force limit (located inside a step by secant
-  refinement), then force control (the closing speed that gives F = F_limit, solved
+  control at the ram's speed (the set speed or a measured profile's, ramped and slowed by
+  the force with ``speed_ramp``) until the force limit (located inside a step by regula
+  falsi in the step size), then force control (the closing speed that gives F = F_limit, solved
   together with the pressure) for the hold time; an incompressible charge that fills the
   cavity stops the press and the force jumps to the limit.
 

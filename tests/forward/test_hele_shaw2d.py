@@ -86,8 +86,8 @@ STIFF = {"n": 0.6, "tau_star_Pa": 1e4, "B_Pa_s": 1e5, "tau_c_MPa": 10.0}
     (["curing"], {"k1_1_s": 2e-2, "k2_1_s": 0.2, "alpha_g": 0.3}, SHEAR),
     (["heating", "curing"], {"T_start_C": 60.0, "T_b_K": 6000.0, "k1_1_s": 2e-2, "alpha_g": 0.3}, SHEAR),
     (["speed_ramp"], {"ramp_time_s": 2.0, "load_slowdown": 0.6}, SHEAR),
-    (["speed_ramp"], {"ramp_time_s": 0.5, "load_slowdown": 0.9}, STIFF)], ids=["heating", "curing",
-                                                                              "heating+curing", "ramp", "slowdown"])
+    (["speed_ramp"], {"ramp_time_s": 0.5, "load_slowdown": 0.9}, STIFF)],
+    ids=["heating", "curing", "heating+curing", "ramp", "slowdown"])
 def test_full_width_bar_with_an_effect_matches_planar_1d(effects: list[str], values: dict[str, float],
                                                           material: dict[str, float]) -> None:
     """Heating and curing act on the charge-mean state in both solvers, the speed ramp on the
@@ -170,7 +170,8 @@ def test_a_profile_that_ends_at_rest_before_the_limit_fails_at_once() -> None:
     # 2 mm of travel, then at rest to the log's end: the 3.2 mm to fill are never reached
     profile = SpeedProfile(np.array([0.0, 4.0, 5.0]), np.array([0.0, 2e-3, 2e-3]))
     case = dataclasses.replace(model.cases["c"], profile=profile)
-    p = to_si({k: np.array([v]) for k, v in {**model.space.defaults(), **SHEAR}.items()}, model.space.parameters)
+    theta = {**model.space.defaults(), **SHEAR}
+    p = to_si({k: np.array([v]) for k, v in theta.items()}, model.space.parameters)
     start = time.perf_counter()
     res = model.solver.solve(case, p, model.effects, model.project.material)
     assert res.status[0].startswith("failed") and "ends at rest" in res.status[0]
