@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from smcbayes.config import ConfigurationSpec
 from smcbayes.errors import ConfigError
@@ -19,6 +19,10 @@ from smcbayes.forward.layout import square_charge_factor, union_area
 from smcbayes.units import KN, MM, G, celsius_to_kelvin
 
 Array = NDArray[np.float64]
+
+
+AT_REST = "the measured ram profile ends at rest before the force limit"
+"""Why a run whose ram log is over, with the ram at rest short of the limit, fails."""
 
 
 @dataclass(frozen=True)
@@ -40,21 +44,24 @@ class SpeedProfile:
         idx = np.clip(np.searchsorted(self.time, t, side="right") - 1, 0, slopes.size - 1)
         return np.maximum(slopes[idx], 0.0)
 
-    def ends_at_rest(self, t: float) -> bool:
-        """The log is over at ``t`` (s) and the ram no longer closes: it can never reach
-        more travel than it has."""
-        return t >= self.time[-1] and float(self.speed(np.array([t]))[0]) <= 0.0
+    def ends_at_rest(self, t: ArrayLike) -> NDArray[np.bool_]:
+        """Where the log is over at ``t`` (s) and the ram no longer closes: it can never
+        reach more travel than it has.  Same shape as ``t``."""
+        t = np.asarray(t, dtype=float)
+        return (t >= self.time[-1]) & (self.speed(t) <= 0.0)
 
     def pace(self, travel: float) -> float:
-        """Mean closing speed (m/s) over the first ``travel`` (m) of the ram: the speed that
-        sets a solver's step.  A log that runs on into the hold would give a mean over all
-        of it far below the closing's; one that never covers ``travel`` gives its mean."""
-        reach = np.maximum.accumulate(self.position)
-        if reach[-1] >= travel > 0.0:
-            i = max(int(np.searchsorted(reach, travel, side="left")), 1)  # first sample at it
-            frac = (travel - reach[i - 1]) / (reach[i] - reach[i - 1])
-            return travel / float(self.time[i - 1] + frac * (self.time[i] - self.time[i - 1]))
-        return float(reach[-1] / self.time[-1])
+        """Mean closing speed (m/s) over the first ``travel`` (m) of the ram's closing, or over
+        all the closing the log holds if that is less: the speed that sets a solver's step.
+        The closing is counted as :meth:`speed` moves the ram (an opening is a pause), and
+        a log that runs on into the hold does not dilute it."""
+        closed = np.concatenate([[0.0], np.cumsum(np.maximum(np.diff(self.position), 0.0))])
+        if not closed[-1] > 0.0:
+            raise ConfigError("the measured ram profile never closes (closing is positive)")
+        travel = min(travel, float(closed[-1])) if travel > 0.0 else float(closed[-1])
+        i = max(int(np.searchsorted(closed, travel, side="left")), 1)  # first sample at it
+        frac = (travel - closed[i - 1]) / (closed[i] - closed[i - 1])
+        return travel / float(self.time[i - 1] + frac * (self.time[i] - self.time[i - 1]) - self.time[0])
 
     @classmethod
     def read(cls, path: Path) -> SpeedProfile:
@@ -69,7 +76,8 @@ class SpeedProfile:
         if not np.max(x - x[0]) > 0.0:
             raise ConfigError(f"{path}: the ram profile never closes (position_mm never rises above "
                               "its first value; closing is positive)")
-        return cls(t, x - x[0])
+        # time and travel from the first sample: the first contact
+        return cls(t - t[0], x - x[0])
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from smcbayes.forward.case import Case, shape_factor
+from smcbayes.forward.case import AT_REST, Case, shape_factor
 from smcbayes.forward.effects.base import EffectStack
 from smcbayes.forward.flux import FlowTable, MaterialTable
 from smcbayes.forward.nodes import Nodes
@@ -365,6 +365,7 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
                 np.full(P, PHASE_FLOW, dtype=np.int8), np.full(P, np.nan),
                 effects.initial_state(case, p, P))
     done, count = np.zeros(P, dtype=bool), np.zeros(P, dtype=np.int64)
+    at_rest = np.zeros(P, dtype=bool)
     rec: dict[str, list[Array]] = {k: [] for k in ("t", "gap", "area", "force", "delta", "solid")}
     prev, prev_force, prev_ram = st.copy(), np.zeros(P), np.zeros(P)
     # a soft frame (F_limit / (k U) up to ~6x the nominal closing time) or a ram slowing
@@ -382,6 +383,9 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
             st.phase = np.where(jump, PHASE_FORCE, st.phase).astype(np.int8)
             st.switch = np.where(jump, st.t, st.switch)
         done |= (st.phase == PHASE_FORCE) & ctx.press.hold_over(st.t, st.switch) & ~jump
+        if case.profile is not None:  # a log over with the ram at rest: it never gets further
+            at_rest |= ~done & (st.phase != PHASE_FORCE) & case.profile.ends_at_rest(st.t)
+            done |= at_rest
         if done.all():
             break
         dt = _step_size(ctx, st, rates.speed, hold_steps, steps, closing)
@@ -396,8 +400,10 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
         # that cannot feed back on the force it is computed from
         closing = np.clip(_closing_step(ctx, rates.ram, force_rate, ram_rate),
                           closing / STEP_GROWTH, closing * STEP_GROWTH)
-    status = [STATUS_OK if d else "failed: the press programme did not finish within the step limit "
-              "(press stalled before the force limit?)" for d in done]
+    stalled = ("failed: the press programme did not finish within the step limit (press stalled before "
+               "the force limit?)")
+    status = [f"failed: {AT_REST}" if rest else STATUS_OK if ok else stalled
+              for ok, rest in zip(done, at_rest, strict=True)]
     stack = {k: np.stack(v, axis=1) for k, v in rec.items()}
     return Nodes(time=stack["t"], gap=stack["gap"], area=stack["area"], force=stack["force"],
                  deflection=stack["delta"], solid=stack["solid"], count=count,

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.errors import SolverError
-from smcbayes.forward.case import Case
+from smcbayes.forward.case import AT_REST, Case
 from smcbayes.forward.compaction2d import (
     CellCompaction,
     CompactionSink,
@@ -410,9 +410,8 @@ class Stepper:
         case, press = self.case, self.press
         r = self.rates(st, False)
         while r is not None and not press.reaches_limit(r.force):
-            if case.profile is not None and case.profile.ends_at_rest(st.t):
-                raise SolverError(f"configuration '{case.id}': the measured ram profile ends at rest "
-                                  "before the force limit")
+            if case.profile is not None and bool(case.profile.ends_at_rest(st.t)):
+                raise SolverError(f"configuration '{case.id}': {AT_REST}")
             dt, r2 = self.sized(st, r, self.dt_max, False)
             r = r2 if r2 is not None else r
             self.record(st, r.force)
