@@ -61,7 +61,7 @@ class SpeedProfile:
         travel = min(travel, float(closed[-1])) if travel > 0.0 else float(closed[-1])
         i = max(int(np.searchsorted(closed, travel, side="left")), 1)  # first sample at it
         frac = (travel - closed[i - 1]) / (closed[i] - closed[i - 1])
-        return travel / float(self.time[i - 1] + frac * (self.time[i] - self.time[i - 1]) - self.time[0])
+        return travel / float(self.time[i - 1] + frac * (self.time[i] - self.time[i - 1]))
 
     @classmethod
     def read(cls, path: Path) -> SpeedProfile:

@@ -326,10 +326,11 @@ def _advance(ctx: _Context, st: _State, rates: _Rates, dt: Array, active: NDArra
 
 
 def _switch(ctx: _Context, st: _State, prev: _State, prev_force: Array, rates: _Rates,
-            first: bool) -> NDArray[np.bool_]:
-    """Move rows whose force passed the limit back to the crossing; returns those rows."""
+            first: bool, done: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Move rows whose force passed the limit back to the crossing; returns those rows
+    (never a row that is ``done``: a failed one keeps its state)."""
     press = ctx.press
-    hit = (st.phase != PHASE_FORCE) & press.reaches_limit(rates.force)
+    hit = ~done & (st.phase != PHASE_FORCE) & press.reaches_limit(rates.force)
     if not np.any(hit):
         return hit
     if not first:
@@ -373,7 +374,7 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
     closing = ctx.dt_close
     for it in range(12 * (steps + hold_steps) + 20):
         rates = _evaluate(ctx, st, closing)
-        if np.any(_switch(ctx, st, prev, prev_force, rates, it == 0) & ~done):
+        if np.any(_switch(ctx, st, prev, prev_force, rates, it == 0, done)):
             rates = _evaluate(ctx, st, closing)
         _record(rec, ctx, st, rates.force)
         count[~done] = it + 1
