@@ -3,10 +3,10 @@
 Speed control at the ram's speed (the set speed or a measured ram profile's; with
 ``speed_ramp`` ramped up and slowed by the force) until the force limit (located inside a
 step by regula falsi in the step size), then force control (the closing speed that gives
-F = F_limit, solved together with the pressure) for the hold time.  An incompressible charge that
-fills the cavity stops the press and the force jumps to the limit; a porous charge keeps
-closing by compaction alone (:mod:`smcbayes.forward.compaction2d`) until the limit and
-then creeps under it.
+F = F_limit, solved together with the pressure) for the hold time.  An incompressible
+charge that fills the cavity stops the press and the force jumps to the limit; a porous
+charge keeps closing by compaction alone (:mod:`smcbayes.forward.compaction2d`) until the
+limit and then creeps under it.
 
 Each step solves the pressure of the current state, then moves explicitly: filled cells
 lose V dt of content (the gap closes under them), front cells gain the inflow, the solid
@@ -196,7 +196,8 @@ class Stepper:
                 return None
             if force_control and F_lim / self.case.area_mould <= float(sink.threshold.min()):
                 return Rates(F_lim, 0.0, None)  # every cell bears F / A: the press rests
-        free, beta = self.ram_speed(st.t)
+        # under force control the ram follows the force: its own speed does not enter
+        free, beta = (0.0, 0.0) if force_control else self.ram_speed(st.t)
         try:
             if force_control or beta == 0.0:
                 speed, force = (None, F_lim) if force_control else (free, None)
