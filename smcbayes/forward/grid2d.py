@@ -333,28 +333,23 @@ def solve_pressure(grid: Grid, fill: Array, fluidity: Fluidity, speed: float | N
     where = np.flatnonzero(full.ravel())
     unknown = np.full(full.size, -1, dtype=np.int64)
     unknown[where] = np.arange(where.size)
-    weight = grid.multiplicity * grid.cell_area
     V = speed if speed is not None else (speed_guess or 1e-6)
-    closed = sink is not None and bool(full.all())  # no front: some sink must act
-    mean = None if force is None else force / (weight * full.size)
-    p = _first_pressure(grid, full, guess, (fx, fy), fluidity, V, unknown, force, sink, speed_floor)
-    for it in range(1, max_iter + 1):  # noqa: B007  (the count is returned below)
-        lin = _linearise(grid, p, fx, fy, fluidity, V, unknown, sink=sink)
-        err = np.max(np.abs(lin.residual), initial=0.0) / (max(V, speed_floor) * grid.cell_area)
-        if speed is None:
-            err = max(err, abs(weight * float(p.sum()) - force) / force)
-        if err < tol:
-            break
-        step, dV = _newton_step(lin, grid.cell_area, None if speed is not None else force / weight - float(p.sum()))
-        p, V = _line_search(grid, p, V, step, dV, (fx, fy), fluidity, unknown, force, sink, speed_floor)
-        if closed and not _acting(p, sink):
-            p = _starts(sink, V * grid.cell_area, mean)[-1]
-    else:
-        raise SolverError(f"2-D pressure iteration did not converge in {max_iter} iterations "
-                          f"(imbalance {err:.2e})")
+    problem = _Problem(grid, full, (fx, fy), fluidity, unknown, speed, force, sink, speed_floor, tol,
+                       max_iter)
+    try:
+        p, V, lin, it = _newton(problem, _first_pressure(grid, full, guess, (fx, fy), fluidity, V, unknown,
+                                                         force, sink, speed_floor), V)
+    except SolverError:
+        if guess is None:
+            raise
+        # a previous solution far from this one (the viscosity of a heating charge can
+        # move several-fold over a step) can lead Newton astray; start from zero stress
+        p, V, lin, it = _newton(problem, _first_pressure(grid, full, None, (fx, fy), fluidity, V, unknown,
+                                                         force, sink, speed_floor), V)
     q_sink = np.zeros(full.shape) if sink is None else sink.rate(p)[0] * full
     total = V * grid.cell_area * where.size - float(q_sink.sum())
     inflow, face_flux = _inflow(p, fx, fy, lin.secant, full, total)
+    weight = grid.multiplicity * grid.cell_area
     return PressureSolution(p=p, speed=V, force=weight * float(p.sum()), inflow=inflow, iterations=it,
                             sink=q_sink, faces=(fx, fy), face_flux=face_flux)
 
@@ -381,6 +376,48 @@ def _starts(sink: Sink, rate: float, mean: float | None) -> list[Array]:
         return [own]
     common = (float((sink.coeff * np.where(can, sink.threshold, 0.0)).sum()) + rate * sink.coeff.size) / total
     return [own, np.full(sink.coeff.shape, common)]
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """One pressure solve of :func:`solve_pressure`: its grid, filled cells, faces, flux law,
+    unknown numbering, control (``speed`` or ``force``), sink and tolerances."""
+
+    grid: Grid
+    full: NDArray[np.bool_]
+    faces: tuple[FaceSet, FaceSet]
+    fluidity: Fluidity
+    unknown: NDArray[np.int64]
+    speed: float | None
+    force: float | None
+    sink: Sink | None
+    speed_floor: float
+    tol: float
+    max_iter: int
+
+
+def _newton(pb: _Problem, p: Array, V: float) -> tuple[Array, float, _Linearised, int]:
+    """Newton iteration of :func:`solve_pressure` from ``p`` (Pa) and ``V`` (m/s); returns
+    the pressure, the speed, the last linearisation and the iteration count."""
+    grid, (fx, fy) = pb.grid, pb.faces
+    weight = grid.multiplicity * grid.cell_area
+    closed = pb.sink is not None and bool(pb.full.all())  # no front: some sink must act
+    mean = None if pb.force is None else pb.force / (weight * pb.full.size)
+    for it in range(1, pb.max_iter + 1):
+        lin = _linearise(grid, p, fx, fy, pb.fluidity, V, pb.unknown, sink=pb.sink)
+        err = np.max(np.abs(lin.residual), initial=0.0) / (max(V, pb.speed_floor) * grid.cell_area)
+        if pb.force is not None:
+            err = max(err, abs(weight * float(p.sum()) - pb.force) / pb.force)
+        if err < pb.tol:
+            return p, V, lin, it
+        gap = None if pb.force is None else pb.force / weight - float(p.sum())
+        step, dV = _newton_step(lin, grid.cell_area, gap)
+        p, V = _line_search(grid, p, V, step, dV, pb.faces, pb.fluidity, pb.unknown, pb.force, pb.sink,
+                            pb.speed_floor)
+        if closed and not _acting(p, pb.sink):
+            p = _starts(pb.sink, V * grid.cell_area, mean)[-1]
+    raise SolverError(f"2-D pressure iteration did not converge in {pb.max_iter} iterations "
+                      f"(imbalance {err:.2e})")
 
 
 def _newton_step(lin: _Linearised, cell_area: float, force_gap: float | None) -> tuple[Array, float]:

@@ -14,13 +14,15 @@ finite volumes on a structured grid with a fill-fraction (control-volume) flow f
   the force with ``speed_ramp``) until the force limit (located inside a step by regula
   falsi in the step size), then force control (the closing speed that gives F = F_limit, solved
   together with the pressure) for the hold time; an incompressible charge that fills the
-  cavity stops the press and the force jumps to the limit.
+  cavity stops the press and the force jumps to the limit.  A compliant frame
+  (``press_compliance``) deflects by F / k, so the gap closes slower than the ram while the
+  force rises (balanced at the end of each step, as in the 1-D solver).
 
 Mirror symmetry of the layout about the mould's centre lines is used to solve a half or a
 quarter of the mould.  Parameter sets are solved one after another.
 
-The base model, measured ram profiles and the ``compressibility``, ``heating``, ``curing``
-and ``speed_ramp`` effects are supported; ``press_compliance`` is not.  A porous
+The base model, measured ram profiles and every built-in effect (``compressibility``,
+``heating``, ``curing``, ``speed_ramp``, ``press_compliance``) are supported.  A porous
 charge has a local solid fraction per cell (:mod:`smcbayes.forward.compaction2d`): each
 filled cell compacts under its own pressure by the effect's law, the solid moves with the
 flow, and the solid volume is conserved to round-off.  Heating and curing act on the whole
@@ -57,7 +59,7 @@ __all__ = ["FillHistory", "HeleShaw2D", "HeleShaw2DOptions", "cell_compaction", 
            "spill", "whole_mould"]
 
 Array = NDArray[np.float64]
-SUPPORTED_EFFECTS = ("compressibility", "heating", "curing", "speed_ramp")
+SUPPORTED_EFFECTS = ("compressibility", "heating", "curing", "speed_ramp", "press_compliance")
 
 
 @dataclass
@@ -143,7 +145,7 @@ class HeleShaw2D:
             p: SI parameters by symbol, each ``(P,)``.
             effects: the enabled effects: any of ``compressibility`` (pore compaction
                 with a local solid fraction per cell), ``heating`` and ``curing`` (one
-                charge-mean state per row) and ``speed_ramp``.
+                charge-mean state per row), ``speed_ramp`` and ``press_compliance``.
             material: slip coefficient and threshold exponent.
         """
         other = [n for n in effects.names if n not in SUPPORTED_EFFECTS]
@@ -160,7 +162,8 @@ class HeleShaw2D:
                 runs.append(self.run_row(case, table, float(p["B"][r]), r, *row_effects))
             except SolverError as err:
                 runs.append(Run(t=[0.0, 1.0], gap=[case.gap0] * 2, area=[case.area0] * 2,
-                                force=[0.0, 0.0], solid=[1.0, 1.0], switch=1.0, status=f"failed: {err}"))
+                                force=[0.0, 0.0], deflection=[0.0, 0.0], solid=[1.0, 1.0], switch=1.0,
+                                status=f"failed: {err}"))
         grid, _ = make_grid(case, self.options.cells, self.options.use_symmetry)
         porous = effects.solid_fraction0(case, p, rows) is not None
         self.fields[case.id] = [self._history(grid, run, porous) if run.snap_f else None for run in runs]
@@ -199,10 +202,12 @@ class HeleShaw2D:
 
 
 def charge_effects(case: Case, p: dict[str, Array], effects: EffectStack, row: int) -> ChargeEffects | None:
-    """The effects of row ``row`` on the whole charge and the ram, or None when no enabled
-    effect carries a state or moves the ram (no ``heating``, ``curing`` or ``speed_ramp``)."""
+    """The effects of row ``row`` on the whole charge and the press, or None when no enabled
+    effect carries a state, moves the ram or deflects the frame (no ``heating``,
+    ``curing``, ``speed_ramp`` or ``press_compliance``)."""
     p_row = {k: np.asarray(v)[row:row + 1] for k, v in p.items()}
-    if "speed_ramp" not in effects.names and not effects.initial_state(case, p_row, 1):
+    press = {"speed_ramp", "press_compliance"} & set(effects.names)
+    if not press and not effects.initial_state(case, p_row, 1):
         return None
     return ChargeEffects(case, p_row, effects)
 
@@ -225,16 +230,16 @@ def cell_compaction(case: Case, p: dict[str, Array], effects: EffectStack, row: 
 def _to_nodes(runs: list[Run]) -> Nodes:
     """Stack the node records of all rows, padding each past its end."""
     P, S = len(runs), max(len(r.t) for r in runs)
-    out = {k: np.zeros((P, S)) for k in ("t", "gap", "area", "force", "solid")}
+    out = {k: np.zeros((P, S)) for k in ("t", "gap", "area", "force", "deflection", "solid")}
     count = np.zeros(P, dtype=np.int64)
     for i, r in enumerate(runs):
         n = len(r.t)
         count[i] = n
         for key, vals in (("t", r.t), ("gap", r.gap), ("area", r.area), ("force", r.force),
-                          ("solid", r.solid)):
+                          ("deflection", r.deflection), ("solid", r.solid)):
             arr = np.asarray(vals, dtype=float)
             out[key][i, :n] = arr
             out[key][i, n:] = arr[-1]
     return Nodes(time=out["t"], gap=out["gap"], area=out["area"], force=out["force"],
-                 deflection=np.zeros((P, S)), solid=out["solid"], count=count,
+                 deflection=out["deflection"], solid=out["solid"], count=count,
                  switch=np.array([r.switch for r in runs]), status=[r.status for r in runs])

@@ -4,8 +4,9 @@ its flux law and the effects that act on the whole charge and on the ram.
 The flux law is the 1-D solver's tabulated one (:mod:`smcbayes.forward.flux`) of one row.
 ``heating`` and ``curing`` act as in the 1-D solver, on one charge-mean temperature and
 degree of cure whose factors scale every cell's viscosity; ``speed_ramp`` gives the ram's
-free speed and its slowing under load.  Both go through the effects' own hooks
-(:mod:`smcbayes.forward.effects`), so a formula lives in one place.
+free speed and its slowing under load, ``press_compliance`` the frame's compliance.  All go
+through the effects' own hooks (:mod:`smcbayes.forward.effects`), so a formula lives in one
+place.
 """
 
 from __future__ import annotations
@@ -57,7 +58,8 @@ class ChargeEffects:
     effects' own hooks (the 1-D solver's): ``heating`` and ``curing`` (their state at first
     contact, its advance over a step and the factors on the zero-shear viscosity and the
     cure factor; one charge-mean state, so the cells share the charge's mean temperature
-    and degree of cure) and ``speed_ramp`` (the ram's speed, :meth:`ram_speed`).
+    and degree of cure), ``speed_ramp`` (the ram's speed, :meth:`ram_speed`) and
+    ``press_compliance`` (the frame's compliance, :meth:`compliance`).
 
     Attributes:
         case: the configuration in SI.
@@ -93,3 +95,7 @@ class ChargeEffects:
         at = np.array([t])
         free, beta = self.effects.ram_speed(self.case, self.p, at, self.case.set_speed(at))
         return float(free[0]), float(beta[0])
+
+    def compliance(self) -> float:
+        """The press frame's compliance 1/k (m/N; 0 without ``press_compliance``)."""
+        return float(self.effects.compliance(self.case, self.p, 1)[0])

@@ -3,7 +3,10 @@
 Speed control at the ram's speed (the set speed or a measured ram profile's; with
 ``speed_ramp`` ramped up and slowed by the force) until the force limit (located inside a
 step by regula falsi in the step size), then force control (the closing speed that gives
-F = F_limit, solved together with the pressure) for the hold time.  An incompressible
+F = F_limit, solved together with the pressure) for the hold time.  With
+``press_compliance`` the frame deflects by delta = F / k, so under speed control the gap
+closes at the ram's speed less the deflection's rate, balanced at the end of the step
+(backward Euler, as in the 1-D solver: V + F / (k dt) = U + delta / dt).  An incompressible
 charge that fills the cavity stops the press and the force jumps to the limit; a porous
 charge keeps closing by compaction alone (:mod:`smcbayes.forward.compaction2d`) until the
 limit and then creeps under it.
@@ -11,8 +14,9 @@ limit and then creeps under it.
 Each step solves the pressure of the current state, then moves explicitly: filled cells
 lose V dt of content (the gap closes under them), front cells gain the inflow, the solid
 moves with the face fluxes, and content above the gap spills on to the nearest open
-cells.  With compaction the pressure solve depends on the step (semi-implicit law), so a
-step that the Courant, fill or compaction limits cut by more than 30 % is solved again.
+cells.  With compaction (semi-implicit law) or a compliant frame (the deflection's
+balance) the pressure solve depends on the step, so a step that the Courant, fill or
+compaction limits cut by more than 30 % is solved again.
 """
 
 from __future__ import annotations
@@ -89,15 +93,16 @@ class HeleShaw2DOptions:
 @dataclass
 class State:
     """State of one run: time (s), gap (m), charge thickness per cell (m) and solid
-    volume per unit area (m), both ``(nx, ny)``, and the effects' state of the whole
+    volume per unit area (m), both ``(nx, ny)``, the effects' state of the whole
     charge (the mean temperature of ``heating``, the degree of cure of ``curing``; each
-    ``(1,)``)."""
+    ``(1,)``) and the frame's deflection (m; 0 without ``press_compliance``)."""
 
     t: float
     gap: float
     h: Array
     sigma: Array
     extra: dict[str, Array] = field(default_factory=dict)
+    delta: float = 0.0
 
 
 @dataclass
@@ -108,6 +113,7 @@ class Run:
     gap: list[float] = field(default_factory=list)
     area: list[float] = field(default_factory=list)
     force: list[float] = field(default_factory=list)
+    deflection: list[float] = field(default_factory=list)
     volume: list[float] = field(default_factory=list)
     solid: list[float] = field(default_factory=list)
     solid_volume: list[float] = field(default_factory=list)
@@ -122,23 +128,27 @@ class Run:
 class Rates:
     """Force (N) and gap closing speed V (m/s) at a state, with the flow solution there
     (None when nothing moves: an incompressible charge fills the cavity, or a porous one
-    rests under the force)."""
+    rests under the force), and under speed control the ram's speed under the step's load
+    (m/s; None under force control, where the frame's deflection holds at F_limit / k)."""
 
     force: float
     speed: float
     sol: PressureSolution | None
     sink: CompactionSink | None = None
+    ram: float | None = None
 
 
 class Stepper:
     """Time stepping of one parameter set; ``compaction`` None for an incompressible charge,
-    ``charge`` None without effects on the whole charge or the ram (``heating``,
-    ``curing``, ``speed_ramp``)."""
+    ``charge`` None without effects on the whole charge or the press (``heating``,
+    ``curing``, ``speed_ramp``, ``press_compliance``)."""
 
     def __init__(self, case: Case, grid: Grid, law: Law, options: HeleShaw2DOptions,
                  compaction: CellCompaction | None, charge: ChargeEffects | None = None) -> None:
         self.case, self.grid, self.law, self.o, self.comp = case, grid, law, options, compaction
         self.charge = charge
+        self.inv_k = 0.0 if charge is None else charge.compliance()
+        """The frame's compliance 1/k (m/N)."""
         self.press = PressProgramme.of(case, options.jump_time_s)
         self.run = Run()
         self.guess: Array | None = None
@@ -150,7 +160,8 @@ class Stepper:
         self.dt_max = (case.gap0 - self.gap_end) / (v_ref * options.closing_steps)
         self.refine = 100.0 / options.closing_steps
         self.dt = self.dt_max
-        """Step (s) the semi-implicit compaction of the next pressure solve is taken over."""
+        """Step (s) the next pressure solve is taken over (the semi-implicit compaction and
+        the frame's deflection balance over it)."""
 
     def initial(self, h0: Array) -> State:
         """State at first contact from the charge thickness per cell (m)."""
@@ -199,12 +210,12 @@ class Stepper:
         # under force control the ram follows the force: its own speed does not enter
         free, beta = (0.0, 0.0) if force_control else self.ram_speed(st.t)
         try:
-            if force_control or beta == 0.0:
+            if force_control or (beta == 0.0 and self.inv_k == 0.0):
                 speed, force = (None, F_lim) if force_control else (free, None)
                 sol = solve_pressure(self.grid, st.h / st.gap, self.fluidity(st), speed, force, self.guess,
                                      self.speed_guess, sink=sink, speed_floor=1e-6 * c.speed)
             else:
-                sol = self._slowed(st, sink, free, beta)
+                sol = self._loaded(st, sink, free, beta)
         except SolverError:
             if not force_control or sink is None:
                 raise
@@ -212,9 +223,12 @@ class Stepper:
             if sol is None:
                 return Rates(F_lim, 0.0, None)
         self.guess, self.speed_guess = sol.p, sol.speed
-        if force_control or sink is None:
-            return Rates(F_lim if force_control else sol.force, sol.speed, sol, sink)
-        return Rates(sol.force - self._lag(st, sol, sink), sol.speed, sol, sink)
+        if force_control:
+            return Rates(F_lim, sol.speed, sol, sink)
+        ram = free * (1.0 - beta * sol.force / F_lim)
+        if sink is None:
+            return Rates(sol.force, sol.speed, sol, sink, ram)
+        return Rates(sol.force - self._lag(st, sol, sink), sol.speed, sol, sink, ram)
 
     def ram_speed(self, t: float) -> tuple[float, float]:
         """The ram's free speed (m/s) at ``t`` (s) and its load slowdown (-): the set speed
@@ -227,29 +241,52 @@ class Stepper:
             free, beta = self.charge.ram_speed(t)
         return max(free, 1e-6 * self.case.speed), beta
 
-    def _slowed(self, st: State, sink: CompactionSink | None, free: float, beta: float) -> PressureSolution:
-        """Speed control by a ram that slows under load: the closing speed V (m/s) with
-        V = free (1 - beta F(V) / F_limit), ``free`` the ram's free speed (m/s) and
-        ``beta`` its load slowdown (-), by Illinois regula falsi on V.
+    def _loaded(self, st: State, sink: CompactionSink | None, free: float, beta: float) -> PressureSolution:
+        """Speed control by a ram that slows under load or a frame that deflects: the gap
+        closing speed V (m/s) with
 
-        V - free (1 - beta F(V) / F_limit) rises with V; it is >= 0 at V = free and <= 0
-        at the speed the force at V = free leaves (F rises with V), which brackets the root.
-        The pressure solve holds F to about 1e-6, so the root is taken to that precision
-        (and the bracket's better end once it has shrunk to round-off).
+            V = free (1 - beta F(V) / F_limit) - (F(V) / k - delta) / dt,
+
+        ``free`` the ram's free speed (m/s), ``beta`` its load slowdown (-), ``delta`` the
+        frame's deflection at the start of the step (m) and dt the step the solve is taken
+        over (:attr:`dt`), by Illinois regula falsi on V.
+
+        The excess e(V) = V - free (1 - beta F / F_limit) + (F / k - delta) / dt rises with
+        V at a slope of at least 1 (F rises with V), so V - e(V) lies on the far side of
+        the root from V: from the last step's speed, solves at V - e(V), each held within a factor
+        8 of the last (a stiff frame puts V - e(V) at a vanishing speed, where the pressure
+        iteration of a compacting charge can stall), bracket it.  The pressure solve holds
+        F to about 1e-6, so the root is taken to that precision of the balance's terms (and
+        the bracket's better end once it has shrunk to round-off).
         """
-        F_lim, tol, fluidity = self.case.force_limit, 1e-6 * free, self.fluidity(st)
+        F_lim, fluidity = self.case.force_limit, self.fluidity(st)
+        floor, a = 1e-6 * self.case.speed, self.inv_k / self.dt
 
         def excess(V: float) -> tuple[float, float, PressureSolution]:
             sol = self._speed_solve(st, sink, V, fluidity)
-            return V, V - free * (1.0 - beta * sol.force / F_lim), sol
+            return V, V - free * (1.0 - beta * sol.force / F_lim) + a * sol.force - st.delta / self.dt, sol
 
-        hi = excess(free)
-        if hi[1] <= tol:
-            return hi[2]
-        lo = excess(max(free * (1.0 - beta * hi[2].force / F_lim), 1e-6 * self.case.speed))
+        # from the last step's closing speed: with a compliant frame far below the ram's
+        start = free if self.speed_guess is None else min(max(self.speed_guess, floor), free)
+        near = excess(start)
+        tol = 1e-6 * (free + a * near[2].force + st.delta / self.dt)
+        for _ in range(60):  # bracket the root, moving by at most 8x a solve
+            if abs(near[1]) <= tol:
+                return near[2]
+            far = excess(min(max(near[0] - near[1], near[0] / 8.0, floor), 8.0 * near[0]))
+            if far[1] * near[1] <= 0.0:
+                break
+            if far[0] <= floor:  # the load holds even a ram at rest
+                return far[2]
+            near = far
+        else:
+            raise SolverError(f"configuration '{self.case.id}': no closing speed balances the frame")
+        if abs(far[1]) <= tol:
+            return far[2]
+        lo, hi = (far, near) if near[1] > 0.0 else (near, far)
         side = 0
         for _ in range(60):
-            if lo[1] >= -tol or hi[0] - lo[0] <= 1e-9 * free:
+            if hi[0] - lo[0] <= 1e-9 * free:
                 return min(lo, hi, key=lambda end: abs(end[1]))[2]
             new = excess(hi[0] - hi[1] * (hi[0] - lo[0]) / (hi[1] - lo[1]))
             if abs(new[1]) <= tol:
@@ -258,7 +295,8 @@ class Stepper:
                 lo, hi, side = new, (hi if side != -1 else (hi[0], hi[1] / 2, hi[2])), -1
             else:
                 hi, lo, side = new, (lo if side != 1 else (lo[0], lo[1] / 2, lo[2])), 1
-        raise SolverError(f"configuration '{self.case.id}': the ram's load slowdown did not converge")
+        raise SolverError(f"configuration '{self.case.id}': the balance of the ram's load slowdown "
+                          "and the frame's deflection did not converge")
 
     def _speed_solve(self, st: State, sink: CompactionSink | None, V: float,
                      fluidity: Fluidity | None = None) -> PressureSolution:
@@ -323,7 +361,8 @@ class Stepper:
             raise SolverError(f"configuration '{self.case.id}': the 2-D run needs more than {MAX_NODES} steps")
         area, bulk, solid, solid_volume = self.measure(st)
         for name, value in (("t", st.t), ("gap", st.gap), ("area", area), ("force", force),
-                            ("volume", bulk), ("solid", solid), ("solid_volume", solid_volume)):
+                            ("deflection", force * self.inv_k), ("volume", bulk), ("solid", solid),
+                            ("solid_volume", solid_volume)):
             getattr(r, name).append(value)
         while self.snap_area and area >= self.snap_area[0] * (1.0 - 1e-9):
             self.snap_area.pop(0)
@@ -333,23 +372,32 @@ class Stepper:
 
     def advance(self, st: State, r: Rates, dt: float) -> State:
         """State after ``dt`` (s): filled cells lose V dt, front cells gain their inflow,
-        the solid moves with the face fluxes, the excess spills."""
+        the solid moves with the face fluxes, the excess spills.
+
+        The frame's deflection grows by the ram's travel less the gap's, (U - V) dt; over
+        the step the balance was solved for that is F / k, and over a shorter one (a step
+        cut to land on a fill or the limit) it keeps the ram's position exact.
+        """
         gap = max(st.gap - r.speed * dt, self.gap_end)
         extra = st.extra if self.charge is None else self.charge.advance(st.extra, st.gap, dt)
+        delta = 0.0
+        if self.inv_k > 0.0:
+            delta = self.case.force_limit * self.inv_k if r.ram is None else max(
+                st.delta + (r.ram - r.speed) * dt, 0.0)
         if r.sol is None:
-            return State(st.t + dt, gap, st.h, st.sigma, extra)
+            return State(st.t + dt, gap, st.h, st.sigma, extra, delta)
         full = st.h >= st.gap * FULL
         h = np.where(full, st.h - r.speed * dt, st.h + r.sol.inflow * dt / self.grid.cell_area)
         if self.comp is None:
             h = spill_with(h, gap, None)[0]
-            return State(st.t + dt, gap, h, h, extra)
+            return State(st.t + dt, gap, h, h, extra, delta)
         sigma = st.sigma + solid_inflow(r.sol, self.solid(st)) * dt / self.grid.cell_area
         h, sigma = spill_with(h, gap, sigma, absorb=True)
         if float(np.sum(gap - h)) <= SNAP * gap:
             # the last open capacity is round-off of the semi-implicit compaction: call the
             # cavity full (the solid stays; s of the last cells drops by at most SNAP)
             h = np.full_like(h, gap)
-        return State(st.t + dt, gap, h, sigma, extra)
+        return State(st.t + dt, gap, h, sigma, extra, delta)
 
     def step_size(self, st: State, r: Rates, dt_max: float) -> float:
         """Largest step (s) within :meth:`regular_step`, the filling of the cavity and the
@@ -396,12 +444,15 @@ class Stepper:
         and a one-off cut (landing on the filled cavity) does not shrink the next steps.
         """
         dt = self.step_size(st, r, dt_max)
-        if self.comp is not None and dt < RETRY * self.dt:
+        if (self.comp is not None or self.inv_k > 0.0) and dt < RETRY * self.dt:
             self.dt = dt
             r2 = self.rates(st, force_control)
             if r2 is None:
                 return dt, None
-            r, dt = r2, min(dt, self.step_size(st, r2, dt_max))
+            # the frame's balance over the shorter step changes the closing speed, so the
+            # step that lands on the filled cavity is the re-solved speed's
+            again = self.step_size(st, r2, dt_max)
+            r, dt = r2, (again if self.inv_k > 0.0 else min(dt, again))
         self.dt = min(dt_max, 1.1 * self.regular_step(st, r, dt_max))
         return dt, r
 
