@@ -29,11 +29,13 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from smcbayes.config import build_project, load_project
+from smcbayes.config import MaterialSpec, build_project, load_project
 from smcbayes.forward.case import Case
-from smcbayes.forward.hele_shaw2d import HeleShaw2DOptions
+from smcbayes.forward.hele_shaw2d import charge_effects
 from smcbayes.forward.model import ForwardModel
+from smcbayes.forward.parameters import to_si
 from smcbayes.forward.result import SimulationResult
+from smcbayes.forward.squeeze1d import material_table
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "thesis-press"
@@ -84,11 +86,18 @@ def convergence() -> dict:
         rows = []
         for steps in (30, 60, 120, 240):
             model = ForwardModel(_bar(steps, cells), effects=["press_compliance"], fidelity="2d")
-            t_fill, exact = exact_squeeze(model.cases["c"], K_SOFT * 1e6)
-            res, wall = _run(model, {**NEWTONIAN, "k_press_kN_mm": K_SOFT})
-            fill = float(res.switch_time_s[0]) - HeleShaw2DOptions().jump_time_s
+            case = model.cases["c"]
+            t_fill, exact = exact_squeeze(case, K_SOFT * 1e6)
+            si = to_si({k: np.array([v]) for k, v in {**model.space.defaults(), **NEWTONIAN,
+                                                      "k_press_kN_mm": K_SOFT}.items()}, model.space.parameters)
+            t0 = time.perf_counter()
+            run = model.solver.run_row(case, material_table(si, MaterialSpec(), model.solver.tau), MU, 0, None,
+                                       charge_effects(case, si, model.effects, 0))
+            wall = time.perf_counter() - t0
+            k_fill = int(np.argmax(np.array(run.gap) <= case.gap_full * (1.0 + 1e-9)))
+            fill = run.t[k_fill]
             t = np.linspace(0.5, 0.9 * t_fill, 200)
-            f = np.interp(t, res.time_s[0], res.force_kN[0])
+            f = np.interp(t, run.t, run.force) / 1e3
             rms = float(np.sqrt(np.mean((f - exact(t)) ** 2) / np.mean(exact(t) ** 2)))
             rows.append({"steps": steps, "fill_error_pct": 100 * (fill / t_fill - 1.0),
                          "force_rms_pct": 100 * rms, "seconds": wall})

@@ -14,9 +14,10 @@ finite volumes on a structured grid with a fill-fraction (control-volume) flow f
   the force with ``speed_ramp``) until the force limit (located inside a step by regula
   falsi in the step size), then force control (the closing speed that gives F = F_limit, solved
   together with the pressure) for the hold time; an incompressible charge that fills the
-  cavity stops the press and the force jumps to the limit.  A compliant frame
+  cavity stops the gap and the force jumps to the limit.  A compliant frame
   (``press_compliance``) deflects by F / k, so the gap closes slower than the ram while the
-  force rises (balanced at the end of each step, as in the 1-D solver).
+  force rises (balanced at the end of each step, as in the 1-D solver), and once the cavity
+  is full the ram runs on and loads it to the limit.
 
 Mirror symmetry of the layout about the mould's centre lines is used to solve a half or a
 quarter of the mould.  Parameter sets are solved one after another.
@@ -188,7 +189,7 @@ class HeleShaw2D:
             eta0: zero-shear viscosity of the row (Pa s).
             row: row of ``table``.
             compaction: per-cell pore compaction, or None for an incompressible charge.
-            charge: the row's effects on the whole charge and the ram, or None.
+            charge: the row's effects on the whole charge and the press, or None.
         """
         o = self.options
         grid, h0 = make_grid(case, o.cells, o.use_symmetry)

@@ -41,6 +41,7 @@ from smcbayes.forward.programme import (
     closing_stretch,
     fills_and_stops,
     hold_step,
+    load_time,
 )
 from smcbayes.forward.result import PHASE_FLOW, PHASE_FORCE, PHASE_FULL, STATUS_OK
 
@@ -380,7 +381,12 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
         count[~done] = it + 1
         jump = ~done & fills_and_stops(~ctx.compressible, st.area, case.area_mould, st.phase == PHASE_FORCE)
         if np.any(jump):
-            st.t = np.where(jump, st.t + ctx.press.jump_time, st.t)
+            # the gap stops; the ram runs on and loads the frame (a jump on a rigid one)
+            free, beta = effects.ram_speed(case, p, st.t, case.set_speed(st.t))
+            free = np.maximum(free, 1e-6 * case.speed)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                loading = load_time(rates.force, case.force_limit, ctx.inv_k, free, beta, ctx.press.jump_time)
+            st.t = np.where(jump, st.t + loading, st.t)
             st.phase = np.where(jump, PHASE_FORCE, st.phase).astype(np.int8)
             st.switch = np.where(jump, st.t, st.switch)
         done |= (st.phase == PHASE_FORCE) & ctx.press.hold_over(st.t, st.switch) & ~jump

@@ -2,7 +2,8 @@
 
 The press closes at the set speed until the force reaches the limit, then holds the force
 (force control) for the hold time; an incompressible charge that fills the cavity stops
-the press, and the force reaches the limit within ``jump_time``.  :class:`PressProgramme`
+the gap, and the force reaches the limit within ``jump_time`` on a rigid frame, or as the
+ram runs on and loads a compliant one (:func:`load_time`).  :class:`PressProgramme`
 holds these numbers; the functions below are its decisions.  They are plain functions of
 floats or of NumPy arrays (elementwise), built only from what numba compiles for scalars,
 so the 1-D kinematic path, the NumPy marching path, the compiled marching kernel and the
@@ -68,7 +69,7 @@ class PressProgramme:
         force_limit: force at which the press switches to force control (N).
         hold: duration of the force-controlled hold (s).
         jump_time: time for the force to reach the limit once an incompressible charge
-            fills the cavity (s).
+            fills the cavity on a rigid frame (s; see :func:`load_time`).
     """
 
     speed: float
@@ -120,6 +121,25 @@ def fills_and_stops(incompressible: X, area: X, area_mould: float, force_control
     """True where an incompressible charge has just filled the cavity under speed
     control: the press stops and the force goes to the limit."""
     return incompressible & (area >= area_mould * (1.0 - FULL_TOL)) & np.logical_not(force_control)
+
+
+def load_time(force: X, force_limit: float, inv_k: X, free: X, beta: X, jump_time: float) -> X:
+    """Time (s) from the instant an incompressible charge fills the cavity, at ``force`` (N),
+    to the force limit (N).
+
+    The gap stops, but the ram runs on at free (1 - beta F / F_limit) (``free`` its free
+    speed at the fill, m/s, held; ``beta`` its load slowdown) and loads the frame of
+    compliance ``inv_k`` (m/N): dF/dt = k free (1 - beta F / F_limit), so
+
+        t = F_limit / (beta k free) ln((1 - beta F / F_limit) / (1 - beta)),
+
+    inv_k (F_limit - F) / free at beta = 0, linear in time.  On a rigid frame (and at least)
+    ``jump_time``, which stands for the press's own reaction.
+    """
+    linear = inv_k * (force_limit - force) / free
+    b = select(beta > 1e-9, beta, 0.5)  # a placeholder where the linear form applies
+    curved = inv_k * force_limit / (b * free) * np.log((1.0 - b * force / force_limit) / (1.0 - b))
+    return np.maximum(select(beta > 1e-9, curved, linear), jump_time)
 
 
 def hold_step(t: X, t_switch: X, speed: X, dt0: X, hold: float, hold_steps: float,

@@ -57,7 +57,8 @@ class Squeeze1DOptions:
         tau_min_Pa, tau_max_Pa: stress-grid range.
         output_closing_points, output_hold_points: samples per output curve.
         jump_time_s: time for the force to reach the limit once an incompressible charge
-            fills the cavity.
+            fills the cavity, on a rigid frame (a compliant one takes the ram's time to load
+            it, :func:`~smcbayes.forward.programme.load_time`).
         shape_correction: multiply the axisymmetric force of a centred square charge in a
             square mould by :func:`~smcbayes.forward.layout.square_charge_factor`.
         chunk_rows: parameter sets per batched table solve (cache-sized blocks).

@@ -7,9 +7,10 @@ F = F_limit, solved together with the pressure) for the hold time.  With
 ``press_compliance`` the frame deflects by delta = F / k, so under speed control the gap
 closes at the ram's speed less the deflection's rate, balanced at the end of the step
 (backward Euler, as in the 1-D solver: V + F / (k dt) = U + delta / dt).  An incompressible
-charge that fills the cavity stops the press and the force jumps to the limit; a porous
-charge keeps closing by compaction alone (:mod:`smcbayes.forward.compaction2d`) until the
-limit and then creeps under it.
+charge that fills the cavity stops the gap, and the force jumps to the limit (on a
+compliant frame it rises as the ram runs on and loads the frame,
+:func:`~smcbayes.forward.programme.load_time`); a porous charge keeps closing by compaction
+alone (:mod:`smcbayes.forward.compaction2d`) until the limit and then creeps under it.
 
 Each step solves the pressure of the current state, then moves explicitly: filled cells
 lose V dt of content (the gap closes under them), front cells gain the inflow, the solid
@@ -37,7 +38,7 @@ from smcbayes.forward.compaction2d import (
 )
 from smcbayes.forward.grid2d import FULL, Fluidity, Grid, PressureSolution, solve_pressure
 from smcbayes.forward.law2d import ChargeEffects, Law
-from smcbayes.forward.programme import PressProgramme
+from smcbayes.forward.programme import PressProgramme, load_time
 from smcbayes.forward.result import STATUS_OK
 from smcbayes.forward.spill2d import spill_with
 
@@ -70,7 +71,8 @@ class HeleShaw2DOptions:
         hold_steps: minimum steps over the force-controlled closing.
         per_decade, tau_min_Pa, tau_max_Pa: stress grid of the flux table.
         output_closing_points, output_hold_points: samples per output curve.
-        jump_time_s: time for the force to reach the limit once the cavity is full.
+        jump_time_s: time for the force to reach the limit once the cavity is full, on a
+            rigid frame.
         snapshots: number of fill-fraction fields kept per run (evenly spaced in time over
             the closing, plus the switch instant).
         use_symmetry: solve a half or quarter mould where the layout allows.
@@ -469,9 +471,11 @@ class Stepper:
             self.record(st, r.force)
             new = self.advance(st, r, dt)
             new_r = self.rates(new, False)
-            if new_r is None:  # full: the force jumps to the limit
+            if new_r is None:  # full: the gap stops and the ram loads the frame to the limit
                 self.record(new, r.force)
-                self.run.switch = new.t + press.jump_time
+                free, beta = self.ram_speed(new.t)
+                self.run.switch = new.t + float(load_time(r.force, case.force_limit, self.inv_k, free, beta,
+                                                          press.jump_time))
                 self.hold(new, self.run.switch)
                 return new, None
             if press.reaches_limit(new_r.force) and self.comp is not None:

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 
 from smcbayes.config import ProjectConfig, load_project
 from smcbayes.errors import ConfigError, SmcBayesError
+from smcbayes.forward import programme
 from smcbayes.forward.effects import available, get_effect
 from smcbayes.forward.effects.thermal import Curing
 from smcbayes.forward.model import ForwardModel
@@ -105,6 +106,41 @@ def test_press_compliance(make_project: Callable[..., ProjectConfig]) -> None:
     np.testing.assert_allclose(soft.displacement_mm[0, c], 0.3 * t, rtol=0, atol=1.01 * step_change)
     assert np.all(gap[1:] >= np.interp(t[1:], rigid.time_s[0], rigid.gap_mm[0]) - 1e-12)
     assert soft.switch_time_s[0] > rigid.switch_time_s[0]
+
+
+@pytest.mark.parametrize("beta", [0.0, 0.5])
+def test_a_full_cavity_loads_a_compliant_frame_as_the_ram_runs_on(
+        make_project: Callable[..., ProjectConfig], beta: float) -> None:
+    """An incompressible charge that fills the cavity well below the limit: the gap stops,
+    but the ram runs on and loads the frame, so the limit comes (F_limit - F_fill) / (k U)
+    after the fill (with the load slowdown, the closed form of
+    :func:`~smcbayes.forward.programme.load_time`), not a jump; the ram's travel keeps
+    following the ram through the loading.  On a rigid frame the jump remains."""
+    k_kN_mm, limit_kN = 200.0, 500.0
+    project = make_project(press={"force_limit_kN": limit_kN})
+    fluid = {**SHEAR, "B_Pa_s": 1e3, "tau_c_MPa": 0.01}
+    rigid = run(project, ("speed_ramp",), ramp_time_s=0.01, load_slowdown=beta, **fluid)
+    soft = run(project, ("press_compliance", "speed_ramp"), k_press_kN_mm=k_kN_mm, ramp_time_s=0.01,
+               load_slowdown=beta, **fluid)
+    case = ForwardModel(project).cases["bar"]
+    for res in (rigid, soft):
+        assert res.gap_mm[0, -1] == pytest.approx(case.gap_full / 1e-3, rel=1e-9)
+    t_sw = soft.switch_time_s[0]
+    full = (soft.gap_mm[0] <= case.gap_full / 1e-3 * (1.0 + 1e-9)) & (soft.time_s[0] <= t_sw)
+    t_fill = soft.time_s[0, full][0]
+    f_fill = float(np.interp(t_fill, soft.time_s[0], soft.force_kN[0]))
+    assert f_fill < 0.3 * limit_kN
+    expected = float(programme.load_time(f_fill * 1e3, limit_kN * 1e3, 1e-6 / k_kN_mm, 0.3e-3, beta, 0.05))
+    assert expected > 1.0  # seconds, where the rigid frame takes 0.05
+    # the fill is known to the output grid's spacing, so the loading time to about two of them
+    spacing = t_sw / 200
+    assert t_sw - t_fill == pytest.approx(expected, abs=2.5 * spacing)
+    loading = soft.time_s[0] <= t_sw
+    if beta == 0.0:
+        np.testing.assert_allclose(soft.displacement_mm[0, loading], 0.3 * soft.time_s[0, loading],
+                                   atol=0.3 * spacing + 0.02)
+    rigid_fill = rigid.time_s[0, np.argmax(rigid.gap_mm[0] <= case.gap_full / 1e-3 * (1.0 + 1e-9))]
+    assert rigid.switch_time_s[0] - rigid_fill < 0.05 + rigid.switch_time_s[0] / 200
 
 
 def test_heating_lowers_the_force_at_the_same_gap(make_project: Callable[..., ProjectConfig]) -> None:

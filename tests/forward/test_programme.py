@@ -34,6 +34,9 @@ CASES = [
     (kernel._stretch, programme.closing_stretch,
      [np.array([0.0, 1e-3, 1e-3, 1e-6, 0.0]), np.array([np.nan, 0.0, 1e9, 1.0, np.inf]),
       np.array([np.nan, 0.0, 0.0, 1e-9, 0.0]), np.full(5, 1.2), np.full(5, 20.0), 1e-3, 1e6]),
+    (kernel._load_time, programme.load_time,
+     [np.array([1e5, 5e5, 1e5, 1.5e6, 0.0]), 1e6, np.array([1e-9, 1e-9, 0.0, 1e-9, 2e-8]),
+      np.full(5, 7e-4), np.array([0.0, 0.6, 0.3, 0.0, 0.9]), 0.05]),
     (kernel._hold_step, programme.hold_step,
      [np.array([10.0, 10.0, 30.0, 11.0, 12.0]), np.full(5, 10.0), np.array([0.0, 1e-4, 1e-5, 0.0, 1.0]),
       np.full(5, 0.05), 60.0, 60.0, np.full(5, 2e-5)]),
@@ -61,6 +64,22 @@ def test_press_programme_decisions() -> None:
     stops = programme.fills_and_stops(np.array([True, True, False]), np.array([1.0, 1.0, 1.0]), 1.0,
                                       np.array([False, True, False]))
     np.testing.assert_array_equal(stops, [True, False, False])
+
+
+@pytest.mark.parametrize("beta", [0.0, 0.6])
+def test_load_time_integrates_the_loading_of_the_frame(beta: float) -> None:
+    """A full cavity on a compliant frame: dF/dt = k free (1 - beta F / F_limit) integrated
+    finely from F0 to the limit takes the closed form's time; a rigid frame (and a stiff
+    one that would take less) takes the jump time."""
+    k, free, f0, limit = 1e9, 7e-4, 1e5, 1.4e6
+    dt, force, t = 1e-5, f0, 0.0
+    while force < limit:  # midpoint rule
+        half = force + 0.5 * dt * k * free * (1.0 - beta * force / limit)
+        force, t = force + dt * k * free * (1.0 - beta * half / limit), t + dt
+    t -= (force - limit) / (k * free * (1.0 - beta))  # back from the overshoot at the limit's rate
+    assert float(programme.load_time(f0, limit, 1.0 / k, free, beta, 0.05)) == pytest.approx(t, rel=1e-5)
+    assert float(programme.load_time(f0, limit, 0.0, free, beta, 0.05)) == 0.05
+    assert float(programme.load_time(f0, limit, 1e-15, free, beta, 0.05)) == 0.05
 
 
 def test_kernel_layout_covers_every_kernel_effect() -> None:
