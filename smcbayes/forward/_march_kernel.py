@@ -58,13 +58,13 @@ _reaches_limit = _jit(programme.reaches_limit)
 _crossing = _jit(programme.crossing_fraction)
 _hold_over = _jit(programme.hold_over)
 _fills_and_stops = _jit(programme.fills_and_stops)
-_load_time = _jit(programme.load_time)
+_load_travel = _jit(programme.load_travel)
 _hold_step = _jit(programme.hold_step)
 _stretch = _jit(programme.closing_stretch)
 
 DISPATCHERS = (_compaction_pressure, _relax_temperature, _arrhenius, _cure_shift, _cure_substeps,
                _cure_rk4_step, _cure_factor, _ramp_speed, _reaches_limit, _crossing, _hold_over,
-               _fills_and_stops, _load_time, _hold_step, _stretch)
+               _fills_and_stops, _load_travel, _hold_step, _stretch)
 """Compiled shared functions (their caches go with the kernel's, see the module docstring)."""
 
 # row parameters
@@ -443,7 +443,8 @@ def _march_row(r: int, tau: Array, slip: Array, shear: Array, eta0: float, rp: A
         if jump:
             free = _ramp_speed(geo[G_SPEED], st[S_T], rp[R_T_RAMP]) if rp[R_RAMP_ON] > 0 else geo[G_SPEED]
             free = _nmax(free, 1e-6 * geo[G_SPEED])
-            st[S_T] += _load_time(force, f_lim, rp[R_INV_K], free, rp[R_BETA], geo[G_JUMP])
+            # programme.load_time, whose call of load_travel numba would not see
+            st[S_T] += _nmax(_load_travel(force, f_lim, rp[R_INV_K], rp[R_BETA]) / free, geo[G_JUMP])
             st[S_PHASE] = PHASE_FORCE
             st[S_SWITCH] = st[S_T]
         elif fc and _hold_over(st[S_T], st[S_SWITCH], hold):

@@ -50,6 +50,23 @@ class SpeedProfile:
         t = np.asarray(t, dtype=float)
         return (t >= self.time[-1]) & (self.speed(t) <= 0.0)
 
+    def time_after(self, t0: float, travel: float) -> float:
+        """Time (s) at which the ram has closed ``travel`` (m) more than at ``t0`` (s), counted
+        as :meth:`speed` moves it (past the last sample at the last segment's speed); inf
+        where the log ends at rest first."""
+        closed = np.concatenate([[0.0], np.cumsum(np.maximum(np.diff(self.position), 0.0))])
+        last = float(self.speed(np.array([self.time[-1]]))[0])
+        start = (float(np.interp(t0, self.time, closed)) if t0 <= self.time[-1]
+                 else float(closed[-1]) + last * (t0 - float(self.time[-1])))
+        target = start + travel
+        if travel <= 0.0:
+            return t0
+        if target > closed[-1]:
+            return float(self.time[-1]) + (target - float(closed[-1])) / last if last > 0.0 else np.inf
+        i = max(int(np.searchsorted(closed, target, side="left")), 1)  # first sample at it
+        frac = (target - closed[i - 1]) / (closed[i] - closed[i - 1])
+        return max(float(self.time[i - 1] + frac * (self.time[i] - self.time[i - 1])), t0)
+
     def pace(self, travel: float) -> float:
         """Mean closing speed (m/s) over the first ``travel`` (m) of the ram's closing, or over
         all the closing the log holds if that is less: the speed that sets a solver's step.

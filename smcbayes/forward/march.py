@@ -42,6 +42,7 @@ from smcbayes.forward.programme import (
     fills_and_stops,
     hold_step,
     load_time,
+    load_travel,
 )
 from smcbayes.forward.result import PHASE_FLOW, PHASE_FORCE, PHASE_FULL, STATUS_OK
 
@@ -379,16 +380,7 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
             rates = _evaluate(ctx, st, closing)
         _record(rec, ctx, st, rates.force)
         count[~done] = it + 1
-        jump = ~done & fills_and_stops(~ctx.compressible, st.area, case.area_mould, st.phase == PHASE_FORCE)
-        if np.any(jump):
-            # the gap stops; the ram runs on and loads the frame (a jump on a rigid one)
-            free, beta = effects.ram_speed(case, p, st.t, case.set_speed(st.t))
-            free = np.maximum(free, 1e-6 * case.speed)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                loading = load_time(rates.force, case.force_limit, ctx.inv_k, free, beta, ctx.press.jump_time)
-            st.t = np.where(jump, st.t + loading, st.t)
-            st.phase = np.where(jump, PHASE_FORCE, st.phase).astype(np.int8)
-            st.switch = np.where(jump, st.t, st.switch)
+        jump = _fill_stops(ctx, st, rates.force, done, at_rest)
         done |= (st.phase == PHASE_FORCE) & ctx.press.hold_over(st.t, st.switch) & ~jump
         if case.profile is not None:  # a log over with the ram at rest: it never gets further
             at_rest |= ~done & (st.phase != PHASE_FORCE) & case.profile.ends_at_rest(st.t)
@@ -415,6 +407,43 @@ def march(case: Case, p: dict[str, Array], effects: EffectStack, table: Material
     return Nodes(time=stack["t"], gap=stack["gap"], area=stack["area"], force=stack["force"],
                  deflection=stack["delta"], solid=stack["solid"], count=count,
                  switch=st.switch, status=status)
+
+
+def _fill_stops(ctx: _Context, st: _State, force: Array, done: NDArray[np.bool_],
+                at_rest: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Rows whose incompressible charge has just filled the cavity under speed control: they
+    switch to force control once the frame is loaded (:func:`_frame_loading`); a row whose
+    measured log ends at rest before that fails (``at_rest`` and ``done`` are updated in
+    place).  Returns the rows that switched."""
+    c = ctx.case
+    jump = ~done & fills_and_stops(~ctx.compressible, st.area, c.area_mould, st.phase == PHASE_FORCE)
+    if not np.any(jump):
+        return jump
+    loading = _frame_loading(ctx, st, force)
+    at_rest |= jump & np.isinf(loading)
+    done |= at_rest
+    jump &= ~at_rest
+    st.t = np.where(jump, st.t + loading, st.t)
+    st.phase = np.where(jump, PHASE_FORCE, st.phase).astype(np.int8)
+    st.switch = np.where(jump, st.t, st.switch)
+    return jump
+
+
+def _frame_loading(ctx: _Context, st: _State, force: Array) -> Array:
+    """Time (s) from a fill of the cavity (incompressible charge, at ``force`` N) to the
+    force limit, ``(P,)``: the gap stops, the ram runs on and loads the frame (a jump of
+    ``jump_time`` on a rigid one; :func:`~smcbayes.forward.programme.load_travel`), at its
+    free speed at the fill or along the measured profile (inf where the log ends at rest
+    before the limit)."""
+    c = ctx.case
+    free, beta = ctx.effects.ram_speed(c, ctx.p, st.t, c.set_speed(st.t))
+    if c.profile is None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return load_time(force, c.force_limit, ctx.inv_k, np.maximum(free, 1e-6 * c.speed), beta,
+                             ctx.press.jump_time)
+    travel = load_travel(force, c.force_limit, ctx.inv_k, beta)
+    ends = np.array([c.profile.time_after(t, x) for t, x in zip(st.t, travel, strict=True)])
+    return np.maximum(ends - st.t, ctx.press.jump_time)
 
 
 def _record(rec: dict[str, list[Array]], ctx: _Context, st: _State, force: Array) -> None:

@@ -3,11 +3,11 @@
 The press closes at the set speed until the force reaches the limit, then holds the force
 (force control) for the hold time; an incompressible charge that fills the cavity stops
 the gap, and the force reaches the limit within ``jump_time`` on a rigid frame, or as the
-ram runs on and loads a compliant one (:func:`load_time`).  :class:`PressProgramme`
-holds these numbers; the functions below are its decisions.  They are plain functions of
-floats or of NumPy arrays (elementwise), built only from what numba compiles for scalars,
-so the 1-D kinematic path, the NumPy marching path, the compiled marching kernel and the
-2-D stepper all call the same code.
+ram runs on and loads a compliant one (:func:`load_travel`, :func:`load_time`).
+:class:`PressProgramme` holds these numbers; the functions below are its decisions.  They
+are plain functions of floats or of NumPy arrays (elementwise), built only from what numba
+compiles for scalars, so the 1-D kinematic path, the NumPy marching path, the compiled
+marching kernel and the 2-D stepper all call the same code.
 
 The step control of the marching path (:func:`closing_stretch`, :func:`hold_step`) lives
 here too: the NumPy and the compiled marching paths share it.
@@ -123,23 +123,36 @@ def fills_and_stops(incompressible: X, area: X, area_mould: float, force_control
     return incompressible & (area >= area_mould * (1.0 - FULL_TOL)) & np.logical_not(force_control)
 
 
-def load_time(force: X, force_limit: float, inv_k: X, free: X, beta: X, jump_time: float) -> X:
-    """Time (s) from the instant an incompressible charge fills the cavity, at ``force`` (N),
-    to the force limit (N).
+def load_travel(force: X, force_limit: float, inv_k: X, beta: X) -> X:
+    """Free travel of the ram (m) that loads a compliant frame from ``force`` (N) to the
+    limit (N) once an incompressible charge has filled the cavity.
 
-    The gap stops, but the ram runs on at free (1 - beta F / F_limit) (``free`` its free
-    speed at the fill, m/s, held; ``beta`` its load slowdown) and loads the frame of
-    compliance ``inv_k`` (m/N): dF/dt = k free (1 - beta F / F_limit), so
+    The gap stops, but the ram runs on at free (1 - beta F / F_limit) (``beta`` its load
+    slowdown) and loads the frame of compliance ``inv_k`` (m/N): dF = k (1 - beta F /
+    F_limit) dX over the ram's free travel X, so
 
-        t = F_limit / (beta k free) ln((1 - beta F / F_limit) / (1 - beta)),
+        X = F_limit / (beta k) ln((1 - beta F / F_limit) / (1 - beta)),
 
-    inv_k (F_limit - F) / free at beta = 0, linear in time.  On a rigid frame (and at least)
-    ``jump_time``, which stands for the press's own reaction.
+    inv_k (F_limit - F) at beta = 0; 0 on a rigid frame.  A force above the limit counts as
+    the limit.
     """
-    linear = inv_k * (force_limit - force) / free
+    force = np.minimum(force, force_limit)
     b = select(beta > 1e-9, beta, 0.5)  # a placeholder where the linear form applies
-    curved = inv_k * force_limit / (b * free) * np.log((1.0 - b * force / force_limit) / (1.0 - b))
-    return np.maximum(select(beta > 1e-9, curved, linear), jump_time)
+    curved = inv_k * force_limit / b * np.log((1.0 - b * force / force_limit) / (1.0 - b))
+    return select(beta > 1e-9, curved, inv_k * (force_limit - force))
+
+
+def load_time(force: X, force_limit: float, inv_k: X, free: X, beta: X, jump_time: float) -> X:
+    """Time (s) from the fill of the cavity by an incompressible charge, at ``force`` (N), to
+    the force limit (N): :func:`load_travel` at the ram's free speed ``free`` at the fill
+    (m/s, held), at least ``jump_time`` (on a rigid frame: the press's own reaction).
+
+    The force rises linearly in time at beta = 0; with the load slowdown it approaches the
+    limit exponentially, F_limit / beta (1 - (1 - beta F / F_limit) exp(-beta k free t /
+    F_limit)), which the solvers' nodes at the fill and at the limit only span (their
+    output interpolates linearly between them).
+    """
+    return np.maximum(load_travel(force, force_limit, inv_k, beta) / free, jump_time)
 
 
 def hold_step(t: X, t_switch: X, speed: X, dt0: X, hold: float, hold_steps: float,

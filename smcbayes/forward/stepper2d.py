@@ -38,8 +38,9 @@ from smcbayes.forward.compaction2d import (
 )
 from smcbayes.forward.grid2d import FULL, Fluidity, Grid, PressureSolution, solve_pressure
 from smcbayes.forward.law2d import ChargeEffects, Law
-from smcbayes.forward.programme import PressProgramme, load_time
+from smcbayes.forward.programme import PressProgramme, load_time, load_travel
 from smcbayes.forward.result import STATUS_OK
+from smcbayes.forward.speeds2d import Balance, loaded_speed, speed_for_force
 from smcbayes.forward.spill2d import spill_with
 
 Array = NDArray[np.float64]
@@ -244,61 +245,14 @@ class Stepper:
         return max(free, 1e-6 * self.case.speed), beta
 
     def _loaded(self, st: State, sink: CompactionSink | None, free: float, beta: float) -> PressureSolution:
-        """Speed control by a ram that slows under load or a frame that deflects: the gap
-        closing speed V (m/s) with
-
-            V = free (1 - beta F(V) / F_limit) - (F(V) / k - delta) / dt,
-
-        ``free`` the ram's free speed (m/s), ``beta`` its load slowdown (-), ``delta`` the
-        frame's deflection at the start of the step (m) and dt the step the solve is taken
-        over (:attr:`dt`), by Illinois regula falsi on V.
-
-        The excess e(V) = V - free (1 - beta F / F_limit) + (F / k - delta) / dt rises with
-        V at a slope of at least 1 (F rises with V), so V - e(V) lies on the far side of
-        the root from V: from the last step's speed, solves at V - e(V), each held within a factor
-        8 of the last (a stiff frame puts V - e(V) at a vanishing speed, where the pressure
-        iteration of a compacting charge can stall), bracket it.  The pressure solve holds
-        F to about 1e-6, so the root is taken to that precision of the balance's terms (and
-        the bracket's better end once it has shrunk to round-off).
-        """
-        F_lim, fluidity = self.case.force_limit, self.fluidity(st)
-        floor, a = 1e-6 * self.case.speed, self.inv_k / self.dt
-
-        def excess(V: float) -> tuple[float, float, PressureSolution]:
-            sol = self._speed_solve(st, sink, V, fluidity)
-            return V, V - free * (1.0 - beta * sol.force / F_lim) + a * sol.force - st.delta / self.dt, sol
-
-        # from the last step's closing speed: with a compliant frame far below the ram's
+        """Speed control by a ram that slows under load or a frame that deflects, balanced
+        over the step :attr:`dt` from the state's deflection
+        (:func:`~smcbayes.forward.speeds2d.loaded_speed`)."""
+        fluidity, floor = self.fluidity(st), 1e-6 * self.case.speed
+        balance = Balance(free, beta, self.case.force_limit, self.inv_k, st.delta, self.dt)
         start = free if self.speed_guess is None else min(max(self.speed_guess, floor), free)
-        near = excess(start)
-        tol = 1e-6 * (free + a * near[2].force + st.delta / self.dt)
-        for _ in range(60):  # bracket the root, moving by at most 8x a solve
-            if abs(near[1]) <= tol:
-                return near[2]
-            far = excess(min(max(near[0] - near[1], near[0] / 8.0, floor), 8.0 * near[0]))
-            if far[1] * near[1] <= 0.0:
-                break
-            if far[0] <= floor:  # the load holds even a ram at rest
-                return far[2]
-            near = far
-        else:
-            raise SolverError(f"configuration '{self.case.id}': no closing speed balances the frame")
-        if abs(far[1]) <= tol:
-            return far[2]
-        lo, hi = (far, near) if near[1] > 0.0 else (near, far)
-        side = 0
-        for _ in range(60):
-            if hi[0] - lo[0] <= 1e-9 * free:
-                return min(lo, hi, key=lambda end: abs(end[1]))[2]
-            new = excess(hi[0] - hi[1] * (hi[0] - lo[0]) / (hi[1] - lo[1]))
-            if abs(new[1]) <= tol:
-                return new[2]
-            if new[1] < 0:
-                lo, hi, side = new, (hi if side != -1 else (hi[0], hi[1] / 2, hi[2])), -1
-            else:
-                hi, lo, side = new, (lo if side != 1 else (lo[0], lo[1] / 2, lo[2])), 1
-        raise SolverError(f"configuration '{self.case.id}': the balance of the ram's load slowdown "
-                          "and the frame's deflection did not converge")
+        return loaded_speed(lambda V: self._speed_solve(st, sink, V, fluidity), balance, start, floor,
+                            self.case.id)
 
     def _speed_solve(self, st: State, sink: CompactionSink | None, V: float,
                      fluidity: Fluidity | None = None) -> PressureSolution:
@@ -308,42 +262,9 @@ class Stepper:
         return sol
 
     def _force_by_speed(self, st: State, sink: CompactionSink) -> PressureSolution | None:
-        """Force control by regula falsi on the closing speed, with speed-controlled solves.
-
-        The fallback of the bordered Newton solve, which can stall when many compacting
-        cells switch on and off together.  The force increases with the speed; returns
-        None when even a vanishing speed needs more than the force limit (the press rests).
-        """
-        F_lim, floor = self.case.force_limit, 1e-6 * self.case.speed
-        V = self.speed_guess or self.case.speed
-        sol = self._speed_solve(st, sink, V)
-        lo: tuple[float, float] | None = None
-        hi: tuple[float, float] | None = None
-        for _ in range(60):
-            if sol.force < F_lim:
-                lo = (np.log(V), sol.force - F_lim)
-            else:
-                hi = (np.log(V), sol.force - F_lim)
-            if lo is not None and hi is not None:
-                break
-            V = 2.0 * V if hi is None else 0.5 * V
-            if V < floor:
-                return None
-            sol = self._speed_solve(st, sink, V)
-        if lo is None or hi is None:
-            raise SolverError(f"configuration '{self.case.id}': no closing speed gives the force limit")
-        side = 0
-        for _ in range(60):  # Illinois regula falsi in log V
-            x = hi[0] - hi[1] * (hi[0] - lo[0]) / (hi[1] - lo[1])
-            sol = self._speed_solve(st, sink, float(np.exp(x)))
-            g = sol.force - F_lim
-            if abs(g) <= 1e-6 * F_lim:
-                return sol
-            if g < 0:
-                lo, hi, side = (x, g), (hi if side != -1 else (hi[0], hi[1] / 2)), -1
-            else:
-                hi, lo, side = (x, g), (lo if side != 1 else (lo[0], lo[1] / 2)), 1
-        raise SolverError(f"configuration '{self.case.id}': force control did not converge")
+        """Force control by the closing speed (:func:`~smcbayes.forward.speeds2d.speed_for_force`)."""
+        return speed_for_force(lambda V: self._speed_solve(st, sink, V), self.speed_guess or self.case.speed,
+                               1e-6 * self.case.speed, self.case.force_limit, self.case.id)
 
     def _lag(self, st: State, sol: PressureSolution, sink: CompactionSink) -> float:
         """Implicit part of the force (N): sum of dt s P_c'(s) c over the compacting cells.
@@ -473,9 +394,7 @@ class Stepper:
             new_r = self.rates(new, False)
             if new_r is None:  # full: the gap stops and the ram loads the frame to the limit
                 self.record(new, r.force)
-                free, beta = self.ram_speed(new.t)
-                self.run.switch = new.t + float(load_time(r.force, case.force_limit, self.inv_k, free, beta,
-                                                          press.jump_time))
+                self.run.switch = new.t + self._frame_loading(new.t, r.force)
                 self.hold(new, self.run.switch)
                 return new, None
             if press.reaches_limit(new_r.force) and self.comp is not None:
@@ -493,6 +412,20 @@ class Stepper:
         self.run.switch = st.t
         self.record(st, press.force_limit)
         return st, r
+
+    def _frame_loading(self, t: float, force: float) -> float:
+        """Time (s) from the fill of the cavity at ``t`` (s), at ``force`` (N), to the force
+        limit: the gap stops, the ram runs on and loads the frame (a jump on a rigid one;
+        :func:`~smcbayes.forward.programme.load_travel`), at its free speed at the fill or
+        along the measured profile, as in the 1-D solver."""
+        case, jump = self.case, self.press.jump_time
+        free, beta = self.ram_speed(t)
+        if case.profile is None:
+            return float(load_time(force, case.force_limit, self.inv_k, free, beta, jump))
+        end = case.profile.time_after(t, float(load_travel(force, case.force_limit, self.inv_k, beta)))
+        if not np.isfinite(end):
+            raise SolverError(f"configuration '{case.id}': {AT_REST}")
+        return max(end - t, jump)
 
     def _locate_switch(self, st: State, r: Rates, dt: float, hi: Rates) -> tuple[State, Rates]:
         """Step from ``st`` that lands on the force limit (regula falsi in the step size)."""

@@ -168,6 +168,32 @@ def test_full_width_bar_follows_a_measured_ram_profile(effects: list[str]) -> No
         assert r2.switch_time_s[0] == pytest.approx(exact_fill + HeleShaw2DOptions().jump_time_s, rel=6e-3)
 
 
+@pytest.mark.parametrize("fidelity", ["1d", "2d"])
+def test_a_full_cavity_loads_the_frame_along_a_measured_profile(fidelity: str) -> None:
+    """An incompressible bar fills the cavity at about 10.9 s on a 200 kN/mm frame; the ram
+    then loads the frame to the limit.  A log that pauses for 5 s during the loading puts
+    the limit 5 s later than the constant set speed does, in both solvers; a log that ends
+    at rest before the limit fails at once."""
+    project = _project({"shape": "bar", "coverage_pct": 60.0}, speed_mm_s=0.3, cells=24, steps=60)
+    model = ForwardModel(project, effects=["press_compliance"], fidelity=fidelity)
+    theta = {**model.space.defaults(), **SHEAR, "B_Pa_s": 1e3, "tau_c_MPa": 0.01, "k_press_kN_mm": 200.0}
+    p = to_si({k: np.array([v]) for k, v in theta.items()}, model.space.parameters)
+
+    def run(t_s: list[float], x_mm: list[float] | None) -> SimulationResult:
+        case = model.cases["c"]
+        if x_mm is not None:
+            case = dataclasses.replace(case, profile=SpeedProfile(np.array(t_s), np.array(x_mm) * 1e-3))
+        return model.solver.solve(case, p, model.effects, model.project.material)
+
+    steady = run([], None)
+    paused = run([0.0, 12.0, 17.0, 200.0], [0.0, 3.6, 3.6, 3.6 + 183.0 * 0.3])
+    stopped = run([0.0, 12.0, 13.0], [0.0, 3.6, 3.6])
+    assert steady.status == paused.status == ["ok"]
+    assert steady.switch_time_s[0] > 20.0  # the loading takes longer than the 12 s to the pause
+    assert paused.switch_time_s[0] - steady.switch_time_s[0] == pytest.approx(5.0, abs=0.02)
+    assert stopped.status[0].startswith("failed") and "rest" in stopped.status[0]
+
+
 def test_a_profile_logged_into_the_hold_is_paced_by_its_closing() -> None:
     """A profile at the set speed whose log runs on through a 500 s hold gives the run at
     the constant set speed (paced by the whole log, its force was 6 % RMS off)."""

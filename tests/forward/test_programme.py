@@ -34,9 +34,9 @@ CASES = [
     (kernel._stretch, programme.closing_stretch,
      [np.array([0.0, 1e-3, 1e-3, 1e-6, 0.0]), np.array([np.nan, 0.0, 1e9, 1.0, np.inf]),
       np.array([np.nan, 0.0, 0.0, 1e-9, 0.0]), np.full(5, 1.2), np.full(5, 20.0), 1e-3, 1e6]),
-    (kernel._load_time, programme.load_time,
+    (kernel._load_travel, programme.load_travel,
      [np.array([1e5, 5e5, 1e5, 1.5e6, 0.0]), 1e6, np.array([1e-9, 1e-9, 0.0, 1e-9, 2e-8]),
-      np.full(5, 7e-4), np.array([0.0, 0.6, 0.3, 0.0, 0.9]), 0.05]),
+      np.array([0.0, 0.6, 0.3, 0.0, 0.9])]),
     (kernel._hold_step, programme.hold_step,
      [np.array([10.0, 10.0, 30.0, 11.0, 12.0]), np.full(5, 10.0), np.array([0.0, 1e-4, 1e-5, 0.0, 1.0]),
       np.full(5, 0.05), 60.0, 60.0, np.full(5, 2e-5)]),
@@ -80,6 +80,7 @@ def test_load_time_integrates_the_loading_of_the_frame(beta: float) -> None:
     assert float(programme.load_time(f0, limit, 1.0 / k, free, beta, 0.05)) == pytest.approx(t, rel=1e-5)
     assert float(programme.load_time(f0, limit, 0.0, free, beta, 0.05)) == 0.05
     assert float(programme.load_time(f0, limit, 1e-15, free, beta, 0.05)) == 0.05
+    assert float(programme.load_travel(1.2 * limit / max(beta, 0.5), limit, 1.0 / k, beta)) == 0.0
 
 
 def test_kernel_layout_covers_every_kernel_effect() -> None:
