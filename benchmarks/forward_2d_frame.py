@@ -23,17 +23,15 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
-from smcbayes.config import MaterialSpec, build_project, load_project
-from smcbayes.forward.case import Case
+from smcbayes.config import MaterialSpec, ProjectConfig, build_project, load_project
 from smcbayes.forward.hele_shaw2d import charge_effects
 from smcbayes.forward.model import ForwardModel
 from smcbayes.forward.parameters import to_si
+from smcbayes.forward.references import newtonian_bar_on_frame
 from smcbayes.forward.result import SimulationResult
 from smcbayes.forward.squeeze1d import material_table
 
@@ -45,54 +43,45 @@ SHEAR = {"n": 0.4, "tau_star_Pa": 1e4, "B_Pa_s": 2e4, "tau_c_MPa": 1.0}
 STIFF = {"n": 0.6, "tau_star_Pa": 1e4, "B_Pa_s": 1e5, "tau_c_MPa": 10.0}
 
 
-def _bar(steps: int, cells: int, mass_g: float | None = None, speed_mm_s: float = 0.3):
-    charge = {"shape": "bar", "coverage_pct": 60.0, "stack_height_mm": 8.0}
+def _bar(steps: int, cells: int, mass_g: float | None = None, speed_mm_s: float = 0.3) -> ProjectConfig:
+    """A 60 % full-width bar (configuration ``c``) on ``cells`` cells and ``steps`` steps."""
+    charge: dict[str, object] = {"shape": "bar", "coverage_pct": 60.0, "stack_height_mm": 8.0}
     if mass_g is not None:
         charge["mass_g"] = mass_g
+    press = {"speed_mm_s": speed_mm_s, "hold_s": 20.0}
     raw = {"solver": {"cells_2d": cells, "closing_steps_2d": steps},
-           "configuration": [{"id": "c", "charge": charge, "press": {"speed_mm_s": speed_mm_s, "hold_s": 20.0}}]}
+           "configuration": [{"id": "c", "charge": charge, "press": press}]}
     return build_project(raw, "bar.toml", Path("."))
 
 
-def exact_squeeze(case: Case, k: float) -> tuple[float, Callable[[np.ndarray], np.ndarray]]:
-    """Fill time (s) and force (kN) of the Newtonian bar on a frame of stiffness ``k`` (N/m)."""
-    W, h0, U, vol = case.width, case.gap0, case.speed, case.area0 * case.gap0
-    C = 8.0 * MU * W * (vol / (2.0 * W)) ** 3
-    h_full = vol / case.area_mould
-
-    def filled(t: float, y: np.ndarray) -> float:
-        return float(y[0] - h_full)
-
-    filled.terminal = True  # type: ignore[attr-defined]
-    sol = solve_ivp(lambda t, y: [-k * (y[0] - (h0 - U * t)) * y[0] ** 6 / C], (0.0, 1e3), [h0],
-                    method="Radau", rtol=1e-11, atol=1e-14, events=filled, dense_output=True)
-    return float(sol.t_events[0][0]), lambda t: k * (sol.sol(t)[0] - (h0 - U * t)) / 1e3
-
-
 def _run(model: ForwardModel, values: dict[str, float]) -> tuple[SimulationResult, float]:
+    """Configuration ``c`` at the defaults overridden by ``values`` (user units), and its wall time (s)."""
     theta = {**model.space.defaults(), **values}
+    batch = {k: np.array([v]) for k, v in theta.items() if k in model.space.names}
     t0 = time.perf_counter()
-    res = model.simulate_params({k: np.array([v]) for k, v in theta.items() if k in model.space.names})["c"]
+    res = model.simulate_params(batch)["c"]
     return res, time.perf_counter() - t0
 
 
 def _orders(errors: list[float]) -> list[float]:
+    """Observed orders between successive halvings of the step."""
     return [float(np.log2(a / b)) for a, b in zip(errors[:-1], errors[1:], strict=True)]
 
 
 def convergence() -> dict:
+    """Section 1: fill time and force errors against the exact squeeze, and their orders."""
     out = {}
     for cells in (24, 48):
         rows = []
         for steps in (30, 60, 120, 240):
             model = ForwardModel(_bar(steps, cells), effects=["press_compliance"], fidelity="2d")
             case = model.cases["c"]
-            t_fill, exact = exact_squeeze(case, K_SOFT * 1e6)
-            si = to_si({k: np.array([v]) for k, v in {**model.space.defaults(), **NEWTONIAN,
-                                                      "k_press_kN_mm": K_SOFT}.items()}, model.space.parameters)
+            t_fill, exact = newtonian_bar_on_frame(case, K_SOFT * 1e6, MU)
+            values = {**model.space.defaults(), **NEWTONIAN, "k_press_kN_mm": K_SOFT}
+            si = to_si({k: np.array([v]) for k, v in values.items()}, model.space.parameters)
+            table = material_table(si, MaterialSpec(), model.solver.tau)
             t0 = time.perf_counter()
-            run = model.solver.run_row(case, material_table(si, MaterialSpec(), model.solver.tau), MU, 0, None,
-                                       charge_effects(case, si, model.effects, 0))
+            run = model.solver.run_row(case, table, MU, 0, None, charge_effects(case, si, model.effects, 0))
             wall = time.perf_counter() - t0
             k_fill = int(np.argmax(np.array(run.gap) <= case.gap_full * (1.0 + 1e-9)))
             fill = run.t[k_fill]
@@ -111,7 +100,10 @@ def convergence() -> dict:
     return out
 
 
-def _versus_1d(project, effects: list[str], values: dict[str, float], rigid: list[str]) -> dict:
+def _versus_1d(project: ProjectConfig, effects: list[str], values: dict[str, float],
+               rigid: list[str]) -> dict:
+    """RMS force difference of the 2-D bar against the 1-D one with ``effects``, and how far
+    the frame moves the force (against the 2-D run with ``rigid``)."""
     r1, _ = _run(ForwardModel(project, effects=effects, fidelity="1d"), values)
     r2, wall = _run(ForwardModel(project, effects=effects, fidelity="2d"), values)
     r0, wall0 = _run(ForwardModel(project, effects=rigid, fidelity="2d"), values)
@@ -125,20 +117,24 @@ def _versus_1d(project, effects: list[str], values: dict[str, float], rigid: lis
 
 
 def against_1d() -> list[dict]:
+    """Section 2: the frame with the speed ramp and with compressibility, against 1-D."""
     cases = [
         _versus_1d(_bar(60, 48), ["press_compliance", "speed_ramp"],
-                   {**STIFF, "ramp_time_s": 0.5, "load_slowdown": 0.6, "k_press_kN_mm": 100.0}, ["speed_ramp"]),
+                   {**STIFF, "ramp_time_s": 0.5, "load_slowdown": 0.6, "k_press_kN_mm": 100.0},
+                   ["speed_ramp"]),
         _versus_1d(_bar(60, 24, mass_g=390.0, speed_mm_s=0.7), ["compressibility", "press_compliance"],
                    {**SHEAR, "k_press_kN_mm": 300.0}, ["compressibility"]),
     ]
     for c in cases:
         print(f"{' + '.join(c['effects'])}: {c['rms_vs_1d_pct']:.2f} % RMS against 1-D, switch "
               f"{c['switch_2d_s']:.3f} s (1-D {c['switch_1d_s']:.3f} s), the frame moves the force by "
-              f"{c['frame_moves_force_pct']:.0f} %, {c['seconds']:.1f} s (rigid frame {c['seconds_rigid']:.1f} s)")
+              f"{c['frame_moves_force_pct']:.0f} %, {c['seconds']:.1f} s "
+              f"(rigid frame {c['seconds_rigid']:.1f} s)")
     return cases
 
 
 def thesis_draws(draws: int, seed: int) -> dict:
+    """Section 3: prior draws on the thesis's centre charges with and without the frame."""
     if not DATA.is_dir():
         print(f"{DATA} not found: the thesis draws are skipped")
         return {}

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
 
 from smcbayes.config import MaterialSpec, ProjectConfig, build_project
 from smcbayes.errors import ConfigError
@@ -18,6 +16,7 @@ from smcbayes.forward.effects.base import Effect, EffectStack
 from smcbayes.forward.hele_shaw2d import HeleShaw2D, HeleShaw2DOptions, charge_effects, make_grid, spill
 from smcbayes.forward.model import ForwardModel
 from smcbayes.forward.parameters import to_si
+from smcbayes.forward.references import newtonian_bar_on_frame
 from smcbayes.forward.result import SimulationResult
 from smcbayes.forward.squeeze1d import material_table
 
@@ -340,31 +339,6 @@ def test_effects_the_solver_does_not_know_are_refused_with_a_clear_message() -> 
         HeleShaw2D().solve(model.cases["c"], p, EffectStack([PlugIn()]), MaterialSpec())
 
 
-def _soft_frame_squeeze(case: Case, k: float, mu: float) -> tuple[float, Callable[[np.ndarray], np.ndarray]]:
-    """Fill time (s) and force (kN) at given times of a Newtonian full-width bar on a frame of
-    stiffness ``k`` (N/m), by an implicit ODE solver at tight tolerance.
-
-    Planar squeeze flow of a bar of half-length a and width W: F = 8 mu V W a^3 / H^3, and
-    a H = vol / (2 W).  The frame holds F = k (H - X), X = H0 - U t the ram's gap, so
-    dH/dt = -V = -k (H - X) H^6 / C with C = 8 mu W (vol / (2 W))^3.
-    """
-    W, h0, U, vol = case.width, case.gap0, case.speed, case.area0 * case.gap0
-    C = 8.0 * mu * W * (vol / (2.0 * W)) ** 3
-    h_full = vol / case.area_mould
-
-    def filled(t: float, y: np.ndarray) -> float:
-        return float(y[0] - h_full)
-
-    filled.terminal = True  # type: ignore[attr-defined]
-    sol = solve_ivp(lambda t, y: [-k * (y[0] - (h0 - U * t)) * y[0] ** 6 / C], (0.0, 1e3), [h0],
-                    method="Radau", rtol=1e-11, atol=1e-14, events=filled, dense_output=True)
-
-    def force_kN(t: np.ndarray) -> np.ndarray:
-        return k * (sol.sol(t)[0] - (h0 - U * t)) / 1e3
-
-    return float(sol.t_events[0][0]), force_kN
-
-
 def test_soft_frame_bar_converges_to_the_exact_squeeze_at_first_order() -> None:
     """A Newtonian full-width bar on a soft frame (50 kN/mm: the gap lags the ram by up to
     3.4 mm, longer than the ram's travel to the fill): the force and the fill time against
@@ -378,7 +352,7 @@ def test_soft_frame_bar_converges_to_the_exact_squeeze_at_first_order() -> None:
         project = _project({"shape": "bar", "coverage_pct": 60.0}, speed_mm_s=0.3, cells=24, steps=steps)
         model = ForwardModel(project, effects=["press_compliance"], fidelity="2d")
         case = model.cases["c"]
-        t_fill, exact = _soft_frame_squeeze(case, k, MU)
+        t_fill, exact = newtonian_bar_on_frame(case, k, MU)
         theta = {**model.space.defaults(), "n": 0.5, "tau_star_Pa": 1e12, "B_Pa_s": MU, "tau_c_MPa": 1e12,
                  "m": 1.0, "k_press_kN_mm": k / 1e6}
         batch = {name: np.array([v]) for name, v in theta.items()}
