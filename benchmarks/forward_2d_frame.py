@@ -176,6 +176,7 @@ def main() -> None:
             print(f"{cid} {name}: {fails}/{len(rows)} failed, {np.median(secs):.1f} s median "
                   f"({min(secs):.1f}-{max(secs):.1f} s) a run")
     path = ROOT / "benchmarks" / "results" / "forward_2d_frame.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(result, indent=1))
     print(f"wrote {path}")
 
