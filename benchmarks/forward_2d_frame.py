@@ -163,6 +163,7 @@ def thesis_draws(draws: int, seed: int) -> dict:
 
 
 def main() -> None:
+    """Run the three sections, print their figures and write the JSON."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--draws", type=int, default=4, help="prior draws per thesis configuration")
     parser.add_argument("--seed", type=int, default=1, help="seed of the prior draws")

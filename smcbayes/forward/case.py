@@ -8,6 +8,7 @@ programme.  Build once per configuration, solve for many parameter vectors.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +38,12 @@ class SpeedProfile:
     time: Array
     position: Array
 
+    @cached_property
+    def closed(self) -> Array:
+        """The ram's closing up to each sample (m), ``(K,)``: the sum of its positive
+        increments, as :meth:`speed` moves it (an opening is a pause)."""
+        return np.concatenate([[0.0], np.cumsum(np.maximum(np.diff(self.position), 0.0))])
+
     def speed(self, t: Array) -> Array:
         """Closing speed (m/s) at times ``t`` (s): slope of the segment holding ``t`` (past
         the last sample, the last segment's; 0 where the ram opens)."""
@@ -54,13 +61,13 @@ class SpeedProfile:
         """Time (s) at which the ram has closed ``travel`` (m) more than at ``t0`` (s), counted
         as :meth:`speed` moves it (past the last sample at the last segment's speed); inf
         where the log ends at rest first."""
-        closed = np.concatenate([[0.0], np.cumsum(np.maximum(np.diff(self.position), 0.0))])
+        if not (np.isfinite(t0) and travel > 0.0):  # none left, or none known (NaN)
+            return t0 if travel <= 0.0 else np.nan
+        closed = self.closed
         last = float(self.speed(np.array([self.time[-1]]))[0])
         start = (float(np.interp(t0, self.time, closed)) if t0 <= self.time[-1]
                  else float(closed[-1]) + last * (t0 - float(self.time[-1])))
         target = start + travel
-        if travel <= 0.0:
-            return t0
         if target > closed[-1]:
             return float(self.time[-1]) + (target - float(closed[-1])) / last if last > 0.0 else np.inf
         i = max(int(np.searchsorted(closed, target, side="left")), 1)  # first sample at it
@@ -72,7 +79,7 @@ class SpeedProfile:
         all the closing the log holds if that is less: the speed that sets a solver's step.
         The closing is counted as :meth:`speed` moves the ram (an opening is a pause), and
         a log that runs on into the hold does not dilute it."""
-        closed = np.concatenate([[0.0], np.cumsum(np.maximum(np.diff(self.position), 0.0))])
+        closed = self.closed
         if not closed[-1] > 0.0:
             raise ConfigError("the measured ram profile never closes (closing is positive)")
         travel = min(travel, float(closed[-1])) if travel > 0.0 else float(closed[-1])

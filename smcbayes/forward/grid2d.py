@@ -346,7 +346,7 @@ def solve_pressure(grid: Grid, fill: Array, fluidity: Fluidity, speed: float | N
         # move several-fold over a step) can lead Newton astray; start from zero stress
         p, V, lin, it = _newton(problem, _first_pressure(grid, full, None, (fx, fy), fluidity, V, unknown,
                                                          force, sink, speed_floor), V)
-        it += max_iter  # the failed attempt's iterations count too
+        it += max_iter  # the failed attempt's iterations count too (at most this many)
     q_sink = np.zeros(full.shape) if sink is None else sink.rate(p)[0] * full
     total = V * grid.cell_area * where.size - float(q_sink.sum())
     inflow, face_flux = _inflow(p, fx, fy, lin.secant, full, total)

@@ -419,7 +419,7 @@ def _fill_stops(ctx: _Context, st: _State, force: Array, done: NDArray[np.bool_]
     jump = ~done & fills_and_stops(~ctx.compressible, st.area, c.area_mould, st.phase == PHASE_FORCE)
     if not np.any(jump):
         return jump
-    loading = _frame_loading(ctx, st, force)
+    loading = _frame_loading(ctx, st, force, jump)
     at_rest |= jump & np.isinf(loading)
     done |= at_rest
     jump &= ~at_rest
@@ -429,21 +429,25 @@ def _fill_stops(ctx: _Context, st: _State, force: Array, done: NDArray[np.bool_]
     return jump
 
 
-def _frame_loading(ctx: _Context, st: _State, force: Array) -> Array:
+def _frame_loading(ctx: _Context, st: _State, force: Array, rows: NDArray[np.bool_]) -> Array:
     """Time (s) from a fill of the cavity (incompressible charge, at ``force`` N) to the
-    force limit, ``(P,)``: the gap stops, the ram runs on and loads the frame (a jump of
-    ``jump_time`` on a rigid one; :func:`~smcbayes.forward.programme.load_travel`), at its
-    free speed at the fill or along the measured profile (inf where the log ends at rest
-    before the limit)."""
+    force limit, ``(P,)`` (``jump_time`` outside ``rows``): the gap stops, the ram runs on
+    and loads the frame (a jump of ``jump_time`` on a rigid one;
+    :func:`~smcbayes.forward.programme.load_travel`), at its free speed at the fill, or
+    along the measured profile with the speed ramp's factor at the fill held (inf where
+    the log ends at rest before the limit)."""
     c = ctx.case
     free, beta = ctx.effects.ram_speed(c, ctx.p, st.t, c.set_speed(st.t))
     if c.profile is None:
         with np.errstate(divide="ignore", invalid="ignore"):
             return load_time(force, c.force_limit, ctx.inv_k, np.maximum(free, 1e-6 * c.speed), beta,
                              ctx.press.jump_time)
-    travel = load_travel(force, c.force_limit, ctx.inv_k, beta)
-    ends = np.array([c.profile.time_after(t, x) for t, x in zip(st.t, travel, strict=True)])
-    return np.maximum(ends - st.t, ctx.press.jump_time)
+    factor = ctx.effects.ram_speed(c, ctx.p, st.t, np.ones_like(st.t))[0]  # the ramp's, on the log
+    travel = load_travel(force, c.force_limit, ctx.inv_k, beta) / np.maximum(factor, 1e-6)
+    out = np.full(st.t.shape, ctx.press.jump_time)
+    for r in np.flatnonzero(rows):
+        out[r] = max(c.profile.time_after(float(st.t[r]), float(travel[r])) - st.t[r], ctx.press.jump_time)
+    return out
 
 
 def _record(rec: dict[str, list[Array]], ctx: _Context, st: _State, force: Array) -> None:

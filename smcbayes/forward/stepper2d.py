@@ -417,12 +417,16 @@ class Stepper:
         """Time (s) from the fill of the cavity at ``t`` (s), at ``force`` (N), to the force
         limit: the gap stops, the ram runs on and loads the frame (a jump on a rigid one;
         :func:`~smcbayes.forward.programme.load_travel`), at its free speed at the fill or
-        along the measured profile, as in the 1-D solver."""
+        along the measured profile with the speed ramp's factor at the fill held, as in the
+        1-D solver."""
         case, jump = self.case, self.press.jump_time
         free, beta = self.ram_speed(t)
         if case.profile is None:
             return float(load_time(force, case.force_limit, self.inv_k, free, beta, jump))
-        end = case.profile.time_after(t, float(load_travel(force, case.force_limit, self.inv_k, beta)))
+        # the speed ramp's factor on the log's speed at the fill, held
+        factor = free / max(float(case.set_speed(np.array([t]))[0]), 1e-6 * case.speed)
+        travel = float(load_travel(force, case.force_limit, self.inv_k, beta)) / max(factor, 1e-6)
+        end = case.profile.time_after(t, travel)
         if not np.isfinite(end):
             raise SolverError(f"configuration '{case.id}': {AT_REST}")
         return max(end - t, jump)

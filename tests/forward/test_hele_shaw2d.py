@@ -191,6 +191,18 @@ def test_a_full_cavity_loads_the_frame_along_a_measured_profile(fidelity: str) -
     assert steady.switch_time_s[0] > 20.0  # the loading takes longer than the 12 s to the pause
     assert paused.switch_time_s[0] - steady.switch_time_s[0] == pytest.approx(5.0, abs=0.02)
     assert stopped.status[0].startswith("failed") and "rest" in stopped.status[0]
+    # with the speed ramp (still accelerating at the fill) and its load slowdown, a log at the
+    # set speed loads the frame as the constant set speed does
+    ramped = ForwardModel(project, effects=["press_compliance", "speed_ramp"], fidelity=fidelity)
+    values = {**theta, "ramp_time_s": 5.0, "load_slowdown": 0.3}
+    p_ramp = to_si({k: np.array([v]) for k, v in values.items() if k in ramped.space.names},
+                   ramped.space.parameters)
+    case = ramped.cases["c"]
+    at_set_speed = SpeedProfile(np.array([0.0, 300.0]), np.array([0.0, 300.0 * case.speed]))
+    runs = [ramped.solver.solve(c, p_ramp, ramped.effects, ramped.project.material)
+            for c in (case, dataclasses.replace(case, profile=at_set_speed))]
+    assert runs[0].status == runs[1].status == ["ok"]
+    assert runs[1].switch_time_s[0] == pytest.approx(runs[0].switch_time_s[0], abs=0.02)
 
 
 def test_a_profile_logged_into_the_hold_is_paced_by_its_closing() -> None:

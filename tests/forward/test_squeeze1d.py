@@ -167,6 +167,23 @@ def test_a_ram_profile_that_ends_at_rest_fails_at_once(make_project: Callable[..
     assert nodes.count[0] < 400  # stopped where the log ends, not at the iteration budget
 
 
+def test_the_time_a_ram_profile_takes_for_a_further_travel() -> None:
+    """Closes 2 mm in 2 s, pauses 1 s, opens 0.5 mm (a pause for the closing), recloses at
+    1 mm/s; past the log it runs on at its last speed, or not at all."""
+    log = SpeedProfile(np.array([0.0, 2.0, 3.0, 4.0, 5.0]), np.array([0.0, 2.0, 2.0, 1.5, 2.5]) * 1e-3)
+    mm = 1e-3
+    assert log.time_after(0.0, 1.0 * mm) == pytest.approx(1.0)
+    assert log.time_after(1.5, 0.5 * mm) == pytest.approx(2.0)  # exactly at a sample
+    assert log.time_after(1.5, 1.0 * mm) == pytest.approx(4.5)  # the pause and the opening pass
+    assert log.time_after(4.5, 1.0 * mm) == pytest.approx(5.5)  # past the log at 1 mm/s
+    assert log.time_after(6.0, 0.5 * mm) == pytest.approx(6.5)  # starting past the log
+    assert log.time_after(2.5, 0.0) == 2.5
+    assert np.isnan(log.time_after(np.nan, 1.0 * mm)) and np.isnan(log.time_after(1.0, np.nan))
+    at_rest = SpeedProfile(np.array([0.0, 2.0, 3.0]), np.array([0.0, 2.0, 2.0]) * 1e-3)
+    assert at_rest.time_after(1.0, 1.0 * mm) == pytest.approx(2.0)  # the last of the log
+    assert at_rest.time_after(1.0, 1.5 * mm) == np.inf
+
+
 def test_slower_speed_reaches_the_limit_later(make_project: Callable[..., ProjectConfig]) -> None:
     batch = {"n": [0.4], "tau_star_Pa": [1e4], "B_Pa_s": [1e5], "tau_c_MPa": [1.0], "m": [1.0]}
     switch, gap = {}, {}
