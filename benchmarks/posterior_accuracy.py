@@ -36,7 +36,7 @@ judged only when its reference can be trusted: the reference and its check have 
 <= 0.7 and agree with each other within half the targets.  Otherwise the case is
 reported as not judged, with all differences.
 
-    python benchmarks/posterior_accuracy.py [--cases 2 | --case K] [--refine 150]
+    python benchmarks/posterior_accuracy.py [--cases 2 | --case K] [--refine 150] [--emulator curves]
         [--correct-draws 14000] [--steps 10000] [--is-reference-draws 30000]
         [--reference-draws 120000] [--posterior-seeds 1] [--workdir DIR]
 
@@ -291,7 +291,8 @@ def run_case(k: int, truth: dict[str, float], args: argparse.Namespace, tmp: Pat
     cal = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))
     t_cal = timer()
     info = run_posterior(run_dir, PosteriorSettings(refine=args.refine, seed=k, steps=args.emulator_steps,
-                                                    functions=args.functions, correct_draws=args.correct_draws))
+                                                    functions=args.functions,
+                                                    correct_draws=args.correct_draws, emulator=args.emulator))
     t_post = timer() - t_cal
     n_eff = float(info["effective_points"]["n_eff_total"])
     exact, exact_evals, diag = exact_reference(run_dir, folder, n_eff, args.steps, k)
@@ -367,7 +368,8 @@ def rerun_posterior(run_dir: Path, args: argparse.Namespace, seed: int,
                     ref: tuple[np.ndarray, np.ndarray]) -> dict[str, Any]:
     """The posterior stage again with another seed; its differences from the reference."""
     info = run_posterior(run_dir, PosteriorSettings(refine=args.refine, seed=seed, steps=args.emulator_steps,
-                                                    functions=args.functions, correct_draws=args.correct_draws))
+                                                    functions=args.functions,
+                                                    correct_draws=args.correct_draws, emulator=args.emulator))
     samples = posterior_samples(run_dir)
     names = [str(j) for j in range(ref[0].shape[1])]
     cal = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))
@@ -469,6 +471,8 @@ def main() -> int:
                     help="most proposal draws of the importance correction (0: the emulator alone, the "
                          "default of an external simulator; the built-in simulator's default corrects "
                          "with the [posterior.correction] draws)")
+    ap.add_argument("--emulator", choices=("loss", "curves"), default=PosteriorSettings().emulator,
+                    help="what the stage's GP emulates (default: the stage's)")
     ap.add_argument("--tag", default="", help="suffix of the result file (e.g. the budget)")
     ap.add_argument("--peer", choices=("none", "pyvbmc"), default="none",
                     help="also run a peer on the same target (pyvbmc: pip install -e '.[bench]')")

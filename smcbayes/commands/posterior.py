@@ -29,6 +29,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "RUN_DIR/posterior/: posterior.nc (arviz), summary table, correlations, corner "
                     "plot, and predictive bands with coverage on the validation configurations "
                     "(figure, and bands/<id>.csv with the predictive mean, the point prediction). "
+                    "With --emulator curves the GP emulates each training configuration's force curve "
+                    "instead of the log loss, and the likelihood is computed from the emulated curves. "
                     "Settings come from the project's [posterior] table; the options override it.")
     p.add_argument("run_dir", help="directory of a `smcbayes calibrate` run")
     for name, kind, metavar in (("walkers", int, None), ("steps", int, None), ("functions", int, None),
@@ -38,6 +40,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        help=help_of(PosteriorSpec, name))
     p.add_argument("--pool-functions", action=argparse.BooleanOptionalAction, default=None,
                    help=help_of(PosteriorSpec, "pool_functions"))
+    p.add_argument("--emulator", choices=("loss", "curves"), default=None,
+                   help=help_of(PosteriorSpec, "emulator"))
     add_executor_options(p)
     p.set_defaults(run=run)
 
@@ -49,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
     run_dir = RunDir(args.run_dir)
     run_dir.require()
     project = run_dir.identity().project_config()
-    fields = ("walkers", "steps", "functions", "pool_functions", "refine", "draws", "correct_draws", "seed")
+    fields = ("emulator", "walkers", "steps", "functions", "pool_functions", "refine", "draws",
+              "correct_draws", "seed")
     settings = override(project.posterior, {k: getattr(args, k) for k in fields})
     run_dir.record_command("posterior", args.argv)
     with warnings.catch_warnings():
@@ -71,13 +76,23 @@ def print_summary(info: dict[str, Any]) -> None:
     for pair in info["correlation"]["strongest"]:
         print(f"correlated: {pair['a']} - {pair['b']}: r = {pair['r']:+.2f}")
     corr = info.get("correction") or {}
-    if corr.get("enabled"):
+    if corr.get("enabled") and corr.get("target") == "emulator":
+        print(f"the emulated posterior sampled by importance: {corr['draws']} emulator evaluations (no forward "
+              f"run), Pareto k-hat {corr['k_hat']:.2f}, importance ESS {corr['ess']:.0f} (emcee chains' table "
+              "in summary_emulator.csv)")
+    elif corr.get("enabled"):
         print(f"importance correction: {corr['evaluations']} forward evaluations, Pareto k-hat "
               f"{corr['k_hat']:.2f}, importance ESS {corr['ess']:.0f} (table above: corrected posterior; "
               "emulator-only table in summary_emulator.csv)")
     ec = info["emulator_check"]
     print(f"emulator check at {ec['points']} posterior draws: log-likelihood error "
           f"mean |e| {ec['mean_abs_error']:.3g} nats, max {ec['max_abs_error']:.3g} nats")
+    active = info.get("active_learning") or {}
+    if active.get("kind") == "curves":
+        error = active["error_nats"] if active["error_nats"] is not None else float("nan")
+        print(f"curve emulator: {active['evaluations']} forward runs ({active['start_runs']} at the "
+              f"calibration's points), {active['components']} principal components, last out-of-sample "
+              f"error {error:.2g} nats")
     spread = info.get("emulator_spread")
     if spread:
         pooled = " (their posteriors are pooled into the table above)" if spread.get("pooled") else ""

@@ -176,10 +176,19 @@ REFINE_CORRECTED = 400
 """... and when the importance correction follows, which needs the emulator as a proposal
 that covers the posterior, not validated to a nat."""
 
+REFINE_CURVES = 400
+"""Default active-learning budget of the curve emulator (``emulator = "curves"``), which
+learns from whole force curves and stops once validated."""
+
 
 class PosteriorSpec(Strict):
     """Settings of ``smcbayes posterior``; CLI options override them."""
 
+    emulator: Literal["loss", "curves"] = Field(
+        "loss", description="what the GP emulates: 'loss', the log loss (any loss settings); 'curves', "
+                            "each training configuration's force curve, the likelihood then computed from "
+                            "the emulated curves (a loss at the nominal contact without the displacement "
+                            "term, clipped 'none' or 'flow_stop')")
     walkers: int = Field(32, ge=4, le=10000, description="emcee walkers")
     steps: int = Field(10000, ge=1, le=10_000_000, description="maximum steps per chain")
     functions: int = Field(0, ge=0, le=1000,
@@ -198,7 +207,7 @@ class PosteriorSpec(Strict):
                     f"posterior could be large; it stops earlier once validated and GP sample "
                     f"functions no longer move the posterior); default {REFINE_EMULATED}, or "
                     f"{REFINE_CORRECTED} when the importance correction follows (it needs a "
-                    f"proposal, not a validated emulator)")
+                    f"proposal, not a validated emulator); {REFINE_CURVES} with the curve emulator")
     draws: int = Field(100, ge=1, le=1_000_000,
                        description="posterior draws through the forward model for bands and checks")
     seed: int = Field(0, ge=0, description="random seed (same seed, same posterior)")
@@ -226,7 +235,7 @@ class PosteriorSpec(Strict):
         """
         draws = self.correct_draws if self.correct_draws is not None else \
             (0 if slow else self.correction.draws)
-        refine = self.refine if self.refine is not None else \
+        refine = self.refine if self.refine is not None else REFINE_CURVES if self.emulator == "curves" else \
             (REFINE_CORRECTED if draws > 0 else REFINE_EMULATED)
         return self.model_copy(update={"correct_draws": draws, "refine": refine})
 

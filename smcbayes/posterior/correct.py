@@ -136,6 +136,8 @@ class ImportanceSample:
         draws_needed: when not settled, the proposal draws in all that would reach
             ``ess_target`` at the ESS's growth over the later iterations; None when the
             sample settled or :func:`draws_for_target` has no estimate.
+        target: what the weights are exact for: ``forward model`` (the correction) or
+            ``emulator`` (an emulated posterior sampled by importance sampling, no forward run).
     """
 
     unit: Array
@@ -150,6 +152,7 @@ class ImportanceSample:
     warnings: list[str] = field(default_factory=list)
     ess_target: float = math.inf
     draws_needed: int | None = None
+    target: str = "forward model"
 
     @property
     def weights(self) -> Array:

@@ -46,9 +46,22 @@ def _interval_share(space: ParameterSpace, row: Mapping[str, Any]) -> float:
     return (b - a) / (hi - lo) if hi > lo else math.nan
 
 
+def _emulator_sample_reasons(corr: Mapping[str, Any]) -> list[str]:
+    """Why an importance sample of the emulated posterior (no forward run) is not to be trusted."""
+    if not corr.get("k_hat", math.inf) <= K_HAT_WARN:
+        return [f"the importance sampling of the emulated posterior is unreliable (Pareto k-hat "
+                f"{corr['k_hat']:.2f} > {K_HAT_WARN}): the emulated posterior has regions its proposals "
+                "miss; raise --refine"]
+    if not corr.get("settled", False):
+        return [f"the importance sampling of the emulated posterior did not settle (ESS "
+                f"{float(corr.get('ess') or 0.0):.0f}); raise --refine"]
+    return []
+
+
 def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
     corr = info.get("correction") or {}
-    if corr.get("enabled"):
+    emulated = corr.get("target") == "emulator"
+    if corr.get("enabled") and not emulated:
         if not corr.get("k_hat", math.inf) <= K_HAT_WARN:
             return [f"the importance weights are unreliable (Pareto k-hat {corr['k_hat']:.2f} > "
                     f"{K_HAT_WARN}): the emulated posterior misses part of the exact one; raise "
@@ -63,12 +76,13 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
             of = f" of {target:.0f}" if math.isfinite(target) else ""
             return [f"the importance correction did not settle (ESS {ess:.0f}{of}); {advice}"]
         return []
-    out = []
+    out = _emulator_sample_reasons(corr) if corr.get("enabled") else []
     active = info.get("active_learning") or {}
     if active.get("enabled") and not active.get("converged"):
         out.append(_budget_reason(active))
     r_hat = max((p.get("r_hat", math.nan) for p in info.get("parameters") or []), default=math.nan)
-    if not r_hat <= R_HAT_MAX:
+    # an importance sample of the emulated posterior is judged by its weights, not the chains'
+    if not emulated and not r_hat <= R_HAT_MAX:
         out.append(f"the emulator chains did not converge (R-hat {r_hat:.2f} > {R_HAT_MAX}); run "
                    "longer (--steps)")
     check = (info.get("emulator_check") or {}).get("mean_abs_error", math.nan)

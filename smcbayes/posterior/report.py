@@ -88,11 +88,13 @@ def correction_info(corrected: Any, settings: Any) -> dict[str, Any]:
     """The ``correction`` block of the summary."""
     if corrected is None:
         return {"enabled": False, "draws": 0, "evaluations": 0}
-    return {"enabled": True, "draws": settings.correct_draws, "evaluations": corrected.evaluations,
+    emulated = corrected.target == "emulator"  # sampled on the emulator: no forward run
+    draws = int(sum(h["draws"] for h in corrected.history)) if emulated else settings.correct_draws
+    return {"enabled": True, "draws": draws, "evaluations": 0 if emulated else corrected.evaluations,
             "k_hat": corrected.k_hat, "ess": corrected.ess, "reliable": bool(corrected.k_hat <= K_HAT_WARN),
             "settled": corrected.settled, "ess_target": corrected.ess_target,
             "draws_needed": corrected.draws_needed, "points": int(corrected.unit.shape[0]),
-            "history": corrected.history}
+            "target": corrected.target, "history": corrected.history}
 
 
 def _tables(ctx: RunContext, chains: list, corrected: Any, rng: np.random.Generator) -> dict[str, Any]:
@@ -174,7 +176,8 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     warns += [] if corrected is None else list(corrected.warnings)
     attrs = {"n_eff": budget["n_eff_total"], "functions": emul.functions,
              "pooled_functions": len(chains) - emul.components,
-             "method": "emulator + importance correction" if corrected is not None else "emulator"}
+             "method": "emulator" if corrected is None else "emulator, importance sampled" if
+             corrected.target == "emulator" else "emulator + importance correction"}
     if corrected is not None:
         attrs.update(k_hat=corrected.k_hat, importance_ess=corrected.ess, correction_evaluations=corrected.evaluations)
     to_inference_data(space, chains, attrs, corrected, t["resampled"]).to_netcdf(str(out_dir / "posterior.nc"))

@@ -40,6 +40,7 @@ from smcbayes.posterior.context import (
 )
 from smcbayes.posterior.correct import correct
 from smcbayes.posterior.crossfit import LocalFit
+from smcbayes.posterior.curve_stage import curve_posterior, importance_sample
 from smcbayes.posterior.likelihood import effective_points, sandwich_points
 from smcbayes.posterior.reliability import assess
 from smcbayes.posterior.report import write_outputs
@@ -185,6 +186,32 @@ def _spread_and_pool(ctx: RunContext, surrogate: Any, n_eff: float, settings: Po
     return spread, pooled
 
 
+def _emulate(ctx: RunContext, calibration_gp: Any, n_eff: float, settings: PosteriorSettings,
+             rng: np.random.Generator, out_dir: Path) -> tuple[Any, list[Chains], dict[str, Any],
+                                                               tuple[Array, Array], dict[str, int], Any,
+                                                               int | None, float]:
+    """The emulator's active learning and the sampling of its posterior.
+
+    Returns:
+        The sampled emulator, its chains, the active learning's record, the emulator's data
+        ``(x_unit (N, d), log_loss (N,))``, what it started from, the log-loss GP and the
+        seed of the measurement that ended its active learning (``None`` for the curve
+        emulator) and the time the sampling began.
+    """
+    if settings.emulator == "curves":
+        emul, chains, active, data = curve_posterior(ctx, n_eff, settings, rng, out_dir)
+        start_points = {"calibration_gp": active["start_runs"], "local_search": 0}
+        return emul, chains, active, data, start_points, None, None, time.perf_counter()
+    data = emulator_start(ctx, calibration_gp.x_unit, calibration_gp.log_loss)
+    start_points = {"calibration_gp": int(calibration_gp.log_loss.size),
+                    "local_search": int(data[1].size - calibration_gp.log_loss.size)}
+    surrogate = fit_local(*data, n_eff, calibration_gp.kernel, settings.seed)
+    surrogate, data, active, ended = refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
+    t_sample = time.perf_counter()
+    emul, chains = sample(ctx, surrogate, n_eff, settings, rng)
+    return emul, chains, active, data, start_points, surrogate, ended, t_sample
+
+
 def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = None,
                   executor: Executor | None = None) -> dict[str, Any]:
     """The whole stage; returns the content of ``posterior/summary.json``.
@@ -206,18 +233,16 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         fit = local_fit(ctx)
         budget = residual_budget(ctx, fit)
         n_eff = budget["n_eff_total"]
-        data = emulator_start(ctx, calibration_gp.x_unit, calibration_gp.log_loss)
-        start_points = {"calibration_gp": int(calibration_gp.log_loss.size),
-                        "local_search": int(data[1].size - calibration_gp.log_loss.size)}
-        surrogate = fit_local(*data, n_eff, calibration_gp.kernel, settings.seed)
-        surrogate, data, active, ended = refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
-        t_sample = time.perf_counter()
-        emul, chains = sample(ctx, surrogate, n_eff, settings, rng)
+        emul, chains, active, data, start_points, surrogate, ended, t_sample = _emulate(
+            ctx, calibration_gp, n_eff, settings, rng, out_dir)
         t_correct = time.perf_counter()
-        corrected = correct_posterior(ctx, chains, n_eff, settings, rng, data) if settings.correct_draws > 0 else None
+        # the curve emulator's posterior is sampled by importance too, on the emulator alone
+        corrected = (correct_posterior(ctx, chains, n_eff, settings, rng, data) if settings.correct_draws > 0
+                     else importance_sample(emul, chains, settings, rng) if settings.emulator == "curves" else None)
         t_spread = time.perf_counter()
-        # the correction's weights judge a corrected posterior, and a noise-free one is degenerate
-        spread, pooled = (None, []) if corrected is not None or ctx.noise_free else \
+        # the correction's weights judge a corrected posterior, a noise-free one is degenerate,
+        # and the curve emulator carries its uncertainty in its likelihood (no sample functions)
+        spread, pooled = (None, []) if corrected is not None or ctx.noise_free or surrogate is None else \
             _spread_and_pool(ctx, surrogate, n_eff, settings, rng, chains, ended)
         t_outputs = time.perf_counter()
         info = write_outputs(ctx, emul, chains + pooled, budget, settings, rng, out_dir, corrected, fit)

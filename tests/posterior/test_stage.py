@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 from pathlib import Path
 from types import SimpleNamespace
@@ -12,8 +13,10 @@ import numpy as np
 import pytest
 
 from smcbayes.cli import main
+from smcbayes.config.specs import LossSpec
 from smcbayes.posterior.active import STABLE_ROUNDS
 from smcbayes.posterior.context import load_run
+from smcbayes.posterior.curves import CurveEmulator, CurveFeatures, CurveLossUnsupported
 from smcbayes.posterior.spread import SPREAD_MAX
 from smcbayes.surrogate.gp import load_surrogate
 
@@ -338,3 +341,75 @@ def test_the_correction_is_on_by_default_only_with_a_fast_simulator(tmp_path: Pa
     assert _begin(ctx(False, "native"), PosteriorSpec())[0].correct_draws == 0  # the 2-D solver
     assert _begin(ctx(False, "external"), PosteriorSpec())[0].correct_draws == 0
     assert _begin(ctx(False, "native"), PosteriorSpec(correct_draws=50))[0].correct_draws == 50
+
+
+def _rows(run: Path, count: int, seed: int) -> tuple[CurveFeatures, np.ndarray, np.ndarray, np.ndarray]:
+    ctx = load_run(run)
+    features = CurveFeatures(ctx.problem)
+    u = np.random.default_rng(seed).random((count, ctx.space.dim))
+    theta = ctx.space.from_unit(u)
+    y, ok = features.of(ctx.runner.simulate(theta, features.ids))
+    assert ok.all()
+    return features, u, y, ctx.runner.loss(theta)
+
+
+def test_the_features_give_the_loss_of_the_simulations(run_dir: Path) -> None:
+    features, _, y, loss = _rows(run_dir, 8, 0)
+    assert y.shape == (8, features.size)
+    np.testing.assert_allclose(features.loss(y), loss, rtol=1e-9)
+
+
+def test_a_loss_the_curves_cannot_give_is_refused(run_dir: Path) -> None:
+    problem = load_run(run_dir).problem
+    profiled = problem.project.model_copy(update={"loss": LossSpec(contact="profile", contact_offset_mm=0.3)})
+    with pytest.raises(CurveLossUnsupported, match="nominal contact"):
+        CurveFeatures(dataclasses.replace(problem, project=profiled))
+
+
+def test_the_emulator_interpolates_its_points_and_predicts_new_ones(run_dir: Path) -> None:
+    features, u, y, loss = _rows(run_dir, 60, 1)
+    emulator = CurveEmulator(features, u[:45], y[:45])
+    # at its own points the GP interpolates the curves (a nugget of at most 1e-1 of the variance)
+    np.testing.assert_allclose(emulator.loss(u[:45]), loss[:45], rtol=0.05)
+    held_out = np.abs(np.log(emulator.loss(u[45:])) - np.log(loss[45:]))
+    # the training curves' mean, the prediction of an emulator that learnt nothing, is far worse
+    mean_curve = np.repeat(y[:45].mean(axis=0, keepdims=True), 15, axis=0)
+    naive = np.abs(np.log(features.loss(mean_curve)) - np.log(loss[45:]))
+    assert np.median(held_out) < 0.2 * np.median(naive), (np.median(held_out), np.median(naive))
+    # the variance term raises the loss and the optimistic bound lowers it, both least at
+    # the training points, where the emulator is sure
+    mean_loss = emulator.loss(u[45:])
+    with_var, optimistic = emulator.loss(u[45:], variance=True), emulator.loss(u[45:], optimistic=True)
+    assert np.all(with_var > mean_loss) and np.all(optimistic < mean_loss)
+    for kind in ({"variance": True}, {"optimistic": True}):
+        np.testing.assert_allclose(emulator.loss(u[:45], **kind), emulator.loss(u[:45]), rtol=1e-3)
+
+
+def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path) -> None:
+    """``emulator = "curves"``: the truth inside the 90 % intervals, the slip pair's
+    correlation sign right, the runs counted and logged, and a rerun with the same settings
+    simulating nothing (every curve batch is seeded and kept in the stage's cache)."""
+    from smcbayes.posterior.stage import PosteriorSettings, run_posterior
+
+    settings = PosteriorSettings(emulator="curves", walkers=16, steps=1500, refine=120, draws=20,
+                                 correct_draws=0, seed=1)
+    folder = _fresh_copy(run_dir, tmp_path / "curves")
+    info = run_posterior(folder, settings)
+    truth = {"tau_c_MPa": 0.01, "m": 1.5}
+    for p in info["parameters"]:
+        assert p["q05"] <= truth[p["name"]] <= p["q95"], p
+    labels, r = info["correlation"]["labels"], np.array(info["correlation"]["matrix"])
+    assert r[labels.index("log10 tau_c_MPa"), labels.index("m")] > 0.2
+    active = info["active_learning"]
+    assert active["kind"] == "curves" and "emulator_spread" not in info
+    spent = active["evaluations"] - active["start_runs"]
+    assert 0 < spent <= 120 and active["start_runs"] == active["start_points"]["calibration_gp"]
+    assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5
+    log = [json.loads(line) for line in (folder / "posterior" / "refine.jsonl").read_text().splitlines()]
+    assert len(log) == active["rounds"] and log[-1]["forward_runs"] == spent
+    if active["converged"]:
+        assert all(rec["error_nats"] <= 1.0 for rec in log[-3:])
+    else:
+        assert not info["reliable"] and any("active learning" in r for r in info["reliability"]["reasons"])
+    again = run_posterior(folder, settings)
+    assert again["forward_runs_made"] == 0 and again["parameters"] == info["parameters"]
