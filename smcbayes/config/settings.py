@@ -188,7 +188,8 @@ class PosteriorSpec(Strict):
         "loss", description="what the GP emulates: 'loss', the log loss (any loss settings); 'curves', "
                             "each training configuration's force curve, the likelihood then computed from "
                             "the emulated curves (a loss at the nominal contact without the displacement "
-                            "term, clipped 'none' or 'flow_stop')")
+                            "term, clipped 'none' or 'flow_stop'; without a correction its posterior "
+                            "is sampled by importance on the emulator)")
     walkers: int = Field(32, ge=4, le=10000, description="emcee walkers")
     steps: int = Field(10000, ge=1, le=10_000_000, description="maximum steps per chain")
     functions: int = Field(0, ge=0, le=1000,

@@ -130,8 +130,9 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         wide = wide.reshape(-1, d)
         size = min(BATCH, budget - spent)
         half = max(1, size // 2)
-        new = np.vstack([draws[rng.choice(len(draws), half, replace=False)],
-                         wide[rng.choice(len(wide), size - half, replace=False)]])
+        # short chains (few walkers, long autocorrelation) may hold fewer rows than asked for
+        new = np.vstack([draws[rng.choice(len(draws), half, replace=half > len(draws))],
+                         wide[rng.choice(len(wide), size - half, replace=size - half > len(wide))]])
         quantiles = np.quantile(draws, [0.05, 0.5, 0.95], axis=0)
         shift = None if last is None else float(np.max(np.abs(quantiles - last)))
         last = quantiles

@@ -177,7 +177,8 @@ class CurveEmulator:
         features: the feature map of the problem.
         x: unit-cube training points ``(N, d)``.
         y: their features ``(N, K (n + 1))``.
-        tolerance: log-force reconstruction RMS error allowed on the best third of the rows.
+        tolerance: log-force reconstruction RMS error allowed on the best rows (a third of
+            them, at least 50).
         max_components: upper bound on the principal components.
     """
 
@@ -239,9 +240,9 @@ class CurveEmulator:
         if var is not None:
             nk = len(self.features.ids) * self.features.nodes
             var_log = var[:, :self.components] @ (self.basis ** 2)
-            s2 = np.mean((y[:, :nk] + FORCE_FLOOR_KN) ** 2 * var_log, axis=1)
+            s2 = self.features.spec.w_force * np.mean((y[:, :nk] + FORCE_FLOOR_KN) ** 2 * var_log, axis=1)
             if optimistic:
-                return np.maximum((np.sqrt(out) - np.sqrt(s2)) ** 2, 0.1 * out)
+                return np.maximum(np.sqrt(out) - np.sqrt(s2), np.sqrt(0.1 * out)) ** 2
             out = out + s2
         return out
 

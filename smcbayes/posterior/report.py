@@ -170,23 +170,28 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     space = ctx.space
     t = _tables(ctx, chains, corrected, rng)
     warns = warnings_for(t["raw"], chains)
+    emulated = corrected is not None and corrected.target == "emulator"
     if corrected is not None:
-        # the reported numbers are the corrected ones; the chains only shaped the proposal
-        warns = [f"emulator chains (proposal of the correction): {w}" for w in warns]
+        # the reported numbers are the importance sample's; the chains only shaped the proposal
+        of = "the importance sampling on the emulator" if emulated else "the correction"
+        warns = [f"emulator chains (proposal of {of}): {w}" for w in warns]
     warns += [] if corrected is None else list(corrected.warnings)
     attrs = {"n_eff": budget["n_eff_total"], "functions": emul.functions,
              "pooled_functions": len(chains) - emul.components,
              "method": "emulator" if corrected is None else "emulator, importance sampled" if
              corrected.target == "emulator" else "emulator + importance correction"}
     if corrected is not None:
-        attrs.update(k_hat=corrected.k_hat, importance_ess=corrected.ess, correction_evaluations=corrected.evaluations)
+        attrs.update(k_hat=corrected.k_hat, importance_ess=corrected.ess,
+                     correction_evaluations=0 if emulated else corrected.evaluations)
     to_inference_data(space, chains, attrs, corrected, t["resampled"]).to_netcdf(str(out_dir / "posterior.nc"))
     write_table(out_dir / "summary.csv", t["table"])
     if corrected is not None:
         write_table(out_dir / "summary_emulator.csv", t["raw"])
     # the check judges the emulator that was sampled (the GP mean, or the requested mixture),
     # not the pooled sample functions, whose disagreement the spread measures
-    emu = stack_components(chains[:emul.components])[0].reshape(-1, space.dim)
+    # (an emulated posterior sampled by importance: at its own equal-weight resample, which
+    # holds mass the chains under-sample)
+    emu = t["resampled"] if emulated else stack_components(chains[:emul.components])[0].reshape(-1, space.dim)
     check_unit = emu[rng.choice(emu.shape[0], size=min(settings.draws, emu.shape[0]), replace=False)]
     check = check_emulator(check_unit, lambda u: emul.log_loss(u),
                            lambda u: true_log_loss(ctx, space.from_unit(u)), emul.n_eff)

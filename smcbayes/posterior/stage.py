@@ -41,6 +41,7 @@ from smcbayes.posterior.context import (
 from smcbayes.posterior.correct import correct
 from smcbayes.posterior.crossfit import LocalFit
 from smcbayes.posterior.curve_stage import curve_posterior, importance_sample
+from smcbayes.posterior.curves import CurveFeatures
 from smcbayes.posterior.likelihood import effective_points, sandwich_points
 from smcbayes.posterior.reliability import assess
 from smcbayes.posterior.report import write_outputs
@@ -153,6 +154,8 @@ def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSetti
     if ctx.noise_free and settings.correct_draws is None:
         settings = settings.model_copy(update={"correct_draws": 0})  # no weights can resolve a spike
     settings = settings.resolved(slow)
+    if settings.emulator == "curves":
+        CurveFeatures(ctx.problem)  # a loss the curves cannot give is refused before any run
     if slow and settings.correct_draws > 0:
         # each correction draw inside the box is one run of the user's solver per configuration
         logger.warning("the importance correction may run the %s up to %d times on each of %d "

@@ -383,6 +383,11 @@ def test_the_emulator_interpolates_its_points_and_predicts_new_ones(run_dir: Pat
     assert np.all(with_var > mean_loss) and np.all(optimistic < mean_loss)
     for kind in ({"variance": True}, {"optimistic": True}):
         np.testing.assert_allclose(emulator.loss(u[:45], **kind), emulator.loss(u[:45]), rtol=1e-3)
+    # far from every point, where the emulator's sd exceeds the fit's error, the optimistic
+    # loss is still at most the mean curves' (floored at a tenth of it)
+    far = np.random.default_rng(7).random((200, u.shape[1]))
+    far_mean, far_optimistic = emulator.loss(far), emulator.loss(far, optimistic=True)
+    assert np.all(far_optimistic <= far_mean) and np.all(far_optimistic >= 0.1 * far_mean * (1 - 1e-12))
 
 
 def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path) -> None:
