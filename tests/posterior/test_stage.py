@@ -111,6 +111,17 @@ def test_correction_is_reported(run_dir: Path) -> None:
     assert "emulator_spread" not in info  # the correction's weights judge a corrected posterior
 
 
+def _truth_inside_and_slip_pair_positive(info: dict) -> dict[str, float]:
+    """Assert that the 90 % intervals hold the truth and that a later slip onset (larger
+    tau_c) goes with faster slip (larger m); returns the truth."""
+    truth = {"tau_c_MPa": 0.01, "m": 1.5}
+    for p in info["parameters"]:
+        assert p["q05"] <= truth[p["name"]] <= p["q95"], p
+    labels, r = info["correlation"]["labels"], np.array(info["correlation"]["matrix"])
+    assert r[labels.index("log10 tau_c_MPa"), labels.index("m")] > 0.2
+    return truth
+
+
 def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path) -> None:
     """The emulator's path (no correction, an external simulator's default): the truth in
     the 90 % intervals, the slip pair's correlation sign right, every round logged, and the
@@ -119,11 +130,7 @@ def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path
 
     settings = PosteriorSettings(walkers=16, steps=1500, refine=90, draws=20, correct_draws=0, seed=1)
     info = run_posterior(_fresh_copy(run_dir, tmp_path / "active"), settings)
-    truth = {"tau_c_MPa": 0.01, "m": 1.5}
-    for p in info["parameters"]:
-        assert p["q05"] <= truth[p["name"]] <= p["q95"], p
-    labels, r = info["correlation"]["labels"], np.array(info["correlation"]["matrix"])
-    assert r[labels.index("log10 tau_c_MPa"), labels.index("m")] > 0.2
+    truth = _truth_inside_and_slip_pair_positive(info)
     active = info["active_learning"]
     assert not info["correction"]["enabled"] and active["enabled"]
     spread = info["emulator_spread"]
@@ -400,11 +407,7 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path) -> None:
                                  correct_draws=0, seed=1)
     folder = _fresh_copy(run_dir, tmp_path / "curves")
     info = run_posterior(folder, settings)
-    truth = {"tau_c_MPa": 0.01, "m": 1.5}
-    for p in info["parameters"]:
-        assert p["q05"] <= truth[p["name"]] <= p["q95"], p
-    labels, r = info["correlation"]["labels"], np.array(info["correlation"]["matrix"])
-    assert r[labels.index("log10 tau_c_MPa"), labels.index("m")] > 0.2
+    _truth_inside_and_slip_pair_positive(info)
     active = info["active_learning"]
     assert active["kind"] == "curves" and "emulator_spread" not in info
     spent = active["evaluations"] - active["start_runs"]
