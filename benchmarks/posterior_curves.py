@@ -6,11 +6,14 @@ forward model, cached there) and, when present, the stage's own posterior of tha
 log-loss GP's active learning, the emulator path's default) for a comparison in the same
 run.  The curve emulator (:mod:`smcbayes.posterior.curves`) starts from the calibration's
 points, simulated again for their curves (counted as the calibration's), and learns
-actively; at each budget it is sampled with and without its variance term and compared
-with the reference: 5/50/95 % quantiles (share of the prior width; target 0.10),
-correlations (0.15), MMTV (0.2) and the Gaussianised symmetric KL.  Its error at 40 draws
-of its posterior is measured on the forward model (runs not counted in the budget).  The
-stage reports the posterior of the mean curves (the first figures printed).
+actively; at each budget its posterior is sampled by emcee chains, with and without its
+variance term, and compared with the reference: 5/50/95 % quantiles (share of the prior
+width; target 0.10), correlations (0.15), MMTV (0.2) and the Gaussianised symmetric KL.
+Its error at 40 draws of its posterior is measured on the forward model (runs not counted
+in the budget).  The stage reports the mean curves' posterior (the first figures printed),
+sampled by importance on the emulator instead of emcee, which reaches a flat arm the
+chains under-sample: ``posterior_accuracy.py --emulator curves --correct-draws 0`` judges
+the stage's own path.
 
     python benchmarks/posterior_accuracy.py --case 0 --workdir W      # first: reference
     python benchmarks/posterior_curves.py --case 0 --workdir W [--budgets 220,380,500,700,1000]
