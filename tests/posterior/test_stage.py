@@ -397,12 +397,15 @@ def test_the_emulator_interpolates_its_points_and_predicts_new_ones(run_dir: Pat
     assert np.all(far_optimistic <= far_mean) and np.all(far_optimistic >= 0.1 * far_mean * (1 - 1e-12))
 
 
-def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path) -> None:
+def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """``emulator = "curves"``: the truth inside the 90 % intervals, the slip pair's
     correlation sign right, the runs counted and logged, and a rerun with the same settings
     simulating nothing (every curve batch is seeded and kept in the stage's cache)."""
+    import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.stage import PosteriorSettings, run_posterior
 
+    # a small budget: the importance sampling's algorithm has its own tests
+    monkeypatch.setattr(curve_stage, "EMULATOR_DRAWS", 8000)
     settings = PosteriorSettings(emulator="curves", walkers=16, steps=1500, refine=120, draws=20,
                                  correct_draws=0, seed=1)
     folder = _fresh_copy(run_dir, tmp_path / "curves")
