@@ -160,11 +160,12 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
                             "error_nats": error, "quantile_shift": shift, "rounds": rounds}
 
 
-def curve_posterior(ctx: RunContext, n_eff: float, settings: PosteriorSpec, rng: np.random.Generator,
-                    out_dir: Path
+def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: PosteriorSpec,
+                    rng: np.random.Generator, out_dir: Path
                     ) -> tuple[CurveEmulation, list[Chains], dict[str, Any], tuple[Array, Array]]:
-    """The curve emulator's posterior: active learning, then the emcee chains of the
-    emulated posterior (of the GP mean's curves).
+    """The curve emulator's posterior: active learning from the calibration GP's points
+    ``start`` ``(N, d)`` (unit cube), then the emcee chains of the emulated posterior (of
+    the GP mean's curves).
 
     Returns:
         The sampled emulator, its chains (one ensemble), the active learning's record
@@ -178,9 +179,7 @@ def curve_posterior(ctx: RunContext, n_eff: float, settings: PosteriorSpec, rng:
     def simulate(u: Array) -> tuple[Array, NDArray[np.bool_]]:
         return features.of(ctx.runner.simulate(space.from_unit(u), features.ids))
 
-    from smcbayes.surrogate.gp import load_surrogate
-
-    start = np.asarray(load_surrogate(ctx.run.gp_path)[0].x_unit, dtype=float)
+    start = np.asarray(start, dtype=float)
     y0, ok = simulate(start)
     log_path = out_dir / "refine.jsonl"
     log_path.unlink(missing_ok=True)

@@ -202,7 +202,7 @@ def _emulate(ctx: RunContext, calibration_gp: Any, n_eff: float, settings: Poste
         emulator) and the time the sampling began.
     """
     if settings.emulator == "curves":
-        emul, chains, active, data = curve_posterior(ctx, n_eff, settings, rng, out_dir)
+        emul, chains, active, data = curve_posterior(ctx, calibration_gp.x_unit, n_eff, settings, rng, out_dir)
         start_points = {"calibration_gp": active["start_runs"], "local_search": 0}
         return emul, chains, active, data, start_points, None, None, time.perf_counter()
     data = emulator_start(ctx, calibration_gp.x_unit, calibration_gp.log_loss)
