@@ -22,8 +22,10 @@ per output on the residuals.  The expected loss adds the emulator's variance of 
 squared error, so that where the emulator is unsure the likelihood is lower, not
 arbitrary.
 
-Loss settings covered: contact at the nominal stack height, no displacement term, clip
-``none`` or ``flow_stop`` (:class:`CurveLossUnsupported` otherwise).
+Loss settings covered: contact at the nominal stack height or from each trial's end state
+(the end height, gap at the switch plus set speed times switch time, is one more emulated
+output per configuration), no displacement term, clip ``none`` or ``flow_stop``
+(:class:`CurveLossUnsupported` otherwise).
 """
 
 from __future__ import annotations
@@ -69,30 +71,39 @@ class CurveFeatures:
 
     def __init__(self, problem: Problem, nodes: int | None = None) -> None:
         spec = problem.project.loss
-        if spec.contact_mode != "nominal" or spec.w_displacement > 0 or spec.clip == "force_limit":
+        if spec.contact_mode == "profile" or spec.w_displacement > 0 or spec.clip == "force_limit":
             raise CurveLossUnsupported(
-                "the curve emulator covers a loss at the nominal contact, without the displacement "
-                f"term, clipped 'none' or 'flow_stop' (this project: contact '{spec.contact_mode}', "
-                f"w_displacement {spec.w_displacement}, clip '{spec.clip}')")
+                "the curve emulator covers a loss at the nominal contact or the contact of the end state, "
+                "without the displacement term, clipped 'none' or 'flow_stop' (this project: contact "
+                f"'{spec.contact_mode}', w_displacement {spec.w_displacement}, clip '{spec.clip}')")
         self.ids = list(problem.train_ids)
         self.spec = spec
         self.measured = [problem.dataset.measurements[cid] for cid in self.ids]
         self.nodes = int(nodes or problem.project.solver.output_closing_points)
         self.tau = np.linspace(0.0, 1.0, self.nodes)
         self.grid = np.linspace(0.0, 1.0, spec.grid_points)
+        self.end_state = spec.contact_mode == "end_state"
         if spec.clip == "flow_stop" and any(m.flow_stop_s is None for m in self.measured):
             raise CurveLossUnsupported("clip 'flow_stop' needs every training trial's flow-stop time")
+        if self.end_state and any(m.end_stack_mm is None or not m.speed_mm_s for m in self.measured):
+            raise CurveLossUnsupported("contact 'end_state' needs every training trial's end state and "
+                                       "set speed")
 
     @property
     def size(self) -> int:
-        """Features per row: K n forces (kN) and K switch times (s)."""
-        return len(self.ids) * (self.nodes + 1)
+        """Features per row: K n forces (kN), K switch times (s) and, with the contact of
+        the end state, K end heights (mm)."""
+        return len(self.ids) * (self.nodes + 1 + int(self.end_state))
 
     def of(self, results: Mapping[str, SimulationResult]) -> tuple[Array, NDArray[np.bool_]]:
-        """Features ``(P, K (n + 1))`` of simulated rows and the rows that succeeded ``(P,)``."""
-        forces, switches = [], []
+        """Features ``(P, size)`` of simulated rows and the rows that succeeded ``(P,)``.
+
+        The end height of a row is its gap at the switch plus the set speed times the
+        switch time (mm; :func:`smcbayes.data.loss.end_state_offsets_mm`): emulated as one
+        output rather than from the gap and the switch time, whose errors it would add."""
+        forces, switches, ends = [], [], []
         ok = np.ones(results[self.ids[0]].rows, dtype=bool)
-        for cid in self.ids:
+        for cid, m in zip(self.ids, self.measured, strict=True):
             r = results[cid]
             good = r.ok & np.all(np.isfinite(r.time_s), axis=1) & np.all(np.isfinite(r.force_kN), axis=1)
             t = np.where(good[:, None], r.time_s, np.arange(r.time_s.shape[1])[None, :])
@@ -100,11 +111,26 @@ class CurveFeatures:
             ts = np.where(good & np.isfinite(r.switch_time_s), r.switch_time_s, t[:, -1])
             forces.append(interp_rows(ts[:, None] * self.tau[None, :], t, f))
             switches.append(ts)
+            if self.end_state:
+                gap = interp_rows(ts[:, None], t, np.where(good[:, None], r.gap_mm, 0.0))[:, 0]
+                ends.append(gap + m.speed_mm_s * ts)
+                good &= np.isfinite(ends[-1])
             ok &= good
-        return np.hstack(forces + [np.column_stack(switches)]), ok
+        return np.hstack(forces + [np.column_stack(switches + ends)]), ok
+
+    def _delays(self, features: Array, k: int) -> Array:
+        """Configuration ``k``'s delay (s) of the simulated closing per row ``(P,)``: 0 at
+        the nominal contact; from the end state, the contact offset (clipped to
+        +-``contact_offset_mm`` when above 0) over the set speed."""
+        if not self.end_state:
+            return np.zeros(features.shape[0])
+        m, count = self.measured[k], len(self.ids)
+        offset = m.end_stack_mm - features[:, count * (self.nodes + 1) + k]
+        bound = self.spec.contact_offset_mm
+        return (np.clip(offset, -bound, bound) if bound > 0 else offset) / m.speed_mm_s
 
     def loss(self, features: Array) -> Array:
-        """The global loss ``(P,)`` (kN^2) of features ``(P, K (n + 1))``, as
+        """The global loss ``(P,)`` (kN^2) of features ``(P, size)``, as
         :func:`smcbayes.data.loss.evaluate_loss` computes it from the simulations."""
         k_count, n = len(self.ids), self.nodes
         rows = np.arange(features.shape[0])[:, None]
@@ -112,12 +138,14 @@ class CurveFeatures:
         for k, m in enumerate(self.measured):
             f = features[:, k * n:(k + 1) * n]
             ts = np.maximum(features[:, k_count * n + k], 1e-9)
+            delay = self._delays(features, k)
             tm, fm = m.force.time_s, m.force.values
             flow_stop = self.spec.clip == "flow_stop"
-            end = np.full(ts.shape, m.flow_stop_s) if flow_stop else np.maximum(ts, tm[-1])
+            end = np.full(ts.shape, m.flow_stop_s) if flow_stop else np.maximum(ts + delay, tm[-1])
             grid = end[:, None] * self.grid[None, :]
-            # evenly spaced nodes: the interpolation is index arithmetic; held beyond t_switch
-            x = np.clip(grid / ts[:, None], 0.0, 1.0) * (n - 1)
+            # evenly spaced nodes: the interpolation is index arithmetic; the first value held
+            # before the delayed contact, the switch value beyond the switch
+            x = np.clip((grid - delay[:, None]) / ts[:, None], 0.0, 1.0) * (n - 1)
             i = np.minimum(np.floor(x).astype(int), n - 2)
             w = x - i
             sim = f[rows, i] * (1.0 - w) + f[rows, i + 1] * w
@@ -152,17 +180,20 @@ def _concentrated_nll(params: Array, x: Array, z: Array) -> float:
     return float(0.5 * len(x) * np.sum(np.log(q / len(x))) + 0.5 * z.shape[1] * logdet)
 
 
-def fit_correlation(x: Array, z: Array) -> _Correlation:
+def fit_correlation(x: Array, z: Array, start: _Correlation | None = None) -> _Correlation:
     """ARD lengthscales and nugget of one Matern-5/2 correlation for outputs ``z (N, J)``
-    (standardised; constant columns are ignored), from two starts."""
+    (standardised; constant columns are ignored), from two fixed starts or from ``start``
+    (an earlier fit on fewer points, whose optimum moves little as points are added)."""
     z = z[:, z.std(axis=0) > 1e-12]
     z = z / z.std(axis=0) if z.shape[1] else np.zeros((len(x), 1))
     d = x.shape[1]
     bounds = [tuple(np.log(LENGTHSCALE_BOUNDS))] * d + [(np.log(1e-9), np.log(1e-1))]
     best = None
-    for ls, nug in ((0.3, 1e-4), (1.0, 1e-6)):
-        res = minimize(_concentrated_nll, np.array([np.log(ls)] * d + [np.log(nug)]), args=(x, z),
-                       method="L-BFGS-B", bounds=bounds)
+    starts = ([np.log(np.r_[start.lengthscales, max(start.nugget, 1e-9)])] if start is not None else
+              [np.array([np.log(ls)] * d + [np.log(nug)]) for ls, nug in ((0.3, 1e-4), (1.0, 1e-6))])
+    for x0 in starts:
+        res = minimize(_concentrated_nll, np.clip(x0, *np.array(bounds).T), args=(x, z), method="L-BFGS-B",
+                       bounds=bounds)
         best = res if best is None or res.fun < best.fun else best
     ls, nug = np.exp(best.x[:-1]), float(np.exp(best.x[-1]))
     chol = np.linalg.cholesky(matern52(x, x, ls) + (nug + 1e-8) * np.eye(len(x)))
@@ -170,21 +201,22 @@ def fit_correlation(x: Array, z: Array) -> _Correlation:
 
 
 class CurveEmulator:
-    """Principal components of the log force curves + switch times, a linear trend and a
-    shared-correlation GP (see the module docstring).
+    """Principal components of the log force curves + the scalar features (switch times,
+    end heights), a linear trend and a shared-correlation GP (see the module docstring).
 
     Args:
         features: the feature map of the problem.
         x: unit-cube training points ``(N, d)``.
-        y: their features ``(N, K (n + 1))``.
+        y: their features ``(N, features.size)``.
         tolerance: log-force reconstruction RMS error allowed on the best rows (a third of
             them, at least 50).
         max_components: upper bound on the principal components.
+        start: an earlier emulator of the same problem, whose correlation starts the fit.
     """
 
     def __init__(self, features: CurveFeatures, x: Array, y: Array, tolerance: float = 5e-4,
-                 max_components: int = 60) -> None:
-        self.features, self.x = features, x
+                 max_components: int = 60, start: CurveEmulator | None = None) -> None:
+        self.features, self.x, self.y = features, x, y
         nk = len(features.ids) * features.nodes
         logf = np.log(np.maximum(y[:, :nk], 0.0) + FORCE_FLOOR_KN)
         self.mean_log = logf.mean(axis=0)
@@ -199,12 +231,17 @@ class CurveEmulator:
                 break
         self.basis = vt[:j]
         self.components = j
-        ts = y[:, nk:]
-        self.ts_mean, self.ts_sd = ts.mean(axis=0), np.maximum(ts.std(axis=0), 1e-12)
-        z = np.hstack([centred @ self.basis.T, (ts - self.ts_mean) / self.ts_sd])
+        scalars = y[:, nk:]
+        self.scalar_mean, sd = scalars.mean(axis=0), scalars.std(axis=0)
+        # a feature constant to rounding (the end height while the ram keeps the set speed):
+        # standardised, its rounding noise would be an output of unit variance and raise the
+        # shared nugget of every output
+        self.scalar_sd = np.where(sd > 1e-9 * np.maximum(np.abs(self.scalar_mean), 1.0), sd, 1.0)
+        z = np.hstack([centred @ self.basis.T, (scalars - self.scalar_mean) / self.scalar_sd])
         self.trend = np.linalg.lstsq(self._h(x), z, rcond=None)[0]
         z = z - self._h(x) @ self.trend
-        self.corr = fit_correlation(x, np.hstack([z[:, :FIT_COMPONENTS], z[:, j:]]))
+        self.corr = fit_correlation(x, np.hstack([z[:, :FIT_COMPONENTS], z[:, j:]]),
+                                    None if start is None else start.corr)
         self.alpha = cho_solve((self.corr.chol, True), z)
         self.scale2 = np.einsum("ij,ij->j", z, self.alpha) / len(x)
 
@@ -213,7 +250,7 @@ class CurveEmulator:
         return np.hstack([np.ones((len(x), 1)), x])
 
     def predict(self, x: Array, variance: bool = False) -> tuple[Array, Array | None]:
-        """GP mean ``(P, J + K)`` of the outputs at ``x (P, d)`` and, if asked, their variance."""
+        """GP mean ``(P, J + S)`` of the outputs at ``x (P, d)`` and, if asked, their variance."""
         r = matern52(x, self.x, self.corr.lengthscales)
         mean = r @ self.alpha + self._h(x) @ self.trend
         if not variance:
@@ -223,10 +260,10 @@ class CurveEmulator:
         return mean, share[:, None] * self.scale2[None, :]
 
     def curves(self, outputs: Array) -> Array:
-        """Features ``(P, K (n + 1))`` of predicted outputs ``(P, J + K)``."""
+        """Features ``(P, size)`` of predicted outputs ``(P, J + S)`` (S scalar features)."""
         j = self.components
         force = np.exp(self.mean_log + outputs[:, :j] @ self.basis) - FORCE_FLOOR_KN
-        return np.hstack([force, self.ts_mean + outputs[:, j:] * self.ts_sd])
+        return np.hstack([force, self.scalar_mean + outputs[:, j:] * self.scalar_sd])
 
     def loss(self, x: Array, variance: bool = False, optimistic: bool = False) -> Array:
         """Emulated loss ``(P,)`` at ``x (P, d)``: of the mean curves; with ``variance`` plus
