@@ -223,7 +223,8 @@ class _Points:
 
 
 def correct(log_target: Callable[[Array], Array], start: Array, settings: CorrectionSettings,
-            rng: np.random.Generator, known: tuple[Array, Array] | None = None) -> ImportanceSample:
+            rng: np.random.Generator, known: tuple[Array, Array] | None = None,
+            label: str = "importance correction") -> ImportanceSample:
     """AMIS from the emulator draws ``start`` ``(N0, d)`` (unit cube) to the exact posterior.
 
     Iterations of ``settings.per_iteration`` draws run until ``settings.draws`` are spent
@@ -242,6 +243,7 @@ def correct(log_target: Callable[[Array], Array], start: Array, settings: Correc
         rng: the only source of randomness (same seed, same sample).
         known: exact log posterior already known at some points, ``(unit (K, d), (K,))``;
             they shape the first proposal (see :func:`seed_weights`), not the estimate.
+        label: what the progress and the log call the sampling.
     """
     sizes = _iteration_sizes(settings)
     proposals: list[Proposal] = [fit_proposal(*seed_weights(start, known), settings, rng, settings.widen_first)]
@@ -249,7 +251,7 @@ def correct(log_target: Callable[[Array], Array], start: Array, settings: Correc
     history: list[dict[str, float]] = []
     smoothed, k_hat, settled = np.empty(0), float("inf"), False
     chains = CentreChains(proposals[0].centres[: settings.chains].copy())
-    with Progress(settings.draws, "importance correction", "draw") as bar:
+    with Progress(settings.draws, label, "draw") as bar:
         for t, size in enumerate(sizes):
             new, kernel = proposals[-1].sample_indexed(size, rng)
             val, used = _evaluate(log_target, new, settings.batch)
@@ -272,7 +274,7 @@ def correct(log_target: Callable[[Array], Array], start: Array, settings: Correc
     sample = ImportanceSample(points.unit, points.target, smoothed, points.iteration, k_hat, ess_of(smoothed),
                               points.evaluations, history, settled, ess_target=settings.ess_target)
     sample.draws_needed = None if settled else draws_for_target(history, settings.ess_target)
-    logger.info("importance correction: %d forward runs, importance ESS %.0f, k-hat %.2f%s",
+    logger.info("%s: %d evaluations, importance ESS %.0f, k-hat %.2f%s", label,
                 sample.evaluations, sample.ess, sample.k_hat, "" if settled else " (not settled)")
     sample.warnings = correction_warnings(sample, stacklevel=3)
     return sample

@@ -111,11 +111,12 @@ def _budget_reason(active: dict[str, Any]) -> str:
         return (f"the active learning spent its {runs} forward runs while GP sample functions still moved "
                 f"a quantile of the posterior by {spread:.2g} of its range (> {SPREAD_MAX}) after "
                 f"{active.get('spread_checks')} measurement(s); raise --refine")
-    err = active.get("error_nats")
+    err, shift = active.get("error_nats"), active.get("quantile_shift")
     words = "not measured" if err is None else f"{err:.2g} nats"
+    moved = ("the quantiles' move between its last rounds not measured" if shift is None
+             else f"quantiles still moving by {shift:.2g} of their range")
     return (f"the active learning spent its {runs} forward runs before the emulator was validated "
-            f"where the posterior lies (last out-of-sample error {words}, quantiles still moving by "
-            f"{active.get('quantile_shift') or math.nan:.2g} of their range); raise --refine")
+            f"where the posterior lies (last out-of-sample error {words}, {moved}); raise --refine")
 
 
 def assess(info: Mapping[str, Any], space: ParameterSpace, best_loss_kN2: float | None,

@@ -169,7 +169,9 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     """
     space = ctx.space
     t = _tables(ctx, chains, corrected, rng)
-    warns = warnings_for(t["raw"], chains)
+    # the chains are the reported posterior only without importance weights: otherwise their
+    # warnings are kept in the summary, named as the proposal's, and not raised
+    warns = warnings_for(t["raw"], chains, warn=corrected is None)
     emulated = corrected is not None and corrected.target == "emulator"
     if corrected is not None:
         # the reported numbers are the importance sample's; the chains only shaped the proposal

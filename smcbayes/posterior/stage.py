@@ -40,7 +40,7 @@ from smcbayes.posterior.context import (
 )
 from smcbayes.posterior.correct import correct
 from smcbayes.posterior.crossfit import LocalFit
-from smcbayes.posterior.curve_stage import curve_posterior, importance_sample
+from smcbayes.posterior.curve_stage import curve_chains, curve_posterior, importance_sample
 from smcbayes.posterior.curves import CurveFeatures
 from smcbayes.posterior.likelihood import effective_points, sandwich_points
 from smcbayes.posterior.reliability import assess
@@ -156,6 +156,10 @@ def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSetti
     settings = settings.resolved(slow)
     if settings.emulator == "curves":
         CurveFeatures(ctx.problem)  # a loss the curves cannot give is refused before any run
+        if settings.functions > 0:
+            logger.warning("--functions %d draws sample functions of the log-loss emulator; the curve "
+                           "emulator's posterior is that of its mean curves, so it is ignored",
+                           settings.functions)
     if slow and settings.correct_draws > 0:
         # each correction draw inside the box is one run of the user's solver per configuration
         logger.warning("the importance correction may run the %s up to %d times on each of %d "
@@ -202,9 +206,10 @@ def _emulate(ctx: RunContext, calibration_gp: Any, n_eff: float, settings: Poste
         emulator) and the time the sampling began.
     """
     if settings.emulator == "curves":
-        emul, chains, active, data = curve_posterior(ctx, calibration_gp.x_unit, n_eff, settings, rng, out_dir)
+        emul, active, data = curve_posterior(ctx, calibration_gp.x_unit, n_eff, settings, rng, out_dir)
         start_points = {"calibration_gp": active["start_runs"], "local_search": 0}
-        return emul, chains, active, data, start_points, None, None, time.perf_counter()
+        t_sample = time.perf_counter()
+        return emul, curve_chains(emul, settings, rng), active, data, start_points, None, None, t_sample
     data = emulator_start(ctx, calibration_gp.x_unit, calibration_gp.log_loss)
     start_points = {"calibration_gp": int(calibration_gp.log_loss.size),
                     "local_search": int(data[1].size - calibration_gp.log_loss.size)}
@@ -252,8 +257,11 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         if spread is not None:
             info["emulator_spread"] = {**spread, "pooled": bool(pooled)}
     cache.close()
-    info["stage_seconds"] = {"setup_and_refine": t_sample - start, "emulator_sampling": t_correct - t_sample,
-                             "correction": t_spread - t_correct, "emulator_spread": t_outputs - t_spread,
+    sampling_s, correction_s = t_correct - t_sample, t_spread - t_correct
+    if corrected is not None and corrected.target == "emulator":  # importance sampling of the emulator
+        sampling_s, correction_s = sampling_s + correction_s, 0.0
+    info["stage_seconds"] = {"setup_and_refine": t_sample - start, "emulator_sampling": sampling_s,
+                             "correction": correction_s, "emulator_spread": t_outputs - t_spread,
                              "outputs": time.perf_counter() - t_outputs}
     info["active_learning"] = {**active, "start_points": start_points}
     _count_runs(info["forward_evaluations"], active["evaluations"], 2 * ctx.space.dim + 1)

@@ -1,0 +1,44 @@
+"""The curve emulator path's stopping rule: the posterior's move between rounds on common
+draws, and when rounds validate the emulator."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import norm
+
+from smcbayes.posterior.correct import ImportanceSample
+from smcbayes.posterior.curve_stage import QUANTILE_SHIFT, VALIDATED_ROUNDS, _validated, quantile_shift
+
+
+def _sample(centre: float, count: int = 20000, seed: int = 0) -> ImportanceSample:
+    """A normal posterior (sd 0.1) on the unit interval, sampled by importance from the
+    uniform prior."""
+    u = np.random.default_rng(seed).random((count, 1))
+    log_target = norm.logpdf(u[:, 0], centre, 0.1)
+    log_w = log_target - np.logaddexp.reduce(log_target)
+    return ImportanceSample(u, log_target, log_w, np.zeros(count, dtype=int), 0.0, 1.0 / np.sum(np.exp(2 * log_w)),
+                            0, target="emulator")
+
+
+def test_the_shift_is_the_move_of_the_quantiles_between_two_posteriors() -> None:
+    sample = _sample(0.5)
+    assert quantile_shift(sample, lambda u: norm.logpdf(u[:, 0], 0.5, 0.1)) < 1e-12
+    # a posterior 0.04 to the left: each quantile moves by 0.04 (up to the draws' noise,
+    # which the common draws keep well below the move)
+    moved = quantile_shift(sample, lambda u: norm.logpdf(u[:, 0], 0.46, 0.1))
+    assert abs(moved - 0.04) < 0.005, moved
+    # a posterior with no draw where it lies cannot be compared: infinitely far
+    assert quantile_shift(sample, lambda u: np.full(u.shape[0], -np.inf)) == np.inf
+
+
+def test_rounds_validate_only_when_stable_and_accurate_together() -> None:
+    small = [np.full(20, 0.5)] * VALIDATED_ROUNDS
+    stable = [QUANTILE_SHIFT / 2] * VALIDATED_ROUNDS
+    assert _validated(small, [None, *stable], 1.0)
+    assert not _validated(small[:-1], stable[:-1], 1.0)  # too few rounds
+    assert not _validated(small, [*stable[:-1], 2 * QUANTILE_SHIFT], 1.0)  # the last round moved
+    assert not _validated(small, [None, *stable[:-1]], 1.0)  # a round with nothing to compare
+    # every round must be within the tolerance: a good mean over the rounds is not enough
+    assert not _validated([np.full(20, 0.2), np.full(20, 0.2), np.full(20, 1.4)], stable, 1.0)
+    # earlier rounds do not count
+    assert _validated([np.full(20, 50.0), *small], stable, 1.0)
