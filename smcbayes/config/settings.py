@@ -179,7 +179,7 @@ that covers the posterior, not validated to a nat."""
 REFINE_CURVES = 600
 """Default active-learning budget of the curve emulator (``emulator = "curves"``), which
 learns from whole force curves and stops once validated (on the accuracy benchmark after
-280-400 runs; with the calibration's points, within the 1,000 runs its targets allow)."""
+360-480 runs, 420-540 with the calibration's points, or not within 600)."""
 
 
 class PosteriorSpec(Strict):

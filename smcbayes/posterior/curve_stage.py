@@ -59,8 +59,8 @@ TEMPER = 0.25
 VALIDATED_ROUNDS = 3
 """Rounds in a row whose out-of-sample error is within the tolerance and whose posterior
 quantiles moved by at most :data:`QUANTILE_SHIFT`, to stop.  Pooled over the rounds, the
-error let the accuracy benchmark's first case stop after 240 runs at 0.99 nats, its last
-round 1.3, with a quantile 0.12 of the prior width off."""
+error let the accuracy benchmark's first case stop after 240 active-learning runs at 0.99
+nats, its last round 1.3, with a quantile 0.12 of the prior width off."""
 
 QUANTILE_SHIFT = 0.05
 """Largest move of a 5/50/95 % quantile of the emulated posterior between rounds (share of
@@ -156,15 +156,17 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
            rng: np.random.Generator, walkers: int) -> _Round:
     """The next batch of ``size`` rows: half drawn from the emulated posterior, sampled by
     importance (:data:`ROUND_DRAWS` emulator evaluations; its first proposal fitted to the
-    earlier round's posterior draws ``start`` ``(S, d)`` and tempered draws, at least a
-    quarter of :data:`START_ROWS`), half from the tempered posterior of the optimistic loss
-    (emcee)."""
+    earlier round's posterior draws ``start`` ``(S, d)`` and tempered draws, a quarter of
+    :data:`START_ROWS` or as many as the chains hold; on the first round, whose ``start``
+    holds only the best training points, nearly all tempered), half from the tempered
+    posterior of the optimistic loss (emcee)."""
     d = emulator.x.shape[1]
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
     wide = sample_chains(emulator, n_eff, rng, centre, TEMPER, ROUND_STEPS, walkers,
                          optimistic=True).samples.reshape(-1, d)
-    # mostly the last round's posterior: the tempered draws alone, twice as wide in every
-    # direction, make a first proposal that wastes most of its draws in seven dimensions
+    # after the first round mostly the last round's posterior: the tempered draws alone,
+    # twice as wide in every direction, make a first proposal that wastes most of its draws
+    # in seven dimensions
     count = min(len(wide), max(START_ROWS // 4, START_ROWS - len(start)))
     share = wide[rng.choice(len(wide), count, replace=False)]
     sample = _emulator_sample(emulator, n_eff, np.vstack([start, share]), spec, ROUND_DRAWS, rng)
@@ -183,10 +185,12 @@ def quantile_shift(sample: ImportanceSample, before: Callable[[Array], Array]) -
     w = sample.weights
     keep = w > 0
     u, w = sample.unit[keep], w[keep]
-    log_ratio = before(u) - sample.log_target[keep]
-    if not np.any(np.isfinite(log_ratio)):
-        return float("inf")
+    # in batches: the emulator's correlation with its points is a (rows, points, d) array
+    old = np.concatenate([before(u[i:i + EMULATOR_BATCH]) for i in range(0, len(u), EMULATOR_BATCH)])
+    log_ratio = old - sample.log_target[keep]
     finite = np.isfinite(log_ratio)
+    if not np.any(finite):
+        return float("inf")
     w_before = w * np.exp(np.where(finite, log_ratio - np.max(log_ratio[finite]), -np.inf))
     q = [0.05, 0.5, 0.95]
     return float(max(np.max(np.abs(weighted_quantile(u[:, j], w, q)
@@ -217,10 +221,17 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
 
     Returns:
         The last emulator, its data and the record of the active learning (``evaluations``,
-        ``converged``, ``error_nats`` (pooled), ``quantile_shift``, ``rounds``).
+        ``converged``, ``rounds``, ``error_nats`` (the worst of the last rounds' errors),
+        ``quantile_shift`` (the last round's), ``last_errors_nats`` and
+        ``last_quantile_shifts`` (those of the last :data:`VALIDATED_ROUNDS` rounds; ``None``
+        for a round with nothing to compare, or a sample too thin to tell)).  The first
+        round has no earlier emulator to compare with, so the emulator can be validated
+        after ``VALIDATED_ROUNDS + 1`` rounds at the earliest.
     """
     spec = spec or CorrectionSettings()
-    spent, rounds, errors, shifts = 0, 0, [], []
+    spent, rounds = 0, 0
+    errors: list[Array] = []
+    shifts: list[float | None] = []
     before: Callable[[Array], Array] | None = None
     a = 0.5 * n_eff
     start = x[np.argsort(features.loss(y))[:walkers]]
@@ -245,7 +256,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         errors.append(np.abs(emulated - exact) if np.any(at) else np.array([np.inf]))
         x, y = np.vstack([x, step.new[ok]]), np.vstack([y, y_new[ok]])
         record = {"round": rounds, "training_points": len(x), "forward_runs": spent,
-                  "error_nats": float(np.mean(errors[-1])), "pooled_error_nats": _pooled(errors),
+                  "error_nats": _finite(np.mean(errors[-1])),
                   "quantile_shift": shifts[-1], "importance_ess": step.sample.ess, "k_hat": step.sample.k_hat,
                   "components": emulator.components, "lengthscales": emulator.corr.lengthscales.tolist(),
                   "seconds_fit_and_sampling": t1 - t0, "seconds_forward": time.perf_counter() - t1}
@@ -253,13 +264,16 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
                     rounds, len(x), record["error_nats"])
         if log is not None:
             log(record)
-    return emulator, x, y, {"evaluations": spent, "converged": converged, "error_nats": _pooled(errors),
-                            "quantile_shift": shifts[-1] if shifts else None, "rounds": rounds}
+    last = [_finite(np.mean(e)) for e in errors[-VALIDATED_ROUNDS:]]
+    worst = None if not last or None in last else max(last)
+    return emulator, x, y, {"evaluations": spent, "converged": converged, "rounds": rounds,
+                            "error_nats": worst, "quantile_shift": shifts[-1] if shifts else None,
+                            "last_errors_nats": last, "last_quantile_shifts": shifts[-VALIDATED_ROUNDS:]}
 
 
-def _pooled(errors: list[Array]) -> float | None:
-    """Mean absolute error (nats) over the last :data:`VALIDATED_ROUNDS` rounds' draws."""
-    return float(np.mean(np.concatenate(errors[-VALIDATED_ROUNDS:]))) if errors else None
+def _finite(value: float) -> float | None:
+    """``value`` as a float, ``None`` where it is not finite (JSON has no infinity)."""
+    return float(value) if np.isfinite(value) else None
 
 
 def _validated(errors: list[Array], shifts: list[float | None], tolerance_nats: float) -> bool:
@@ -308,6 +322,7 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
                                    settings.refine_tolerance_nats, rng, log, settings.walkers,
                                    settings.correction)
     active = {"enabled": True, "kind": "curves", **record, "start_runs": int(start.shape[0]),
+              "tolerance_nats": float(settings.refine_tolerance_nats),
               "evaluations": record["evaluations"] + int(start.shape[0]), "components": emulator.components}
     return CurveEmulation(emulator, n_eff), active, (x, np.log(features.loss(y)))
 
@@ -318,6 +333,9 @@ def curve_chains(emulation: CurveEmulation, settings: PosteriorSpec,
     posterior, from the best training point."""
     emulator = emulation.emulator
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
+    if settings.steps > CHAIN_STEPS:
+        logger.info("curve emulator: %d emcee steps, not %d: the chains only start the importance sampling",
+                    CHAIN_STEPS, settings.steps)
     return [sample_chains(emulator, emulation.n_eff, rng, centre, 1.0, min(settings.steps, CHAIN_STEPS),
                           settings.walkers, label=" (curve emulator)")]
 
@@ -328,7 +346,8 @@ def _emulator_sample(emulator: CurveEmulator, n_eff: float, start: Array, spec: 
     draws ``start`` ``(S, d)``: the correction's algorithm with the emulator as its target,
     at most ``draws`` emulator evaluations and no forward run."""
     spec = spec.model_copy(update={"draws": draws, "batch": EMULATOR_BATCH,
-                                   "per_iteration": EMULATOR_ITERATION})
+                                   "per_iteration": EMULATOR_ITERATION,
+                                   "ess_target": max(spec.ess_target, 2 * ROUND_ESS)})
     if len(start) > START_ROWS:  # the first proposal's mixture fit needs no more
         start = start[rng.choice(len(start), START_ROWS, replace=False)]
     with warnings.catch_warnings():

@@ -13,7 +13,8 @@ model calibration using high-dimensional output", JASA 103, 570).
 
 Features of one parameter row: each training configuration's force at ``n`` nodes evenly
 spaced in time over [0, t_switch] (the built-in solver's own closing output nodes, so
-nothing is lost in the resampling) and its switch time t_switch.  The emulator: principal
+nothing is lost in the resampling), its switch time t_switch and, with the contact of the
+end state, its end height (mm).  The emulator: principal
 components of log(F + 1 kN) over the training rows (as many as bring the reconstruction
 error of the best third of the rows below ``tolerance``), a linear trend in the unit-cube
 coordinates by least squares, and a GP with one Matern-5/2 correlation (ARD lengthscales,
@@ -61,8 +62,9 @@ class CurveLossUnsupported(ConfigError):
 
 
 class CurveFeatures:
-    """The loss's view of a simulation: force at nodes evenly spaced over [0, t_switch]
-    and t_switch, per training configuration.
+    """The loss's view of a simulation: force at nodes evenly spaced over [0, t_switch],
+    t_switch and, with the contact of the end state, the end height, per training
+    configuration.
 
     Args:
         problem: the calibration problem (training configurations, data, loss, solver).
@@ -113,8 +115,9 @@ class CurveFeatures:
             switches.append(ts)
             if self.end_state:
                 gap = interp_rows(ts[:, None], t, np.where(good[:, None], r.gap_mm, 0.0))[:, 0]
-                ends.append(gap + m.speed_mm_s * ts)
-                good &= np.isfinite(ends[-1])
+                end = gap + m.speed_mm_s * ts
+                # the loss places such a row at the nominal contact (offset 0)
+                ends.append(np.where(np.isfinite(end), end, m.end_stack_mm))
             ok &= good
         return np.hstack(forces + [np.column_stack(switches + ends)]), ok
 
@@ -189,6 +192,7 @@ def fit_correlation(x: Array, z: Array, start: _Correlation | None = None) -> _C
     d = x.shape[1]
     bounds = [tuple(np.log(LENGTHSCALE_BOUNDS))] * d + [(np.log(1e-9), np.log(1e-1))]
     best = None
+    # one start from an earlier fit: a fit per round of the active learning, at half the cost
     starts = ([np.log(np.r_[start.lengthscales, max(start.nugget, 1e-9)])] if start is not None else
               [np.array([np.log(ls)] * d + [np.log(nug)]) for ls, nug in ((0.3, 1e-4), (1.0, 1e-6))])
     for x0 in starts:
@@ -236,8 +240,10 @@ class CurveEmulator:
         # a feature constant to rounding (the end height while the ram keeps the set speed):
         # standardised, its rounding noise would be an output of unit variance and raise the
         # shared nugget of every output
-        self.scalar_sd = np.where(sd > 1e-9 * np.maximum(np.abs(self.scalar_mean), 1.0), sd, 1.0)
-        z = np.hstack([centred @ self.basis.T, (scalars - self.scalar_mean) / self.scalar_sd])
+        varies = sd > 1e-9 * np.maximum(np.abs(self.scalar_mean), 1.0)
+        self.scalar_sd = np.where(varies, sd, 1.0)
+        scaled = np.where(varies, scalars - self.scalar_mean, 0.0) / self.scalar_sd
+        z = np.hstack([centred @ self.basis.T, scaled])
         self.trend = np.linalg.lstsq(self._h(x), z, rcond=None)[0]
         z = z - self._h(x) @ self.trend
         self.corr = fit_correlation(x, np.hstack([z[:, :FIT_COMPONENTS], z[:, j:]]),

@@ -21,6 +21,7 @@ from typing import Any
 
 from smcbayes.forward.parameters import ParameterSpace
 from smcbayes.posterior.correct import K_HAT_WARN, draws_advice
+from smcbayes.posterior.curve_stage import QUANTILE_SHIFT
 from smcbayes.posterior.spread import SPREAD_MAX
 
 R_HAT_MAX = 1.05
@@ -111,12 +112,28 @@ def _budget_reason(active: dict[str, Any]) -> str:
         return (f"the active learning spent its {runs} forward runs while GP sample functions still moved "
                 f"a quantile of the posterior by {spread:.2g} of its range (> {SPREAD_MAX}) after "
                 f"{active.get('spread_checks')} measurement(s); raise --refine")
+    if active.get("kind") == "curves":
+        return _curve_budget_reason(active)
     err, shift = active.get("error_nats"), active.get("quantile_shift")
     words = "not measured" if err is None else f"{err:.2g} nats"
     moved = ("the quantiles' move between its last rounds not measured" if shift is None
              else f"quantiles still moving by {shift:.2g} of their range")
     return (f"the active learning spent its {runs} forward runs before the emulator was validated "
             f"where the posterior lies (last out-of-sample error {words}, {moved}); raise --refine")
+
+
+def _curve_budget_reason(active: dict[str, Any]) -> str:
+    """Why the curve emulator's active learning was not validated: its last rounds' errors
+    and quantile moves, each of which must be within its bound."""
+    def words(values: list[float | None], unit: str) -> str:
+        return ", ".join("not measured" if v is None else f"{v:.2g}{unit}" for v in values) or "none"
+
+    errors, shifts = active.get("last_errors_nats") or [], active.get("last_quantile_shifts") or []
+    return (f"the active learning spent its {active.get('evaluations')} forward runs before the emulator was "
+            f"validated where the posterior lies (its last rounds' errors at fresh posterior draws "
+            f"{words(errors, ' nats')}, each to be within {active.get('tolerance_nats', math.nan):.2g}; "
+            f"their quantile moves {words(shifts, '')}, each to be at most {QUANTILE_SHIFT} of the range); "
+            "raise --refine")
 
 
 def assess(info: Mapping[str, Any], space: ParameterSpace, best_loss_kN2: float | None,

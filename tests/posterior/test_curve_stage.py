@@ -7,7 +7,13 @@ import numpy as np
 from scipy.stats import norm
 
 from smcbayes.posterior.correct import ImportanceSample
-from smcbayes.posterior.curve_stage import QUANTILE_SHIFT, VALIDATED_ROUNDS, _validated, quantile_shift
+from smcbayes.posterior.curve_stage import (
+    QUANTILE_SHIFT,
+    VALIDATED_ROUNDS,
+    _choose,
+    _validated,
+    quantile_shift,
+)
 
 
 def _sample(centre: float, count: int = 20000, seed: int = 0) -> ImportanceSample:
@@ -29,6 +35,19 @@ def test_the_shift_is_the_move_of_the_quantiles_between_two_posteriors() -> None
     assert abs(moved - 0.04) < 0.005, moved
     # a posterior with no draw where it lies cannot be compared: infinitely far
     assert quantile_shift(sample, lambda u: np.full(u.shape[0], -np.inf)) == np.inf
+    # draws the earlier posterior rules out (-inf, or NaN from a failed evaluation) carry no
+    # weight under it: without the left half, the 5 % quantile moves most, to the normal's
+    # 52.5 % quantile
+    cut = quantile_shift(sample, lambda u: np.where(u[:, 0] < 0.5, np.nan, norm.logpdf(u[:, 0], 0.5, 0.1)))
+    assert abs(cut - (norm.ppf(0.525, 0.5, 0.1) - norm.ppf(0.05, 0.5, 0.1))) < 0.01, cut
+
+
+def test_choose_draws_distinct_points_by_weight_and_repeats_only_when_it_must() -> None:
+    rng = np.random.default_rng(0)
+    w = np.array([0.5, 0.3, 0.2, 0.0, 0.0])
+    picked = _choose(w, 3, rng)
+    assert sorted(picked.tolist()) == [0, 1, 2]  # no point without weight, none twice
+    assert set(_choose(w, 5, rng).tolist()) <= {0, 1, 2}  # more than carry weight: repeats
 
 
 def test_rounds_validate_only_when_stable_and_accurate_together() -> None:

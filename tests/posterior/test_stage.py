@@ -439,9 +439,10 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5
     log = [json.loads(line) for line in (folder / "posterior" / "refine.jsonl").read_text().splitlines()]
     assert len(log) == active["rounds"] and log[-1]["forward_runs"] == spent
-    if active["converged"]:
-        assert all(rec["error_nats"] <= 1.0 and rec["quantile_shift"] <= 0.05 for rec in log[-3:])
-    else:
-        assert not info["reliable"] and any("active learning" in r for r in info["reliability"]["reasons"])
+    # three rounds: the first has no earlier emulator to compare with, so the three rounds
+    # a validation needs cannot all be compared, and the stage says so
+    assert active["rounds"] == 3 and not active["converged"] and log[0]["quantile_shift"] is None
+    assert not info["reliable"]
+    assert any("not measured" in r and "active learning" in r for r in info["reliability"]["reasons"])
     again = run_posterior(folder, settings)
     assert again["forward_runs_made"] == 0 and again["parameters"] == info["parameters"]
