@@ -427,6 +427,7 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
 
     # a small budget: the importance sampling's algorithm has its own tests
     monkeypatch.setattr(curve_stage, "EMULATOR_DRAWS", 8000)
+    monkeypatch.setattr(curve_stage, "ROUND_DRAWS", 4000)
     settings = PosteriorSettings(emulator="curves", walkers=16, steps=1500, refine=120, draws=20,
                                  correct_draws=0, seed=1)
     folder = _fresh_copy(run_dir, tmp_path / "curves")
