@@ -6,9 +6,10 @@ forward model, cached there) and, when present, the stage's own posterior of tha
 log-loss GP's active learning, the emulator path's default) for a comparison in the same
 run.  The curve emulator (:mod:`smcbayes.posterior.curves`) starts from the calibration's
 points, simulated again for their curves (counted as the calibration's), and learns
-actively (its stopping rule off, so every budget is spent); at each budget its posterior
-is sampled as the stage samples it, by importance on the emulator from emcee draws, and
-compared with the reference: 5/50/95 % quantiles (share of the prior width; target 0.10),
+actively (its stopping rule off, so every budget is spent; each budget's learning starts
+afresh from the last one's points); at each budget its posterior is sampled, as the stage
+reports it, by importance on the emulator (from 10,000 emcee steps, the stage's chains
+stop at 3,000), and compared with the reference: 5/50/95 % quantiles (share of the prior width; target 0.10),
 correlations (0.15), MMTV (0.2) and the Gaussianised symmetric KL; the emcee draws alone
 are judged too.  Its error at 40 draws of its posterior is measured on the forward model
 (runs not counted in the budget).  ``posterior_accuracy.py --emulator curves
