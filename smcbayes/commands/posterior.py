@@ -92,8 +92,8 @@ def print_summary(info: dict[str, Any]) -> None:
         error = active["error_nats"] if active["error_nats"] is not None else float("nan")
         verdict = "validated" if active.get("converged") else "not validated (budget spent)"
         print(f"curve emulator: {active['evaluations']} forward runs ({active['start_runs']} at the "
-              f"calibration's points), {active['components']} principal components, out-of-sample "
-              f"error {error:.2g} nats over its last rounds, {verdict}")
+              f"calibration's points), {active['components']} principal components, worst "
+              f"out-of-sample error of its last rounds {error:.2g} nats, {verdict}")
     spread = info.get("emulator_spread")
     if spread:
         pooled = " (their posteriors are pooled into the table above)" if spread.get("pooled") else ""

@@ -261,7 +261,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
                   "components": emulator.components, "lengthscales": emulator.corr.lengthscales.tolist(),
                   "seconds_fit_and_sampling": t1 - t0, "seconds_forward": time.perf_counter() - t1}
         logger.info("curve emulator round %d: %d points, error %.2f nats at fresh posterior draws",
-                    rounds, len(x), record["error_nats"])
+                    rounds, len(x), float(np.mean(errors[-1])))
         if log is not None:
             log(record)
     last = [_finite(np.mean(e)) for e in errors[-VALIDATED_ROUNDS:]]
