@@ -22,7 +22,8 @@ def _sample(centre: float, count: int = 20000, seed: int = 0) -> ImportanceSampl
     u = np.random.default_rng(seed).random((count, 1))
     log_target = norm.logpdf(u[:, 0], centre, 0.1)
     log_w = log_target - np.logaddexp.reduce(log_target)
-    return ImportanceSample(u, log_target, log_w, np.zeros(count, dtype=int), 0.0, 1.0 / np.sum(np.exp(2 * log_w)),
+    ess = 1.0 / np.sum(np.exp(2 * log_w))
+    return ImportanceSample(u, log_target, log_w, np.zeros(count, dtype=int), 0.0, ess,
                             0, target="emulator")
 
 
