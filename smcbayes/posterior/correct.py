@@ -224,7 +224,7 @@ class _Points:
 
 def correct(log_target: Callable[[Array], Array], start: Array, settings: CorrectionSettings,
             rng: np.random.Generator, known: tuple[Array, Array] | None = None,
-            label: str = "importance correction") -> ImportanceSample:
+            label: str = "importance correction", runs: str = "forward runs") -> ImportanceSample:
     """AMIS from the emulator draws ``start`` ``(N0, d)`` (unit cube) to the exact posterior.
 
     Iterations of ``settings.per_iteration`` draws run until ``settings.draws`` are spent
@@ -243,7 +243,8 @@ def correct(log_target: Callable[[Array], Array], start: Array, settings: Correc
         rng: the only source of randomness (same seed, same sample).
         known: exact log posterior already known at some points, ``(unit (K, d), (K,))``;
             they shape the first proposal (see :func:`seed_weights`), not the estimate.
-        label: what the progress and the log call the sampling.
+        label, runs: what the progress and the log call the sampling and the target's
+            evaluations.
     """
     sizes = _iteration_sizes(settings)
     proposals: list[Proposal] = [fit_proposal(*seed_weights(start, known), settings, rng, settings.widen_first)]
@@ -262,7 +263,7 @@ def correct(log_target: Callable[[Array], Array], start: Array, settings: Correc
             smoothed, k_hat = pareto_smooth(log_w)
             history.append({"iteration": t, "draws": size, "evaluations": used, "ess": ess_of(smoothed),
                             "k_hat": k_hat})
-            note = (f"{points.evaluations} forward runs, importance ESS {history[-1]['ess']:.0f}, "
+            note = (f"{points.evaluations} {runs}, importance ESS {history[-1]['ess']:.0f}, "
                     f"k-hat {k_hat:.2f}")
             bar.update(size, note=note)
             logger.debug("correction iteration %d: %s", t, note)
@@ -274,8 +275,8 @@ def correct(log_target: Callable[[Array], Array], start: Array, settings: Correc
     sample = ImportanceSample(points.unit, points.target, smoothed, points.iteration, k_hat, ess_of(smoothed),
                               points.evaluations, history, settled, ess_target=settings.ess_target)
     sample.draws_needed = None if settled else draws_for_target(history, settings.ess_target)
-    logger.info("%s: %d evaluations, importance ESS %.0f, k-hat %.2f%s", label,
-                sample.evaluations, sample.ess, sample.k_hat, "" if settled else " (not settled)")
+    logger.info("%s: %d %s, importance ESS %.0f, k-hat %.2f%s", label, sample.evaluations, runs,
+                sample.ess, sample.k_hat, "" if settled else " (not settled)")
     sample.warnings = correction_warnings(sample, stacklevel=3)
     return sample
 

@@ -355,7 +355,7 @@ def _emulator_sample(emulator: CurveEmulator, n_eff: float, start: Array, spec: 
         # reliability reasons say what an unsettled sample of the emulator means
         warnings.simplefilter("ignore", SmcBayesWarning)
         sample = correct(log_posterior(emulator, n_eff, variance=False), start, spec, rng,
-                         label="importance sampling of the emulator")
+                         label="importance sampling of the emulator", runs="emulator evaluations")
     return dataclasses.replace(sample, target="emulator", warnings=[])
 
 

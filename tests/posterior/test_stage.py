@@ -387,6 +387,40 @@ def test_the_features_give_the_loss_with_the_contact_of_the_end_state(thesis_dat
     assert np.any(offsets > 0.4) and np.any(offsets < 0.4)
 
 
+@pytest.mark.parametrize("bound_mm", [0.0, 0.4])
+def test_the_features_give_the_loss_with_end_state_offsets_of_either_sign(run_dir: Path,
+                                                                         bound_mm: float) -> None:
+    """The synthetic run's trials given measured end states above and below the simulated
+    end heights (so the delays have either sign, and with a bound some are clipped): the
+    features reproduce the loss."""
+    from smcbayes.simulation.objective import SimulatorObjective
+
+    problem = load_run(run_dir).problem
+    spec = problem.project.loss.model_copy(update={"contact": "end_state", "contact_offset_mm": bound_mm})
+    u = np.random.default_rng(2).random((6, problem.space.dim))
+    theta = problem.space.from_unit(u)
+    nominal = CurveFeatures(problem)
+    y0, _ = nominal.of(problem.runner().simulate(theta, nominal.ids))
+    shifts = dict(zip(nominal.ids, np.linspace(-0.6, 0.6, len(nominal.ids)), strict=True))
+    heights = {cid: float(problem.project.configuration[0].charge.stack_height_mm) for cid in nominal.ids}
+    measured = {cid: dataclasses.replace(m, end_stack_mm=heights.get(cid, 0.0) + shifts.get(cid, 0.0))
+                for cid, m in problem.dataset.measurements.items()}
+    dataset = dataclasses.replace(problem.dataset, measurements=measured)
+    objective = SimulatorObjective(problem.simulator, dataset, problem.train_ids, spec)
+    problem = dataclasses.replace(problem, project=problem.project.model_copy(update={"loss": spec}),
+                                  objective=objective)
+    features = CurveFeatures(problem)
+    y, ok = features.of(problem.runner().simulate(theta, features.ids))
+    assert ok.all() and y.shape == (6, features.size)
+    np.testing.assert_allclose(features.loss(y), problem.runner().loss(theta), rtol=1e-9)
+    offsets = np.array([[m.end_stack_mm for m in features.measured]]) - y[:, -len(features.ids):]
+    assert offsets.min() < 0 < offsets.max()
+    if bound_mm:
+        assert np.any(np.abs(offsets) > bound_mm) and np.any(np.abs(offsets) < bound_mm)
+    # the delays move the comparison: the loss differs from the nominal contact's
+    assert not np.allclose(features.loss(y), nominal.loss(y0))
+
+
 def test_a_loss_the_curves_cannot_give_is_refused(run_dir: Path) -> None:
     problem = load_run(run_dir).problem
     profiled = problem.project.model_copy(update={"loss": LossSpec(contact="profile", contact_offset_mm=0.3)})
