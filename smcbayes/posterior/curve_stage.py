@@ -162,8 +162,9 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     posterior of the optimistic loss (emcee)."""
     d = emulator.x.shape[1]
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
-    wide = sample_chains(emulator, n_eff, rng, centre, TEMPER, ROUND_STEPS, walkers,
-                         optimistic=True).samples.reshape(-1, d)
+    # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
+    wide = np.unique(sample_chains(emulator, n_eff, rng, centre, TEMPER, ROUND_STEPS, walkers,
+                                   optimistic=True).samples.reshape(-1, d), axis=0)
     # after the first round mostly the last round's posterior: the tempered draws alone,
     # twice as wide in every direction, make a first proposal that wastes most of its draws
     # in seven dimensions

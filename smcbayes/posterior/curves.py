@@ -134,32 +134,29 @@ class CurveFeatures:
 
     def loss(self, features: Array) -> Array:
         """The global loss ``(P,)`` (kN^2) of features ``(P, size)``, as
-        :func:`smcbayes.data.loss.evaluate_loss` computes it from the simulations."""
+        :func:`smcbayes.data.loss.evaluate_loss` computes it from the simulations (both
+        curves linearly interpolated onto the window's grid; :mod:`._curve_kernel`)."""
+        from smcbayes.posterior._curve_kernel import force_mse_kernel  # numba loads on first use
+
         k_count, n = len(self.ids), self.nodes
-        rows = np.arange(features.shape[0])[:, None]
         out = np.zeros(features.shape[0])
         for k, m in enumerate(self.measured):
-            f = features[:, k * n:(k + 1) * n]
             ts = np.maximum(features[:, k_count * n + k], 1e-9)
             delay = self._delays(features, k)
-            tm, fm = m.force.time_s, m.force.values
             flow_stop = self.spec.clip == "flow_stop"
-            end = np.full(ts.shape, m.flow_stop_s) if flow_stop else np.maximum(ts + delay, tm[-1])
-            grid = end[:, None] * self.grid[None, :]
-            # evenly spaced nodes: the interpolation is index arithmetic; the first value held
-            # before the delayed contact, the switch value beyond the switch
-            x = np.clip((grid - delay[:, None]) / ts[:, None], 0.0, 1.0) * (n - 1)
-            i = np.minimum(np.floor(x).astype(int), n - 2)
-            w = x - i
-            sim = f[rows, i] * (1.0 - w) + f[rows, i + 1] * w
-            out += np.mean((sim - np.interp(grid, tm, fm)) ** 2, axis=1)
+            end = np.full(ts.shape, m.flow_stop_s) if flow_stop else np.maximum(ts + delay, m.force.time_s[-1])
+            force_mse_kernel(np.ascontiguousarray(features[:, k * n:(k + 1) * n]), ts, delay, end, self.grid,
+                             m.force.time_s, m.force.values, out)
         return self.spec.w_force * out / k_count
 
 
 def matern52(a: Array, b: Array, lengthscales: Array) -> Array:
     """Matern-5/2 correlation ``(N, M)`` of points ``a (N, d)`` and ``b (M, d)``."""
-    r = np.sqrt(np.sum(((a[:, None, :] - b[None, :, :]) / lengthscales) ** 2, axis=-1))
-    s = np.sqrt(5.0) * r
+    # squared distances by one matrix product: the (N, M, d) differences cost several
+    # times more in the samplers' calls
+    sa, sb = a / lengthscales, b / lengthscales
+    r2 = np.sum(sa * sa, axis=1)[:, None] + np.sum(sb * sb, axis=1)[None, :] - 2.0 * (sa @ sb.T)
+    s = np.sqrt(5.0 * np.maximum(r2, 0.0))
     return (1.0 + s + s * s / 3.0) * np.exp(-s)
 
 
@@ -210,7 +207,7 @@ class CurveEmulator:
 
     Args:
         features: the feature map of the problem.
-        x: unit-cube training points ``(N, d)``.
+        x: unit-cube training points ``(N, d)`` (a repeated row counts once).
         y: their features ``(N, features.size)``.
         tolerance: log-force reconstruction RMS error allowed on the best rows (a third of
             them, at least 50).
@@ -220,6 +217,9 @@ class CurveEmulator:
 
     def __init__(self, features: CurveFeatures, x: Array, y: Array, tolerance: float = 5e-4,
                  max_components: int = 60, start: CurveEmulator | None = None) -> None:
+        # a repeated row makes the correlation's fit collapse to its shortest lengthscales
+        first = np.sort(np.unique(x, axis=0, return_index=True)[1])
+        x, y = x[first], y[first]
         self.features, self.x, self.y = features, x, y
         nk = len(features.ids) * features.nodes
         logf = np.log(np.maximum(y[:, :nk], 0.0) + FORCE_FLOOR_KN)

@@ -62,3 +62,14 @@ def test_rounds_validate_only_when_stable_and_accurate_together() -> None:
     assert not _validated([np.full(20, 0.2), np.full(20, 0.2), np.full(20, 1.4)], stable, 1.0)
     # earlier rounds do not count
     assert _validated([np.full(20, 50.0), *small], stable, 1.0)
+
+
+def test_the_correlation_by_matrix_product_is_the_matern_of_the_distances() -> None:
+    from smcbayes.posterior.curves import matern52
+
+    rng = np.random.default_rng(0)
+    a, b, ls = rng.random((7, 3)), rng.random((5, 3)), np.array([0.1, 0.5, 2.0])
+    r = np.sqrt(np.sum(((a[:, None, :] - b[None, :, :]) / ls) ** 2, axis=-1))
+    s = np.sqrt(5.0) * r
+    np.testing.assert_allclose(matern52(a, b, ls), (1 + s + s * s / 3) * np.exp(-s), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(np.diag(matern52(a, a, ls)), 1.0, rtol=1e-12)

@@ -452,6 +452,14 @@ def test_the_emulator_interpolates_its_points_and_predicts_new_ones(run_dir: Pat
     assert np.all(far_optimistic <= far_mean) and np.all(far_optimistic >= 0.1 * far_mean * (1 - 1e-12))
 
 
+def test_the_emulator_ignores_repeated_rows(run_dir: Path) -> None:
+    features, u, y, _ = _rows(run_dir, 40, 3)
+    emulator = CurveEmulator(features, u[:30], y[:30])
+    twice = CurveEmulator(features, np.vstack([u[:30], u[:5]]), np.vstack([y[:30], y[:5]]))
+    assert len(twice.x) == 30
+    np.testing.assert_allclose(twice.loss(u[30:]), emulator.loss(u[30:]), rtol=1e-9)
+
+
 def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """``emulator = "curves"``: the truth inside the 90 % intervals, the slip pair's
     correlation sign right, the runs counted and logged, and a rerun with the same settings

@@ -1,0 +1,51 @@
+"""numba kernel of :meth:`smcbayes.posterior.curves.CurveFeatures.loss` (imported on first
+use).
+
+The emulator's samplers evaluate the loss of tens of thousands of emulated curves a
+round; in numpy each configuration's comparison builds several ``(P, G)`` arrays and
+searches the measured times of every grid point anew.  Here each row's grid is walked
+once: the simulated curve's nodes are evenly spaced, so its bracket is index arithmetic,
+and the measured curve's bracket moves forward with the rising grid.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from smcbayes.forward._interp_kernel import _bracket
+
+_jit = njit(cache=True, error_model="numpy")
+
+
+@_jit
+def force_mse_kernel(force: NDArray[np.float64], switch: NDArray[np.float64], delay: NDArray[np.float64],
+                     end: NDArray[np.float64], grid: NDArray[np.float64], time_m: NDArray[np.float64],
+                     force_m: NDArray[np.float64], out: NDArray[np.float64]) -> None:
+    """Add to ``out`` ``(P,)`` each row's mean squared force error (kN^2) over its window.
+
+    Args:
+        force: simulated force ``(P, n)`` (kN) at ``n`` nodes evenly spaced over [0, switch].
+        switch: switch time per row ``(P,)`` (s, positive).
+        delay: delay of the simulated closing per row ``(P,)`` (s).
+        end: end of the compared window per row ``(P,)`` (s).
+        grid: the window's points as shares of it ``(G,)``, rising from 0 to 1.
+        time_m, force_m: the measured curve ``(T,)`` (s, kN), times rising.
+        out: per-row sums to add to ``(P,)``.
+    """
+    P, n = force.shape
+    G = grid.shape[0]
+    for p in range(P):
+        j, prev, total = 1, -np.inf, 0.0
+        for g in range(G):
+            t = end[p] * grid[g]
+            # the first value held before the delayed contact, the switch value beyond the switch
+            x = min(max((t - delay[p]) / switch[p], 0.0), 1.0) * (n - 1)
+            i = min(int(np.floor(x)), n - 2)
+            w = x - i
+            sim = force[p, i] * (1.0 - w) + force[p, i + 1] * w
+            j, wm, prev = _bracket(time_m, t, j, prev)
+            err = sim - (force_m[j - 1] + wm * (force_m[j] - force_m[j - 1]))
+            total += err * err
+        out[p] += total / G
