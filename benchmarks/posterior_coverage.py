@@ -20,8 +20,9 @@ datasets fit in about half an hour on two shared cores; the forward model is the
     python benchmarks/posterior_coverage.py [--datasets 20] [--quick] [--free n,B_Pa_s,tau_c_MPa]
         [--refine 800] [--correct-draws 0] [--emulator curves] [--jobs 2] [--workdir DIR]
 
-With ``--emulator curves`` the weighted posterior is the curve emulator's own importance
-sample (no forward run; the stage's reported posterior), the raw one its emcee chains.
+With ``--emulator curves --correct-draws 0`` the weighted posterior is the curve emulator's
+own importance sample (no forward run; the stage's reported posterior), the raw one its
+emcee chains.
 
 Prints a table and writes benchmarks/results/posterior_coverage.json.
 """
@@ -232,7 +233,8 @@ def main() -> int:
     raw, corrected, b = tabulate(free, rows, "raw"), tabulate(free, rows, "corrected"), tabulate_bands(rows)
     print_table("emulated posterior (emcee on the actively learnt GP)", raw)
     if corrected:
-        print_table("the curve emulator's importance sample (the reported posterior)" if args.emulator == "curves"
+        own = args.emulator == "curves" and args.correct_draws == 0
+        print_table("the curve emulator's importance sample (the reported posterior)" if own
                     else "importance-corrected posterior", corrected)
     k_hat = [r["correction"].get("k_hat", float("nan")) for r in rows]
     ev = {k: float(np.mean([r["evaluations"].get(k, 0) for r in rows]))

@@ -16,6 +16,9 @@ from numpy.typing import NDArray
 
 from smcbayes.forward._interp_kernel import _bracket
 
+# numpy's error model: a division by zero gives inf or NaN, as in the numpy code it replaces.
+# The on-disk cache is keyed to this file only: after a change to ``_bracket`` it must be
+# cleared (the __pycache__ entries of this module), or the old compiled call stays in use.
 _jit = njit(cache=True, error_model="numpy")
 
 
@@ -26,13 +29,14 @@ def force_mse_kernel(force: NDArray[np.float64], switch: NDArray[np.float64], de
     """Add to ``out`` ``(P,)`` each row's mean squared force error (kN^2) over its window.
 
     Args:
-        force: simulated force ``(P, n)`` (kN) at ``n`` nodes evenly spaced over [0, switch].
+        force: simulated force ``(P, n)`` (kN) at ``n >= 2`` nodes evenly spaced over [0, switch].
         switch: switch time per row ``(P,)`` (s, positive).
         delay: delay of the simulated closing per row ``(P,)`` (s).
         end: end of the compared window per row ``(P,)`` (s).
         grid: the window's points as shares of it ``(G,)``, rising from 0 to 1.
-        time_m, force_m: the measured curve ``(T,)`` (s, kN), times rising.
-        out: per-row sums to add to ``(P,)``.
+        time_m, force_m: the measured curve ``(T >= 2,)`` (s, kN), times rising.
+        out: per-row sums to add to ``(P,)``; a row with a NaN switch time, delay or end
+            gets NaN.
     """
     P, n = force.shape
     G = grid.shape[0]
@@ -42,6 +46,9 @@ def force_mse_kernel(force: NDArray[np.float64], switch: NDArray[np.float64], de
             t = end[p] * grid[g]
             # the first value held before the delayed contact, the switch value beyond the switch
             x = min(max((t - delay[p]) / switch[p], 0.0), 1.0) * (n - 1)
+            if x != x:  # its node index would be undefined
+                total = np.nan
+                break
             i = min(int(np.floor(x)), n - 2)
             w = x - i
             sim = force[p, i] * (1.0 - w) + force[p, i + 1] * w
