@@ -73,3 +73,33 @@ def test_the_correlation_by_matrix_product_is_the_matern_of_the_distances() -> N
     s = np.sqrt(5.0) * r
     np.testing.assert_allclose(matern52(a, b, ls), (1 + s + s * s / 3) * np.exp(-s), rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(np.diag(matern52(a, a, ls)), 1.0, rtol=1e-12)
+
+
+def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> None:
+    from smcbayes.posterior._curve_kernel import force_mse_kernel
+
+    rng = np.random.default_rng(1)
+    rows, nodes = 6, 9
+    force = np.cumsum(rng.random((rows, nodes)), axis=1)
+    switch = rng.uniform(0.5, 2.0, rows)
+    delay = rng.uniform(-0.3, 0.3, rows)
+    time_m = np.sort(rng.uniform(0.0, 2.0, 40))
+    force_m = np.cumsum(rng.random(40))
+    end = np.maximum(switch + delay, time_m[-1] * rng.uniform(0.5, 1.5, rows))  # beyond the measured end too
+    grid = np.linspace(0.0, 1.0, 57)
+    # the same comparison in numpy: the simulated curve's first value held before the delayed
+    # contact and its switch value beyond the switch, the measured one's ends held
+    t = end[:, None] * grid[None, :]
+    x = np.clip((t - delay[:, None]) / switch[:, None], 0.0, 1.0) * (nodes - 1)
+    i = np.minimum(np.floor(x).astype(int), nodes - 2)
+    w = x - i
+    sim = np.take_along_axis(force, i, 1) * (1 - w) + np.take_along_axis(force, i + 1, 1) * w
+    expected = np.mean((sim - np.interp(t, time_m, force_m)) ** 2, axis=1)
+    out = np.zeros(rows)
+    force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, out)
+    np.testing.assert_allclose(out, expected, rtol=1e-12)
+    # a row without a switch time has no loss, not an arbitrary one
+    switch[2] = np.nan
+    out = np.zeros(rows)
+    force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, out)
+    assert np.isnan(out[2]) and np.all(np.isfinite(np.delete(out, 2)))
