@@ -151,7 +151,7 @@ class CurveFeatures:
 
 
 def matern52(a: Array, b: Array, lengthscales: Array) -> Array:
-    """Matern-5/2 correlation ``(N, M)`` of points ``a (N, d)`` and ``b (M, d)``."""
+    """Matern-5/2 correlation ``(N, M)`` of points ``a (N, d)`` and ``b (M, d)``, lengthscales ``(d,)``."""
     # squared distances by one matrix product: the (N, M, d) differences cost several
     # times more in the samplers' calls
     sa, sb = a / lengthscales, b / lengthscales
