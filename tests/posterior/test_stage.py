@@ -455,8 +455,11 @@ def test_the_emulator_interpolates_its_points_and_predicts_new_ones(run_dir: Pat
 def test_the_emulator_ignores_repeated_rows(run_dir: Path) -> None:
     features, u, y, _ = _rows(run_dir, 40, 3)
     emulator = CurveEmulator(features, u[:30], y[:30])
-    twice = CurveEmulator(features, np.vstack([u[:30], u[:5]]), np.vstack([y[:30], y[:5]]))
-    assert len(twice.x) == 30
+    # repeats at the end and in the middle: each row counts once, in its first place
+    twice = CurveEmulator(features, np.vstack([u[:20], u[:5], u[20:30], u[25:28]]),
+                          np.vstack([y[:20], y[:5], y[20:30], y[25:28]]))
+    np.testing.assert_array_equal(twice.x, u[:30])
+    np.testing.assert_array_equal(twice.y, y[:30])
     np.testing.assert_allclose(twice.loss(u[30:]), emulator.loss(u[30:]), rtol=1e-9)
 
 
