@@ -186,7 +186,7 @@ def quantile_shift(sample: ImportanceSample, before: Callable[[Array], Array]) -
     w = sample.weights
     keep = w > 0
     u, w = sample.unit[keep], w[keep]
-    # in batches: the emulator's correlation with its points is a (rows, points, d) array
+    # in batches: each call builds (rows, points) correlations and (rows, features) curves
     old = np.concatenate([before(u[i:i + EMULATOR_BATCH]) for i in range(0, len(u), EMULATOR_BATCH)])
     log_ratio = old - sample.log_target[keep]
     finite = np.isfinite(log_ratio)
