@@ -73,21 +73,17 @@ class Proposal:
             kernel[~uniform] = idx
         return out, kernel
 
-    def log_pdf(self, u: Array, chunk: int = 1000) -> Array:
-        """Log density ``(N,)`` at the points ``u`` ``(N, d)``; ``chunk`` points at a time
-        bound the ``(M, chunk, d)`` temporary."""
-        u = np.atleast_2d(u)
-        m, d = self.centres.shape
-        nu = self.nu
-        const = _log_t_norm(self.chol, nu) - np.log(m)
-        inv_t = np.linalg.inv(self.chol).transpose(0, 2, 1)  # (M, d, d): L_m^-T
-        # L_m^-1 (u - c_m) = L_m^-1 u - L_m^-1 c_m: one batched matrix product per chunk
-        shift = np.einsum("md,mde->me", self.centres, inv_t)  # (M, d)
+    def log_pdf(self, u: Array) -> Array:
+        """Log density ``(N,)`` at the points ``u`` ``(N, d)`` (:mod:`._proposal_kernel`)."""
+        from smcbayes.posterior._proposal_kernel import t_mixture_logpdf  # numba loads on first use
+
+        u = np.ascontiguousarray(np.atleast_2d(u), dtype=float)
+        const = _log_t_norm(self.chol, self.nu) - np.log(self.centres.shape[0])
+        inv = np.linalg.inv(self.chol)  # (M, d, d): L_m^-1, lower triangular
+        shift = np.einsum("mde,me->dm", inv, self.centres)
         out = np.empty(u.shape[0])
-        for s in range(0, u.shape[0], chunk):
-            z = np.matmul(u[None, s:s + chunk, :], inv_t) - shift[:, None, :]  # (M, n, d)
-            maha = np.einsum("mnd,mnd->nm", z, z)
-            out[s:s + chunk] = logsumexp(const[None, :] - 0.5 * (nu + d) * np.log1p(maha / nu), axis=1)
+        t_mixture_logpdf(u, np.ascontiguousarray(shift), np.ascontiguousarray(inv.transpose(1, 2, 0)), const,
+                         float(self.nu), out)
         inside = np.all((u >= 0.0) & (u <= 1.0), axis=1)
         log_uniform = np.where(inside, 0.0, -np.inf)
         with np.errstate(divide="ignore"):

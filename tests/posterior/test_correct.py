@@ -330,7 +330,7 @@ def test_an_unsettled_correction_says_how_many_draws_would_settle_it() -> None:
 
 
 def test_proposal_density_of_several_kernels_across_chunks() -> None:
-    """The batched density against scipy's, with chunk boundaries inside the points."""
+    """The compiled density of several kernels against scipy's."""
     rng = np.random.default_rng(8)
     centres = rng.random((3, 2))
     a = rng.normal(size=(3, 2, 2)) * 0.1
@@ -339,4 +339,20 @@ def test_proposal_density_of_several_kernels_across_chunks() -> None:
     u = rng.random((50, 2))
     mix = np.mean([multivariate_t(c, sc, df=5.0).pdf(u)
                    for c, sc in zip(centres, scales, strict=True)], axis=0)
-    np.testing.assert_allclose(q.log_pdf(u, chunk=7), np.log(0.7 * mix + 0.3), rtol=1e-10)
+    np.testing.assert_allclose(q.log_pdf(u), np.log(0.7 * mix + 0.3), rtol=1e-10)
+
+
+def test_proposal_density_in_seven_dimensions_far_and_near() -> None:
+    """The compiled density against scipy's with many kernels in the stage's dimension,
+    at points near the centres and far outside the cube (where every kernel is tiny)."""
+    rng = np.random.default_rng(9)
+    d, m = 7, 40
+    centres = rng.random((m, d))
+    a = rng.normal(size=(m, d, d)) * 0.05
+    scales = a @ a.transpose(0, 2, 1) + 1e-3 * np.eye(d)
+    q = Proposal(centres, np.linalg.cholesky(scales), nu=4.0, defensive=0.1)
+    u = np.vstack([centres[:5] + 0.01, rng.random((30, d)), 50.0 + rng.random((5, d))])
+    mix = np.mean([multivariate_t(c, sc, df=4.0).pdf(u) for c, sc in zip(centres, scales, strict=True)],
+                  axis=0)
+    inside = np.all((u >= 0) & (u <= 1), axis=1)
+    np.testing.assert_allclose(q.log_pdf(u), np.log(0.9 * mix + 0.1 * inside), rtol=1e-9)
