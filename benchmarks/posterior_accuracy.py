@@ -68,6 +68,7 @@ from _posterior_common import (
     write_result,
 )
 
+from smcbayes.config import PosteriorSpec, choices_of
 from smcbayes.posterior.sampler import SamplerSettings, run_ensemble
 from smcbayes.posterior.stage import PosteriorSettings, load_run, run_posterior, true_log_loss
 
@@ -471,7 +472,7 @@ def main() -> int:
                     help="most proposal draws of the importance correction (0: the emulator alone, the "
                          "default of an external simulator; the built-in simulator's default corrects "
                          "with the [posterior.correction] draws)")
-    ap.add_argument("--emulator", choices=("loss", "curves"), default=PosteriorSettings().emulator,
+    ap.add_argument("--emulator", choices=choices_of(PosteriorSpec, "emulator"), default=PosteriorSettings().emulator,
                     help="what the stage's GP emulates (default: the stage's)")
     ap.add_argument("--tag", default="", help="suffix of the result file (e.g. the budget)")
     ap.add_argument("--peer", choices=("none", "pyvbmc"), default="none",

@@ -52,6 +52,7 @@ from _posterior_common import (
     write_result,
 )
 
+from smcbayes.config import PosteriorSpec, choices_of
 from smcbayes.posterior.correct import weighted_quantile
 from smcbayes.posterior.stage import PosteriorSettings, load_run, run_posterior
 
@@ -206,7 +207,7 @@ def main() -> int:
                     help="active-learning evaluations (default: the posterior stage's default)")
     ap.add_argument("--correct-draws", type=int, default=0,
                     help="most proposal draws of the importance correction (0: none, the default path)")
-    ap.add_argument("--emulator", choices=("loss", "curves"), default=PosteriorSettings().emulator,
+    ap.add_argument("--emulator", choices=choices_of(PosteriorSpec, "emulator"), default=PosteriorSettings().emulator,
                     help="what the stage's GP emulates (default: the stage's)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1, help="datasets run in parallel processes")

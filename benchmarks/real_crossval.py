@@ -398,7 +398,7 @@ def totals(folds: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def parse() -> argparse.Namespace:
-    from smcbayes.config.settings import CalibrationSpec, DiagnoseSpec, PosteriorSpec
+    from smcbayes.config.settings import CalibrationSpec, DiagnoseSpec, PosteriorSpec, choices_of
 
     def d(spec: Any, name: str) -> Any:
         return spec.model_fields[name].default
@@ -436,7 +436,7 @@ def parse() -> argparse.Namespace:
     ap.add_argument("--refine", type=int, default=d(PosteriorSpec, "refine"))
     ap.add_argument("--correct-draws", type=int, default=d(PosteriorSpec, "correct_draws"))
     ap.add_argument("--draws", type=int, default=d(PosteriorSpec, "draws"))
-    ap.add_argument("--emulator", choices=["loss", "curves"], default=d(PosteriorSpec, "emulator"),
+    ap.add_argument("--emulator", choices=choices_of(PosteriorSpec, "emulator"), default=d(PosteriorSpec, "emulator"),
                     help="the posterior's emulator (smcbayes posterior --emulator)")
     return ap.parse_args()
 

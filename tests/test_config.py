@@ -90,3 +90,10 @@ def test_posterior_defaults_depend_on_the_simulator() -> None:
     given = PosteriorSpec(refine=50, correct_draws=0)
     assert given.resolved(slow=False) == given.resolved(slow=True) == given
     assert PosteriorSpec(correct_draws=3000).resolved(slow=True).refine == REFINE_CORRECTED
+
+
+def test_the_choices_of_a_literal_setting_come_from_its_model() -> None:
+    from smcbayes.config import CalibrationSpec, PosteriorSpec, choices_of
+
+    assert choices_of(PosteriorSpec, "emulator") == ("loss", "curves")
+    assert set(choices_of(CalibrationSpec, "kernel")) == {"rbf", "matern52"}

@@ -7,7 +7,7 @@ import warnings
 from typing import Any
 
 from smcbayes.commands.common import add_executor_options
-from smcbayes.config import PosteriorSpec, help_of, override
+from smcbayes.config import PosteriorSpec, choices_of, help_of, override
 from smcbayes.errors import UnreliablePosteriorWarning
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import make_executor
@@ -40,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        help=help_of(PosteriorSpec, name))
     p.add_argument("--pool-functions", action=argparse.BooleanOptionalAction, default=None,
                    help=help_of(PosteriorSpec, "pool_functions"))
-    p.add_argument("--emulator", choices=("loss", "curves"), default=None,
+    p.add_argument("--emulator", choices=choices_of(PosteriorSpec, "emulator"), default=None,
                    help=help_of(PosteriorSpec, "emulator"))
     add_executor_options(p)
     p.set_defaults(run=run)
@@ -98,7 +98,7 @@ def print_summary(info: dict[str, Any]) -> None:
     if spread:
         pooled = " (their posteriors are pooled into the table above)" if spread.get("pooled") else ""
         print(f"emulator spread: GP sample functions move a 5/50/95 % quantile by up to "
-              f"{spread['max_quantile_shift']:.2f} of its range beyond the chains' own noise{pooled}")
+              f"{spread['max_quantile_shift']:.2f} of its range beyond the sampling's own noise{pooled}")
     for cid, b in info["bands"].items():
         if b["coverage90"] == b["coverage90"]:
             scores = "".join(f", {label} {b[key]:.3g} kN" for key, label in

@@ -9,7 +9,7 @@ functions take these objects.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -286,6 +286,11 @@ def override(spec: BaseModel, values: Mapping[str, Any], source: str = "command 
 def default_of(spec: type[BaseModel], name: str) -> Any:
     """The default of one field (for ``--help`` texts)."""
     return spec.model_fields[name].default
+
+
+def choices_of(spec: type[BaseModel], name: str) -> tuple[str, ...]:
+    """The values a ``Literal`` field allows (for ``choices=`` of a command-line option)."""
+    return tuple(get_args(spec.model_fields[name].annotation))
 
 
 def help_of(spec: type[BaseModel], name: str) -> str:
