@@ -158,8 +158,9 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     importance (:data:`ROUND_DRAWS` emulator evaluations; its first proposal fitted to the
     earlier round's posterior draws ``start`` ``(S, d)`` and tempered draws, a quarter of
     :data:`START_ROWS` or as many as the chains hold; on the first round, whose ``start``
-    holds only the best training points, nearly all tempered), half from the tempered
-    posterior of the optimistic loss (emcee)."""
+    holds only the best training points, nearly all tempered; twice as many draws once
+    more when its ESS is below :data:`ROUND_ESS`), half from the tempered posterior of the
+    optimistic loss (emcee)."""
     d = emulator.x.shape[1]
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
     # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
@@ -171,6 +172,10 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     count = min(len(wide), max(START_ROWS // 4, START_ROWS - len(start)))
     share = wide[rng.choice(len(wide), count, replace=False)]
     sample = _emulator_sample(emulator, n_eff, np.vstack([start, share]), spec, ROUND_DRAWS, rng)
+    if sample.ess < ROUND_ESS:
+        # too few to measure the round's move by: once more, twice as long, from what it found
+        found = sample.resample(START_ROWS // 2, rng)
+        sample = _emulator_sample(emulator, n_eff, np.vstack([found, share]), spec, 2 * ROUND_DRAWS, rng)
     half = max(1, size // 2)
     new = np.vstack([sample.unit[_choose(sample.weights, half, rng)],
                      wide[rng.choice(len(wide), size - half, replace=size - half > len(wide))]])
@@ -256,7 +261,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         exact = -a * np.log(np.maximum(features.loss(y_new[:step.posterior][at]), 1e-300))
         errors.append(np.abs(emulated - exact) if np.any(at) else np.array([np.inf]))
         x, y = np.vstack([x, step.new[ok]]), np.vstack([y, y_new[ok]])
-        record = {"round": rounds, "training_points": len(x), "forward_runs": spent,
+        # the distinct rows the next emulator is fitted to (a repeated row counts once)
+        record = {"round": rounds, "training_points": len(np.unique(x, axis=0)), "forward_runs": spent,
                   "error_nats": _finite(np.mean(errors[-1])),
                   "quantile_shift": shifts[-1], "importance_ess": step.sample.ess, "k_hat": step.sample.k_hat,
                   "components": emulator.components, "lengthscales": emulator.corr.lengthscales.tolist(),
