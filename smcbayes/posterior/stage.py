@@ -7,8 +7,9 @@ emulated posterior's region, stopped early once the out-of-sample error at fresh
 draws is below ``refine_tolerance_nats`` and GP sample functions no longer move it; see
 :func:`~smcbayes.posterior.active.refine` and :mod:`smcbayes.posterior.refine`), samples
 the emulated posterior (of the GP mean, or a mixture over GP sample functions), measures
-how far the emulator's uncertainty moves it (:mod:`smcbayes.posterior.spread`) and pools
-the sample functions' posteriors of that check with the GP mean's (``pool_functions``),
+how far the emulator's uncertainty moves it (:mod:`smcbayes.posterior.spread`; for the
+curve emulator :mod:`smcbayes.posterior.curve_spread`) and pools the sample functions'
+posteriors of that check with the GP mean's (``pool_functions``),
 checks the emulator against the forward model at posterior draws and writes
 ``RUN_DIR/posterior/``: ``posterior.nc`` (arviz InferenceData), ``summary.json``,
 ``summary.csv``, figures (corner, correlations, predictive bands; PNG and SVG) and, after
@@ -38,9 +39,10 @@ from smcbayes.posterior.context import (
     load_run,
     true_log_loss,
 )
-from smcbayes.posterior.correct import correct
+from smcbayes.posterior.correct import ImportanceSample, correct
 from smcbayes.posterior.crossfit import LocalFit
-from smcbayes.posterior.curve_stage import curve_chains, curve_posterior, importance_sample
+from smcbayes.posterior.curve_spread import curve_spread
+from smcbayes.posterior.curve_stage import CurveEmulation, curve_chains, curve_posterior, importance_sample
 from smcbayes.posterior.curves import CurveFeatures
 from smcbayes.posterior.likelihood import effective_points, sandwich_points
 from smcbayes.posterior.reliability import assess
@@ -193,6 +195,16 @@ def _spread_and_pool(ctx: RunContext, surrogate: Any, n_eff: float, settings: Po
     return spread, pooled
 
 
+def _curve_spread_and_pool(ctx: RunContext, emulation: CurveEmulation, settings: PosteriorSettings,
+                           sample: ImportanceSample, rng: np.random.Generator
+                           ) -> tuple[dict[str, Any], ImportanceSample, bool]:
+    """The curve emulator's spread around its importance ``sample``, the sample to report
+    (pooled with the sample functions' posteriors with ``pool_functions``, else the mean's
+    alone) and whether it is pooled."""
+    spread, pooled = curve_spread(emulation.emulator, emulation.n_eff, sample, ctx.space.free_names, rng)
+    return spread, pooled if settings.pool_functions else sample, settings.pool_functions
+
+
 def _emulate(ctx: RunContext, calibration_gp: Any, n_eff: float, settings: PosteriorSettings,
              rng: np.random.Generator, out_dir: Path) -> tuple[Any, list[Chains], dict[str, Any],
                                                                tuple[Array, Array], dict[str, int], Any,
@@ -248,14 +260,16 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         corrected = (correct_posterior(ctx, chains, n_eff, settings, rng, data) if settings.correct_draws > 0
                      else importance_sample(emul, chains, settings, rng) if settings.emulator == "curves" else None)
         t_spread = time.perf_counter()
-        # the correction's weights judge a corrected posterior, a noise-free one is degenerate,
-        # and the curve emulator carries its uncertainty in its likelihood (no sample functions)
+        # the correction's weights judge a corrected posterior and a noise-free one is degenerate
         spread, pooled = (None, []) if corrected is not None or ctx.noise_free or surrogate is None else \
             _spread_and_pool(ctx, surrogate, n_eff, settings, rng, chains, ended)
+        pooling = bool(pooled)
+        if corrected is not None and corrected.target == "emulator" and not ctx.noise_free:
+            spread, corrected, pooling = _curve_spread_and_pool(ctx, emul, settings, corrected, rng)
         t_outputs = time.perf_counter()
         info = write_outputs(ctx, emul, chains + pooled, budget, settings, rng, out_dir, corrected, fit)
         if spread is not None:
-            info["emulator_spread"] = {**spread, "pooled": bool(pooled)}
+            info["emulator_spread"] = {**spread, "pooled": pooling}
     cache.close()
     sampling_s, correction_s = t_correct - t_sample, t_spread - t_correct
     if corrected is not None and corrected.target == "emulator":  # importance sampling of the emulator

@@ -132,7 +132,7 @@ def _spread_paragraph(spread: dict[str, Any]) -> Paragraph | None:
     return Paragraph(
         f"Emulator spread: the posteriors of {fmt(spread.get('functions'))} GP sample functions move "
         f"a 5/50/95 % quantile by up to {fmt(spread.get('max_quantile_shift'), 2)} of its range "
-        f"beyond the chains' own noise; above {SPREAD_MAX} the simulator runs spent on the emulator do "
+        f"beyond the sampling's own noise; above {SPREAD_MAX} the simulator runs spent on the emulator do "
         f"not yet determine the posterior.{pooled}"
     )
 

@@ -16,6 +16,7 @@ from smcbayes.cli import main
 from smcbayes.config.specs import LossSpec
 from smcbayes.posterior.active import STABLE_ROUNDS
 from smcbayes.posterior.context import load_run
+from smcbayes.posterior.correct import ImportanceSample
 from smcbayes.posterior.curves import CurveEmulator, CurveFeatures, CurveLossUnsupported
 from smcbayes.posterior.spread import SPREAD_MAX
 from smcbayes.surrogate.gp import load_surrogate
@@ -463,6 +464,65 @@ def test_the_emulator_ignores_repeated_rows(run_dir: Path) -> None:
     np.testing.assert_allclose(twice.loss(u[30:]), emulator.loss(u[30:]), rtol=1e-9)
 
 
+def test_sample_functions_of_the_curve_emulator_follow_its_variance(run_dir: Path) -> None:
+    """Joint draws of the emulator's outputs: at its points they stay at the mean; far from
+    them their spread is the GP's latent variance (the prediction's less the nugget)."""
+    from smcbayes.posterior.curve_spread import joint_outputs
+
+    features, u, y, _ = _rows(run_dir, 30, 4)
+    emulator = CurveEmulator(features, u, y)
+    far = np.random.default_rng(8).random((6, u.shape[1]))
+    x = np.vstack([u[:4], far])
+    draws = joint_outputs(emulator, x, 600, np.random.default_rng(9))
+    mean, var = emulator.predict(x, variance=True)
+    latent = var - emulator.corr.nugget * emulator.scale2[None, :]
+    assert draws.shape == (600, 10, mean.shape[1])
+    np.testing.assert_allclose(draws.mean(axis=0), mean, atol=0.2 * np.sqrt(latent.max()))
+    varies = emulator.scale2 > 0.0  # a constant output has no spread anywhere
+    ratio = draws[:, 4:, varies].var(axis=0) / latent[4:, varies]
+    assert varies.sum() >= 3 and 0.75 < ratio.min() and ratio.max() < 1.3, (ratio.min(), ratio.max())
+    near = draws[:, :4, varies].std(axis=0)
+    assert np.all(near < 0.1 * np.sqrt(latent[4:, varies].min(axis=0))), near.max()
+
+
+def _emulator_sample(emulator: CurveEmulator, n_eff: float, count: int, seed: int) -> ImportanceSample:
+    """The emulator's posterior sampled by importance from the prior (the unit cube)."""
+    from smcbayes.posterior.curves import log_posterior
+
+    u = np.random.default_rng(seed).random((count, emulator.x.shape[1]))
+    lp = log_posterior(emulator, n_eff, variance=False)(u)
+    log_w = lp - np.logaddexp.reduce(lp)
+    return ImportanceSample(u, lp, log_w, np.zeros(count, dtype=int), 0.0, 1.0 / np.sum(np.exp(2 * log_w)), 0,
+                            target="emulator")
+
+
+def test_the_curve_emulator_spread_and_its_pooled_posterior(run_dir: Path) -> None:
+    """Sample functions of an emulator of few points move its posterior and the pooled
+    sample gives each function's posterior and the mean's an equal share; an emulator
+    without uncertainty moves nothing; the same seed gives the same result."""
+    from smcbayes.posterior.curve_spread import curve_spread
+
+    features, u, y, _ = _rows(run_dir, 25, 5)
+    emulator = CurveEmulator(features, u, y)
+    sample = _emulator_sample(emulator, 4.0, 6000, 6)
+    names = ["a", "b"]
+    spread, pooled = curve_spread(emulator, 4.0, sample, names, np.random.default_rng(1), functions=3)
+    again = curve_spread(emulator, 4.0, sample, names, np.random.default_rng(1), functions=3)
+    assert again[0] == spread
+    np.testing.assert_array_equal(again[1].log_weight, pooled.log_weight)
+    assert spread["functions"] == 3 and set(spread["per_parameter"]) == set(names)
+    assert spread["max_quantile_shift"] > 0.0 and min(spread["function_ess"]) > 1.0
+    w = pooled.weights
+    assert np.isclose(w.sum(), 1.0) and np.isclose(w[: len(sample.unit)].sum(), 0.25)
+    assert np.all(pooled.iteration[len(sample.unit):] == -1) and pooled.unit.shape[1] == 2
+    sure = CurveEmulator(features, u, y)
+    sure.scale2 = np.zeros_like(sure.scale2)
+    still, same = curve_spread(sure, 4.0, sample, names, np.random.default_rng(1), functions=3)
+    assert still["max_quantile_shift"] == 0.0
+    per_function = np.split(same.log_weight[len(sample.unit):], 3)
+    np.testing.assert_allclose(per_function[0], per_function[2])
+
+
 def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """``emulator = "curves"``: the truth inside the 90 % intervals, the slip pair's
     correlation sign right, the runs counted and logged, and a rerun with the same settings
@@ -479,7 +539,8 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     info = run_posterior(folder, settings)
     _truth_inside_and_slip_pair_positive(info)
     active = info["active_learning"]
-    assert active["kind"] == "curves" and "emulator_spread" not in info
+    assert active["kind"] == "curves" and info["emulator_spread"]["pooled"]
+    assert info["emulator_spread"]["functions"] == 4 and len(info["emulator_spread"]["function_ess"]) == 4
     spent = active["evaluations"] - active["start_runs"]
     assert 0 < spent <= 120 and active["start_runs"] == active["start_points"]["calibration_gp"]
     assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5

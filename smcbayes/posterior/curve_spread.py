@@ -1,0 +1,127 @@
+"""How far the curve emulator's own uncertainty moves its posterior, and the pooled result.
+
+The curve emulator's reported posterior is that of its mean curves, sampled by importance.
+A GP sample function of the emulator's outputs (principal-component scores, switch times,
+end heights) gives other curves, another loss and so another posterior.  As for the log-loss
+emulator (:mod:`smcbayes.posterior.spread`: Kandasamy, Schneider & Poczos 2017, Artificial
+Intelligence 243; Acerbi 2018, NeurIPS), the functions' posteriors measure whether the
+forward runs spent on the emulator determine the posterior, and pooled with the mean's they
+carry the emulator's uncertainty into the reported result.
+
+The sample functions are drawn jointly at a support of points taken from the mean's
+importance sample with probabilities proportional to the square root of their weights
+(wider than the posterior, so that a function may shift mass into its tails), and each
+function's posterior is the support reweighted by its likelihood ratio to the mean's:
+``w_j(x) ~ c(x) w(x)^(1/2) exp(l_j(x) - l(x))`` for a point drawn ``c(x)`` times.  The
+emulator's outputs share one correlation and differ in scale, so one factorisation of the
+support's posterior correlation serves every output and function.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import solve_triangular
+from scipy.special import logsumexp
+
+from smcbayes.posterior.correct import ImportanceSample
+from smcbayes.posterior.curves import CurveEmulator, matern52
+from smcbayes.posterior.spread import QUANTILES, SPREAD_FUNCTIONS
+from smcbayes.posterior.weights import ess_of, weighted_quantile
+
+Array = NDArray[np.float64]
+
+SUPPORT_POINTS = 1500
+"""Draws of the support (with repeats) on which the sample functions are drawn jointly."""
+
+JITTER = 1e-8
+"""Added to the support's posterior correlation before its factorisation (unit variance)."""
+
+
+def joint_outputs(emulator: CurveEmulator, x: Array, count: int, rng: np.random.Generator) -> Array:
+    """``count`` joint draws ``(count, P, J + S)`` of the emulator's outputs at the distinct
+    points ``x`` ``(P, d)`` (unit cube): the GP mean plus the posterior correlation's factor
+    times standard normals, scaled per output (the latent function: the nugget is left out)."""
+    corr = emulator.corr
+    r = matern52(x, emulator.x, corr.lengthscales)
+    mean = r @ emulator.alpha + emulator._h(x) @ emulator.trend
+    v = solve_triangular(corr.chol, r.T, lower=True)
+    cov = matern52(x, x, corr.lengthscales) - v.T @ v
+    try:
+        factor = np.linalg.cholesky(cov + JITTER * np.eye(len(x)))
+    except np.linalg.LinAlgError:  # rounding left the correlation indefinite: clip its spectrum
+        val, vec = np.linalg.eigh(cov)
+        factor = vec * np.sqrt(np.maximum(val, 0.0))
+    z = rng.standard_normal((count, len(x), mean.shape[1]))
+    return mean[None] + np.matmul(factor[None], z) * np.sqrt(emulator.scale2)[None, None, :]
+
+
+def _log_lik(emulator: CurveEmulator, outputs: Array, n_eff: float) -> Array:
+    """-(N_eff / 2) log L ``(P,)`` of emulated outputs ``(P, J + S)``."""
+    loss = emulator.features.loss(emulator.curves(outputs))
+    return -0.5 * n_eff * np.log(np.maximum(loss, 1e-300))
+
+
+def _support(sample: ImportanceSample, rng: np.random.Generator) -> tuple[NDArray[np.intp], Array]:
+    """Distinct rows of ``sample`` drawn with probabilities ~ sqrt(weight), and the log of
+    each one's importance weight for the mean's posterior ``(P,)`` (count * sqrt(weight))."""
+    half = np.where(np.isfinite(sample.log_weight), 0.5 * sample.log_weight, -np.inf)
+    p = np.exp(half - logsumexp(half))
+    rows, counts = np.unique(rng.choice(len(p), size=SUPPORT_POINTS, p=p), return_counts=True)
+    return rows, np.log(counts) + half[rows]
+
+
+def _normalised(log_w: Array) -> Array:
+    return log_w - logsumexp(log_w)
+
+
+def _quantiles(unit: Array, w: Array) -> Array:
+    """5/50/95 % quantiles ``(3, d)`` of the points ``unit`` ``(P, d)`` under the weights ``w`` ``(P,)``."""
+    w = w / np.sum(w)
+    return np.stack([weighted_quantile(unit[:, k], w, list(QUANTILES)) for k in range(unit.shape[1])], axis=1)
+
+
+def curve_spread(emulator: CurveEmulator, n_eff: float, sample: ImportanceSample, names: Sequence[str],
+                 rng: np.random.Generator, functions: int = SPREAD_FUNCTIONS,
+                 ) -> tuple[dict[str, Any], ImportanceSample]:
+    """The spread of ``functions`` sample functions' posteriors around the mean's, and the
+    mean's importance sample pooled with them (each posterior an equal share).
+
+    Args:
+        emulator: the curve emulator whose mean curves ``sample`` weights.
+        n_eff: effective points of the likelihood.
+        sample: the mean's importance sample (unit cube, ``(N, d)``).
+        names: the free parameters' names, ``d`` of them.
+        rng: draws the support and the functions.
+        functions: sample functions.
+
+    Returns:
+        The spread as :func:`smcbayes.posterior.spread.emulator_spread` records it (net of
+        the support's sampling noise: the mean's posterior on the support against the whole
+        sample), with each function's ESS on the support, and the pooled sample.
+    """
+    rows, log_w0 = _support(sample, rng)
+    x = sample.unit[rows]
+    base = _log_lik(emulator, emulator.predict(x)[0], n_eff)
+    lik = [_log_lik(emulator, out, n_eff) for out in joint_outputs(emulator, x, functions, rng)]
+    log_ws = [_normalised(log_w0 + lj - base) for lj in lik]
+    ref = _quantiles(x, np.exp(log_w0 - np.max(log_w0)))
+    noise = np.max(np.abs(ref - _quantiles(sample.unit, np.exp(sample.log_weight))), axis=0)
+    moved = np.max([np.max(np.abs(_quantiles(x, np.exp(lw)) - ref), axis=0) for lw in log_ws], axis=0)
+    shifts = np.maximum(moved - noise, 0.0)
+    spread = {"functions": functions, "steps": 0, "support_points": int(len(rows)),
+              "max_quantile_shift": float(np.max(shifts)),
+              "per_parameter": {n: float(v) for n, v in zip(names, shifts, strict=True)},
+              "sampling_noise": {n: float(v) for n, v in zip(names, noise, strict=True)},
+              "function_ess": [float(ess_of(lw)) for lw in log_ws]}
+    share = -np.log(functions + 1.0)
+    pooled = dataclasses.replace(
+        sample, unit=np.vstack([sample.unit] + [x] * functions),
+        log_target=np.concatenate([sample.log_target] + lik),
+        log_weight=np.concatenate([sample.log_weight + share] + [lw + share for lw in log_ws]),
+        iteration=np.concatenate([sample.iteration] + [np.full(len(rows), -1)] * functions))
+    return spread, dataclasses.replace(pooled, ess=ess_of(pooled.log_weight))
