@@ -4,7 +4,8 @@ posterior.
 
 Starts from the calibration GP's points (simulated again for their curves, through the
 stage's forward cache), then runs rounds of ``batch`` forward runs: half draws of the
-emulated posterior, half of the tempered one (likelihood^``temper``) of the optimistic
+emulated posterior pooled with those of GP sample functions
+(:mod:`smcbayes.posterior.curve_spread`), half of the tempered one (likelihood^``temper``) of the optimistic
 loss (curves one emulator sd closer to the data), which reaches regions the emulator's
 mean rates too low because it has no points there.  Each round samples the emulated
 posterior by adaptive importance sampling on the emulator (the correction's algorithm,
@@ -16,12 +17,14 @@ and a stopping rule judged on them stopped early and called a posterior reliable
 measured before they join its data (mean absolute, nats of log-likelihood; at most
 ``refine_tolerance_nats``), and how far the emulated posterior's quantiles moved
 (:func:`quantile_shift`, on common draws, so that the sampling noise cancels; at most
-:data:`QUANTILE_SHIFT`).  A stage whose budget runs out first is reported
-unreliable.  ``refine.jsonl`` logs each round.  The reported posterior is that of the GP
-mean's curves, sampled by importance on the emulator (:func:`importance_sample`): the
-variance term of :meth:`~smcbayes.posterior.curves.CurveEmulator.loss` lowers the
-likelihood wherever the emulator has few points, and on the accuracy benchmark's first
-case, after 140-380 runs, its posterior was further from the exact one.
+:data:`QUANTILE_SHIFT`); the last round's sample functions must also move it by at most
+:data:`~smcbayes.posterior.spread.SPREAD_MAX`.  A stage whose budget runs out first is
+reported unreliable.  ``refine.jsonl`` logs each round.  The reported posterior is that of
+the GP mean's curves, sampled by importance on the emulator (:func:`importance_sample`),
+which the stage pools with its sample functions' posteriors.  The expected loss (the
+variance term of :meth:`~smcbayes.posterior.curves.CurveEmulator.loss`) is not used for
+that: it lowers the likelihood wherever the emulator has few points, and on the accuracy
+benchmark's first case, after 140-380 runs, its posterior was further from the exact one.
 """
 
 from __future__ import annotations
@@ -43,8 +46,10 @@ from smcbayes.config import PosteriorSpec
 from smcbayes.errors import SmcBayesWarning, SurrogateError
 from smcbayes.posterior.context import RunContext
 from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample, correct, weighted_quantile
+from smcbayes.posterior.curve_spread import curve_spread
 from smcbayes.posterior.curves import CurveEmulator, CurveFeatures, log_posterior
 from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
+from smcbayes.posterior.spread import SPREAD_MAX
 
 logger = logging.getLogger(__name__)
 
@@ -135,14 +140,18 @@ class _Round:
 
     Attributes:
         new: the rows to simulate ``(B, d)``: the first ``posterior`` are draws of the
-            emulated posterior, the rest of the tempered optimistic one.
+            emulated posterior pooled with its GP sample functions', the rest of the
+            tempered optimistic one.
         posterior: how many of ``new`` are posterior draws.
-        sample: the round's importance sample of the emulated posterior.
+        sample: the round's importance sample of the emulated posterior (the mean's).
+        spread: how far the sample functions move its 5/50/95 % quantiles (share of the
+            unit cube; :func:`~smcbayes.posterior.curve_spread.curve_spread`).
     """
 
     new: Array
     posterior: int
     sample: ImportanceSample
+    spread: float
 
 
 def _choose(weights: Array, count: int, rng: np.random.Generator) -> NDArray[np.int_]:
@@ -159,8 +168,8 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     earlier round's posterior draws ``start`` ``(S, d)`` and tempered draws, a quarter of
     :data:`START_ROWS` or as many as the chains hold; on the first round, whose ``start``
     holds only the best training points, nearly all tempered; twice as many draws once
-    more when its ESS is below :data:`ROUND_ESS`), half from the tempered posterior of the
-    optimistic loss (emcee)."""
+    more when its ESS is below :data:`ROUND_ESS`) and pooled with the posteriors of GP
+    sample functions, half from the tempered posterior of the optimistic loss (emcee)."""
     d = emulator.x.shape[1]
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
     # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
@@ -176,10 +185,13 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
         # too few to measure the round's move by: once more, twice as long, from what it found
         found = sample.resample(START_ROWS // 2, rng)
         sample = _emulator_sample(emulator, n_eff, np.vstack([found, share]), spec, 2 * ROUND_DRAWS, rng)
+    # the posterior half from the pooled posterior, which the stage reports: where the
+    # sample functions disagree with the mean, the next runs settle it
+    spread, pooled = curve_spread(emulator, n_eff, sample, [str(k) for k in range(d)], rng)
     half = max(1, size // 2)
-    new = np.vstack([sample.unit[_choose(sample.weights, half, rng)],
+    new = np.vstack([pooled.unit[_choose(pooled.weights, half, rng)],
                      wide[rng.choice(len(wide), size - half, replace=size - half > len(wide))]])
-    return _Round(new, half, sample)
+    return _Round(new, half, sample, spread["max_quantile_shift"])
 
 
 def quantile_shift(sample: ImportanceSample, before: Callable[[Array], Array]) -> float:
@@ -238,6 +250,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     spent, rounds = 0, 0
     errors: list[Array] = []
     shifts: list[float | None] = []
+    spreads: list[float] = []
     before: Callable[[Array], Array] | None = None
     a = 0.5 * n_eff
     start = x[np.argsort(features.loss(y))[:walkers]]
@@ -245,12 +258,13 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     while True:
         t0 = time.perf_counter()
         emulator = CurveEmulator(features, x, y, start=emulator)
-        converged = _validated(errors, shifts, tolerance_nats)
+        converged = _validated(errors, shifts, tolerance_nats, spreads)
         if converged or spent >= budget:
             break
         step = _round(emulator, n_eff, min(BATCH, budget - spent), start, spec, rng, walkers)
         unclear = before is None or step.sample.ess < ROUND_ESS
         shifts.append(None if unclear else quantile_shift(step.sample, before))
+        spreads.append(step.spread)
         before = log_posterior(emulator, n_eff, variance=False)
         start = step.sample.resample(3 * START_ROWS // 4, rng)
         t1 = time.perf_counter()
@@ -264,7 +278,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         # the distinct rows the next emulator is fitted to (a repeated row counts once)
         record = {"round": rounds, "training_points": len(np.unique(x, axis=0)), "forward_runs": spent,
                   "error_nats": _finite(np.mean(errors[-1])),
-                  "quantile_shift": shifts[-1], "importance_ess": step.sample.ess, "k_hat": step.sample.k_hat,
+                  "quantile_shift": shifts[-1], "spread": spreads[-1], "importance_ess": step.sample.ess, "k_hat": step.sample.k_hat,
                   "components": emulator.components, "lengthscales": emulator.corr.lengthscales.tolist(),
                   "seconds_fit_and_sampling": t1 - t0, "seconds_forward": time.perf_counter() - t1}
         logger.info("curve emulator round %d: %d points, error %.2f nats at fresh posterior draws",
@@ -275,7 +289,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     worst = None if not last or None in last else max(last)
     return emulator, x, y, {"evaluations": spent, "converged": converged, "rounds": rounds,
                             "error_nats": worst, "quantile_shift": shifts[-1] if shifts else None,
-                            "last_errors_nats": last, "last_quantile_shifts": shifts[-VALIDATED_ROUNDS:]}
+                            "last_errors_nats": last, "last_quantile_shifts": shifts[-VALIDATED_ROUNDS:],
+                            "last_spread": spreads[-1] if spreads else None}
 
 
 def _finite(value: float) -> float | None:
@@ -283,11 +298,14 @@ def _finite(value: float) -> float | None:
     return float(value) if np.isfinite(value) else None
 
 
-def _validated(errors: list[Array], shifts: list[float | None], tolerance_nats: float) -> bool:
-    """The last :data:`VALIDATED_ROUNDS` rounds validate the emulator (see :func:`learn`)."""
+def _validated(errors: list[Array], shifts: list[float | None], tolerance_nats: float,
+               spreads: list[float]) -> bool:
+    """The last :data:`VALIDATED_ROUNDS` rounds validate the emulator and the last one's
+    spread is small (see :func:`learn`)."""
     recent = shifts[-VALIDATED_ROUNDS:]
     return (len(recent) == VALIDATED_ROUNDS and all(s is not None and s <= QUANTILE_SHIFT for s in recent)
-            and all(float(np.mean(e)) <= tolerance_nats for e in errors[-VALIDATED_ROUNDS:]))
+            and all(float(np.mean(e)) <= tolerance_nats for e in errors[-VALIDATED_ROUNDS:])
+            and bool(spreads) and spreads[-1] <= SPREAD_MAX)
 
 
 def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: PosteriorSpec,

@@ -14,6 +14,7 @@ from smcbayes.posterior.curve_stage import (
     _validated,
     quantile_shift,
 )
+from smcbayes.posterior.spread import SPREAD_MAX
 
 
 def _sample(centre: float, count: int = 20000, seed: int = 0) -> ImportanceSample:
@@ -54,14 +55,18 @@ def test_choose_draws_distinct_points_by_weight_and_repeats_only_when_it_must() 
 def test_rounds_validate_only_when_stable_and_accurate_together() -> None:
     small = [np.full(20, 0.5)] * VALIDATED_ROUNDS
     stable = [QUANTILE_SHIFT / 2] * VALIDATED_ROUNDS
-    assert _validated(small, [None, *stable], 1.0)
-    assert not _validated(small[:-1], stable[:-1], 1.0)  # too few rounds
-    assert not _validated(small, [*stable[:-1], 2 * QUANTILE_SHIFT], 1.0)  # the last round moved
-    assert not _validated(small, [None, *stable[:-1]], 1.0)  # a round with nothing to compare
+    narrow = [SPREAD_MAX / 2] * VALIDATED_ROUNDS
+    assert _validated(small, [None, *stable], 1.0, narrow)
+    assert not _validated(small[:-1], stable[:-1], 1.0, narrow)  # too few rounds
+    assert not _validated(small, [*stable[:-1], 2 * QUANTILE_SHIFT], 1.0, narrow)  # the last round moved
+    assert not _validated(small, [None, *stable[:-1]], 1.0, narrow)  # a round with nothing to compare
     # every round must be within the tolerance: a good mean over the rounds is not enough
-    assert not _validated([np.full(20, 0.2), np.full(20, 0.2), np.full(20, 1.4)], stable, 1.0)
+    assert not _validated([np.full(20, 0.2), np.full(20, 0.2), np.full(20, 1.4)], stable, 1.0, narrow)
     # earlier rounds do not count
-    assert _validated([np.full(20, 50.0), *small], stable, 1.0)
+    assert _validated([np.full(20, 50.0), *small], stable, 1.0, [1.0, *narrow])
+    # the last round's sample functions must agree with the mean; only the last round's count
+    assert not _validated(small, stable, 1.0, [*narrow[:-1], 2 * SPREAD_MAX])
+    assert _validated(small, stable, 1.0, [2 * SPREAD_MAX, *narrow[1:]])
 
 
 def test_the_correlation_by_matrix_product_is_the_matern_of_the_distances() -> None:

@@ -118,3 +118,20 @@ def test_noise_free_data_is_the_one_reason_given() -> None:
     assert len(assess(info, space, 3.0)["reasons"]) == 1  # k-hat
     verdict = assess(info, space, 3.0, noise_free=True)
     assert verdict["reasons"] == [verdict["reasons"][0]] and "noise-free" in verdict["reasons"][0]
+
+
+def test_a_curve_emulator_out_of_budget_names_its_last_rounds_and_spread() -> None:
+    space = _space()
+    narrow = [{"name": p.name, "q05": p.lower + 0.4 * (p.upper - p.lower),
+               "q95": p.lower + 0.5 * (p.upper - p.lower), "r_hat": 1.01} for p in space.free]
+    active = {"enabled": True, "kind": "curves", "converged": False, "evaluations": 640, "tolerance_nats": 1.0,
+              "last_errors_nats": [0.7, None, 0.9], "last_quantile_shifts": [0.02, 0.03, None],
+              "last_spread": 0.23}
+    info = {"parameters": narrow, "active_learning": active, "emulator_check": {"mean_abs_error": 0.5},
+            "correction": {"enabled": True, "target": "emulator", "k_hat": 0.2, "ess": 2500, "settled": True}}
+    verdict = assess(info, space, 10.0)
+    assert not verdict["reliable"] and len(verdict["reasons"]) == 1
+    reason = verdict["reasons"][0]
+    assert "640 forward runs" in reason and "0.7 nats, not measured, 0.9 nats" in reason
+    assert "0.02, 0.03, not measured" in reason and "moving a quantile by 0.23" in reason
+    assert reason.endswith("raise --refine")
