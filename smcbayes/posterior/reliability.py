@@ -7,7 +7,9 @@ or, without a correction, the emulator chains (R-hat > 1.05, Vehtari et al. 2021
 "Rank-normalization, folding, and localization", Bayesian Analysis 16) and the emulator's
 error at posterior draws (above 1 nat the emulated likelihood misplaces mass) and the
 emulator's spread (the posteriors of GP sample functions move a quantile by more than
-:data:`~smcbayes.posterior.spread.SPREAD_MAX` of its range, :mod:`smcbayes.posterior.spread`).  Two
+:data:`~smcbayes.posterior.spread.SPREAD_MAX` of its range, :mod:`smcbayes.posterior.spread`;
+for the curve emulator, also when a sample function's posterior rests on too few points of
+the emulated posterior's sample to measure it, :mod:`smcbayes.posterior.curve_spread`).  Two
 degenerate cases are named as well: a posterior that is the prior (the data do not inform
 the parameters) and a loss that vanishes at the best point (noise-free data: the
 likelihood -(N_eff/2) log L has a spike there, and no sampler or emulator can resolve it).
@@ -28,6 +30,9 @@ R_HAT_MAX = 1.05
 CHECK_MAX_NATS = 1.0
 PRIOR_SHARE = 0.8
 """A 90 % interval wider than this share of its search range does not narrow the prior."""
+SPREAD_MIN_ESS = 50
+"""Least importance ESS of a curve-emulator sample function's posterior on its support
+(:mod:`smcbayes.posterior.curve_spread`) for the spread it shows to be measured."""
 VANISHING_LOSS_KN2 = 1e-8
 """A best loss below this (kN^2) is a curve reproduced to round-off: noise-free data."""
 NOISE_FREE_REASON = ("the training curves are noise-free simulator output: the loss vanishes at the "
@@ -101,6 +106,11 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
                    f"of its mean a 5/50/95 % quantile of {worst} moves by {spread['max_quantile_shift']:.2f} "
                    f"of its range (> {SPREAD_MAX}), so a tail or an arm of the posterior is not pinned down "
                    f"yet; {remedy}")
+    thin = min((spread or {}).get("function_ess") or [math.inf])
+    if thin < SPREAD_MIN_ESS:
+        out.append(f"a GP sample function's posterior rests on {thin:.0f} effective points of the emulated "
+                   f"posterior's sample (< {SPREAD_MIN_ESS}): it lies mostly where that sample has no points, "
+                   "so the emulator's spread is larger than measured; raise --refine")
     return out
 
 

@@ -135,3 +135,18 @@ def test_a_curve_emulator_out_of_budget_names_its_last_rounds_and_spread() -> No
     assert "640 forward runs" in reason and "0.7 nats, not measured, 0.9 nats" in reason
     assert "0.02, 0.03, not measured" in reason and "moving a quantile by 0.23" in reason
     assert reason.endswith("raise --refine")
+
+
+def test_a_sample_function_resting_on_few_points_leaves_the_spread_unmeasured() -> None:
+    space = _space()
+    narrow = [{"name": p.name, "q05": p.lower + 0.4 * (p.upper - p.lower),
+               "q95": p.lower + 0.5 * (p.upper - p.lower), "r_hat": 1.01} for p in space.free]
+    spread = {"max_quantile_shift": 0.04, "per_parameter": {p.name: 0.04 for p in space.free},
+              "function_ess": [300.0, 12.4, 250.0, 80.0]}
+    info = {"parameters": narrow, "emulator_spread": spread, "emulator_check": {"mean_abs_error": 0.5},
+            "correction": {"enabled": True, "target": "emulator", "k_hat": 0.2, "ess": 2500, "settled": True}}
+    verdict = assess(info, space, 10.0)
+    assert not verdict["reliable"] and len(verdict["reasons"]) == 1
+    assert "rests on 12 effective points" in verdict["reasons"][0]
+    spread["function_ess"] = [300.0, 60.0]
+    assert assess(info, space, 10.0)["reliable"]
