@@ -472,7 +472,8 @@ def main() -> int:
                     help="most proposal draws of the importance correction (0: the emulator alone, the "
                          "default of an external simulator; the built-in simulator's default corrects "
                          "with the [posterior.correction] draws)")
-    ap.add_argument("--emulator", choices=choices_of(PosteriorSpec, "emulator"), default=PosteriorSettings().emulator,
+    ap.add_argument("--emulator", choices=choices_of(PosteriorSpec, "emulator"),
+                    default=PosteriorSettings().emulator,
                     help="what the stage's GP emulates (default: the stage's)")
     ap.add_argument("--tag", default="", help="suffix of the result file (e.g. the budget)")
     ap.add_argument("--peer", choices=("none", "pyvbmc"), default="none",

@@ -207,7 +207,8 @@ def main() -> int:
                     help="active-learning evaluations (default: the posterior stage's default)")
     ap.add_argument("--correct-draws", type=int, default=0,
                     help="most proposal draws of the importance correction (0: none, the default path)")
-    ap.add_argument("--emulator", choices=choices_of(PosteriorSpec, "emulator"), default=PosteriorSettings().emulator,
+    ap.add_argument("--emulator", choices=choices_of(PosteriorSpec, "emulator"),
+                    default=PosteriorSettings().emulator,
                     help="what the stage's GP emulates (default: the stage's)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1, help="datasets run in parallel processes")

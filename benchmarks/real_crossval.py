@@ -436,7 +436,8 @@ def parse() -> argparse.Namespace:
     ap.add_argument("--refine", type=int, default=d(PosteriorSpec, "refine"))
     ap.add_argument("--correct-draws", type=int, default=d(PosteriorSpec, "correct_draws"))
     ap.add_argument("--draws", type=int, default=d(PosteriorSpec, "draws"))
-    ap.add_argument("--emulator", choices=choices_of(PosteriorSpec, "emulator"), default=d(PosteriorSpec, "emulator"),
+    ap.add_argument("--emulator", choices=choices_of(PosteriorSpec, "emulator"),
+                    default=d(PosteriorSpec, "emulator"),
                     help="the posterior's emulator (smcbayes posterior --emulator)")
     return ap.parse_args()
 

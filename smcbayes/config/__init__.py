@@ -38,6 +38,6 @@ __all__ = [
     "CalibrationSpec", "ChargeSpec", "ClipMode", "ConfigurationSpec", "DataSpec", "LossSpec",
     "MaterialSpec", "MouldSpec", "ParameterSpec", "PartSpec", "PieceSpec", "PreprocessSpec", "PressSpec",
     "ProjectConfig", "SolverSpec", "Strict", "build_project", "format_validation_error",
-    "load_project", "parse_assignments", "PosteriorSpec", "DiagnoseSpec", "CorrectionSpec", "choices_of", "default_of", "help_of",
-    "override",
+    "load_project", "parse_assignments", "PosteriorSpec", "DiagnoseSpec", "CorrectionSpec", "choices_of",
+    "default_of", "help_of", "override",
 ]

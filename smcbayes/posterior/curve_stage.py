@@ -5,9 +5,9 @@ posterior.
 Starts from the calibration GP's points (simulated again for their curves, through the
 stage's forward cache), then runs rounds of ``batch`` forward runs: half draws of the
 emulated posterior pooled with those of GP sample functions
-(:mod:`smcbayes.posterior.curve_spread`), half of the tempered one (likelihood^``temper``) of the optimistic
-loss (curves one emulator sd closer to the data), which reaches regions the emulator's
-mean rates too low because it has no points there.  Each round samples the emulated
+(:mod:`smcbayes.posterior.curve_spread`), half of the tempered one (likelihood^``temper``)
+of the optimistic loss (curves one emulator sd closer to the data), which reaches regions
+the emulator's mean rates too low because it has no points there.  Each round samples the emulated
 posterior by adaptive importance sampling on the emulator (the correction's algorithm,
 no forward run): emcee chains started at the best point under-sample a flat arm of the
 accuracy benchmark's first case (1.2 % of the mass where the exact posterior has 6.5 %),
@@ -278,7 +278,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         # the distinct rows the next emulator is fitted to (a repeated row counts once)
         record = {"round": rounds, "training_points": len(np.unique(x, axis=0)), "forward_runs": spent,
                   "error_nats": _finite(np.mean(errors[-1])),
-                  "quantile_shift": shifts[-1], "spread": spreads[-1], "importance_ess": step.sample.ess, "k_hat": step.sample.k_hat,
+                  "quantile_shift": shifts[-1], "spread": spreads[-1], "importance_ess": step.sample.ess,
+                  "k_hat": step.sample.k_hat,
                   "components": emulator.components, "lengthscales": emulator.corr.lengthscales.tolist(),
                   "seconds_fit_and_sampling": t1 - t0, "seconds_forward": time.perf_counter() - t1}
         logger.info("curve emulator round %d: %d points, error %.2f nats at fresh posterior draws",

@@ -108,9 +108,9 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
                    f"yet; {remedy}")
     thin = min((spread or {}).get("function_ess") or [math.inf])
     if thin < SPREAD_MIN_ESS:
-        out.append(f"a GP sample function's posterior rests on {thin:.0f} effective points of the emulated "
-                   f"posterior's sample (< {SPREAD_MIN_ESS}): it lies mostly where that sample has no points, "
-                   "so the emulator's spread is larger than measured; raise --refine")
+        out.append(f"a GP sample function's posterior rests on {thin:.0f} effective points of the "
+                   f"emulated posterior's sample (< {SPREAD_MIN_ESS}): it lies mostly where that sample "
+                   "has no points, so the emulator's spread is larger than measured; raise --refine")
     return out
 
 
