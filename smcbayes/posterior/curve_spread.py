@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 from scipy.linalg import solve_triangular
 from scipy.special import logsumexp
 
+from smcbayes.errors import SurrogateError
 from smcbayes.posterior.correct import ImportanceSample
 from smcbayes.posterior.curves import CurveEmulator, matern52
 from smcbayes.posterior.spread import QUANTILES, SPREAD_FUNCTIONS
@@ -37,6 +38,11 @@ Array = NDArray[np.float64]
 
 SUPPORT_POINTS = 1500
 """Draws of the support (with repeats) on which the sample functions are drawn jointly."""
+
+SPREAD_MIN_ESS = 50
+"""Least importance ESS of a sample function's posterior on the support for the spread it
+shows to be measured (below it, the function's posterior lies mostly where the mean's
+sample has no points)."""
 
 JITTER = 1e-8
 """Added to the support's posterior correlation before its factorisation (unit variance)."""
@@ -70,19 +76,35 @@ def _support(sample: ImportanceSample, rng: np.random.Generator) -> tuple[NDArra
     """Distinct rows of ``sample`` drawn with probabilities ~ sqrt(weight), and the log of
     each one's importance weight for the mean's posterior ``(P,)`` (count * sqrt(weight))."""
     half = np.where(np.isfinite(sample.log_weight), 0.5 * sample.log_weight, -np.inf)
+    if not np.isfinite(half).any():
+        raise SurrogateError("the emulated posterior's importance sample has no point of positive weight")
     p = np.exp(half - logsumexp(half))
     rows, counts = np.unique(rng.choice(len(p), size=SUPPORT_POINTS, p=p), return_counts=True)
     return rows, np.log(counts) + half[rows]
 
 
 def _normalised(log_w: Array) -> Array:
-    return log_w - logsumexp(log_w)
+    """Log weights ``(P,)`` normalised to sum to one; all -inf where none is finite."""
+    finite = np.isfinite(log_w)
+    if not finite.any():
+        return np.full_like(log_w, -np.inf)
+    return np.where(finite, log_w - logsumexp(log_w[finite]), -np.inf)
 
 
 def _quantiles(unit: Array, w: Array) -> Array:
     """5/50/95 % quantiles ``(3, d)`` of the points ``unit`` ``(P, d)`` under the weights ``w`` ``(P,)``."""
     w = w / np.sum(w)
     return np.stack([weighted_quantile(unit[:, k], w, list(QUANTILES)) for k in range(unit.shape[1])], axis=1)
+
+
+def _function_shift(x: Array, ref: Array, log_w: Array) -> Array:
+    """Largest |quantile difference| per parameter ``(d,)`` between the weighted support
+    ``x`` ``(P, d)`` under the log weights ``log_w`` ``(P,)`` and the mean's quantiles
+    ``ref`` ``(3, d)``; the whole range (1) where the function's likelihood vanishes
+    everywhere on the support."""
+    if not np.isfinite(log_w).any():
+        return np.ones(x.shape[1])
+    return np.max(np.abs(_quantiles(x, np.exp(log_w)) - ref), axis=0)
 
 
 def curve_spread(emulator: CurveEmulator, n_eff: float, sample: ImportanceSample, names: Sequence[str],
@@ -94,34 +116,36 @@ def curve_spread(emulator: CurveEmulator, n_eff: float, sample: ImportanceSample
     Args:
         emulator: the curve emulator whose mean curves ``sample`` weights.
         n_eff: effective points of the likelihood.
-        sample: the mean's importance sample (unit cube, ``(N, d)``).
+        sample: the mean's importance sample (unit cube, ``(N, d)``; its ``log_target``
+            the emulated log posterior of the mean curves).
         names: the free parameters' names, ``d`` of them.
         rng: draws the support and the functions.
         functions: sample functions.
 
     Returns:
-        The spread as :func:`smcbayes.posterior.spread.emulator_spread` records it (net of
-        the support's sampling noise: the mean's posterior on the support against the whole
-        sample), with each function's ESS on the support, and the pooled sample.
+        The spread as :func:`smcbayes.posterior.spread.emulator_spread` records it: the
+        functions' shifts net of the sampling noise of a support (the mean's posterior on a
+        second, independent support against the first), with each function's ESS on the
+        support; and the pooled sample: the mean's points, each weighted by the mean's share
+        plus the functions' shares of it (its ``log_target`` stays the mean's).
     """
     rows, log_w0 = _support(sample, rng)
-    x = sample.unit[rows]
-    base = _log_lik(emulator, emulator.predict(x)[0], n_eff)
+    x, base = sample.unit[rows], sample.log_target[rows]
     lik = [_log_lik(emulator, out, n_eff) for out in joint_outputs(emulator, x, functions, rng)]
     log_ws = [_normalised(log_w0 + lj - base) for lj in lik]
     ref = _quantiles(x, np.exp(log_w0 - np.max(log_w0)))
-    noise = np.max(np.abs(ref - _quantiles(sample.unit, np.exp(sample.log_weight))), axis=0)
-    moved = np.max([np.max(np.abs(_quantiles(x, np.exp(lw)) - ref), axis=0) for lw in log_ws], axis=0)
+    rows2, log_w2 = _support(sample, rng)
+    noise = np.max(np.abs(_quantiles(sample.unit[rows2], np.exp(log_w2 - np.max(log_w2))) - ref), axis=0)
+    moved = np.max([_function_shift(x, ref, lw) for lw in log_ws], axis=0)
     shifts = np.maximum(moved - noise, 0.0)
     spread = {"functions": functions, "steps": 0, "support_points": int(len(rows)),
               "max_quantile_shift": float(np.max(shifts)),
               "per_parameter": {n: float(v) for n, v in zip(names, shifts, strict=True)},
               "sampling_noise": {n: float(v) for n, v in zip(names, noise, strict=True)},
-              "function_ess": [float(ess_of(lw)) for lw in log_ws]}
-    share = -np.log(functions + 1.0)
-    pooled = dataclasses.replace(
-        sample, unit=np.vstack([sample.unit] + [x] * functions),
-        log_target=np.concatenate([sample.log_target] + lik),
-        log_weight=np.concatenate([sample.log_weight + share] + [lw + share for lw in log_ws]),
-        iteration=np.concatenate([sample.iteration] + [np.full(len(rows), -1)] * functions))
-    return spread, dataclasses.replace(pooled, ess=ess_of(pooled.log_weight))
+              "function_ess": [ess_of(lw) for lw in log_ws]}
+    weight = np.exp(sample.log_weight) / (functions + 1.0)
+    for lw in log_ws:
+        np.add.at(weight, rows, np.exp(lw) / (functions + 1.0))
+    with np.errstate(divide="ignore"):
+        log_weight = np.log(weight / weight.sum())
+    return spread, dataclasses.replace(sample, log_weight=log_weight, ess=ess_of(log_weight))

@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import time
 import warnings
 from collections.abc import Callable
@@ -46,7 +47,7 @@ from smcbayes.config import PosteriorSpec
 from smcbayes.errors import SmcBayesWarning, SurrogateError
 from smcbayes.posterior.context import RunContext
 from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample, correct, weighted_quantile
-from smcbayes.posterior.curve_spread import curve_spread
+from smcbayes.posterior.curve_spread import SPREAD_MIN_ESS, curve_spread
 from smcbayes.posterior.curves import CurveEmulator, CurveFeatures, log_posterior
 from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
 from smcbayes.posterior.spread import SPREAD_MAX
@@ -145,7 +146,9 @@ class _Round:
         posterior: how many of ``new`` are posterior draws.
         sample: the round's importance sample of the emulated posterior (the mean's).
         spread: how far the sample functions move its 5/50/95 % quantiles (share of the
-            unit cube; :func:`~smcbayes.posterior.curve_spread.curve_spread`).
+            unit cube; :func:`~smcbayes.posterior.curve_spread.curve_spread`); infinite
+            when a function's posterior rests on fewer than
+            :data:`~smcbayes.posterior.curve_spread.SPREAD_MIN_ESS` points of the sample.
     """
 
     new: Array
@@ -191,7 +194,9 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     half = max(1, size // 2)
     new = np.vstack([pooled.unit[_choose(pooled.weights, half, rng)],
                      wide[rng.choice(len(wide), size - half, replace=size - half > len(wide))]])
-    return _Round(new, half, sample, spread["max_quantile_shift"])
+    # a function resting on a few points of the sample has moved it further than measured
+    thin = min(spread["function_ess"]) < SPREAD_MIN_ESS
+    return _Round(new, half, sample, math.inf if thin else spread["max_quantile_shift"])
 
 
 def quantile_shift(sample: ImportanceSample, before: Callable[[Array], Array]) -> float:
@@ -225,7 +230,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     The emulator is validated when, in each of the last :data:`VALIDATED_ROUNDS` rounds,
     its mean absolute error at the round's fresh posterior draws (measured before they
     join its data) is at most ``tolerance_nats`` and the quantiles of the emulated
-    posterior moved by at most :data:`QUANTILE_SHIFT`.
+    posterior moved by at most :data:`QUANTILE_SHIFT`, and the last round's sample
+    functions moved them by at most :data:`~smcbayes.posterior.spread.SPREAD_MAX`.
 
     Args:
         simulate: unit-cube rows ``(P, d)`` -> features ``(P, F)`` and success ``(P,)``.
@@ -242,7 +248,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         ``converged``, ``rounds``, ``error_nats`` (the worst of the last rounds' errors),
         ``quantile_shift`` (the last round's), ``last_errors_nats`` and
         ``last_quantile_shifts`` (those of the last :data:`VALIDATED_ROUNDS` rounds; ``None``
-        for a round with nothing to compare, or a sample too thin to tell)).  The first
+        for a round with nothing to compare, or a sample too thin to tell) and
+        ``last_spread`` (the last round's; ``None`` when not measured)).  The first
         round has no earlier emulator to compare with, so the emulator can be validated
         after ``VALIDATED_ROUNDS + 1`` rounds at the earliest.
     """
@@ -275,15 +282,12 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         exact = -a * np.log(np.maximum(features.loss(y_new[:step.posterior][at]), 1e-300))
         errors.append(np.abs(emulated - exact) if np.any(at) else np.array([np.inf]))
         x, y = np.vstack([x, step.new[ok]]), np.vstack([y, y_new[ok]])
-        # the distinct rows the next emulator is fitted to (a repeated row counts once)
         record = {"round": rounds, "training_points": len(np.unique(x, axis=0)), "forward_runs": spent,
-                  "error_nats": _finite(np.mean(errors[-1])),
-                  "quantile_shift": shifts[-1], "spread": spreads[-1], "importance_ess": step.sample.ess,
-                  "k_hat": step.sample.k_hat,
-                  "components": emulator.components, "lengthscales": emulator.corr.lengthscales.tolist(),
-                  "seconds_fit_and_sampling": t1 - t0, "seconds_forward": time.perf_counter() - t1}
+                  "error_nats": _finite(np.mean(errors[-1])), "quantile_shift": shifts[-1],
+                  **_round_record(emulator, step), "seconds_fit_and_sampling": t1 - t0,
+                  "seconds_forward": time.perf_counter() - t1}
         logger.info("curve emulator round %d: %d points, error %.2f nats at fresh posterior draws",
-                    rounds, len(x), float(np.mean(errors[-1])))
+                    rounds, record["training_points"], float(np.mean(errors[-1])))
         if log is not None:
             log(record)
     last = [_finite(np.mean(e)) for e in errors[-VALIDATED_ROUNDS:]]
@@ -291,7 +295,14 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     return emulator, x, y, {"evaluations": spent, "converged": converged, "rounds": rounds,
                             "error_nats": worst, "quantile_shift": shifts[-1] if shifts else None,
                             "last_errors_nats": last, "last_quantile_shifts": shifts[-VALIDATED_ROUNDS:],
-                            "last_spread": spreads[-1] if spreads else None}
+                            "last_spread": _finite(spreads[-1]) if spreads else None}
+
+
+def _round_record(emulator: CurveEmulator, step: _Round) -> dict[str, Any]:
+    """What ``refine.jsonl`` keeps of a round's sample and emulator (the spread ``None``
+    when it was not measured)."""
+    return {"spread": _finite(step.spread), "importance_ess": step.sample.ess, "k_hat": step.sample.k_hat,
+            "components": emulator.components, "lengthscales": emulator.corr.lengthscales.tolist()}
 
 
 def _finite(value: float) -> float | None:

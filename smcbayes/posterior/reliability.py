@@ -23,6 +23,7 @@ from typing import Any
 
 from smcbayes.forward.parameters import ParameterSpace
 from smcbayes.posterior.correct import K_HAT_WARN, draws_advice
+from smcbayes.posterior.curve_spread import SPREAD_MIN_ESS
 from smcbayes.posterior.curve_stage import QUANTILE_SHIFT
 from smcbayes.posterior.spread import SPREAD_MAX
 
@@ -30,9 +31,6 @@ R_HAT_MAX = 1.05
 CHECK_MAX_NATS = 1.0
 PRIOR_SHARE = 0.8
 """A 90 % interval wider than this share of its search range does not narrow the prior."""
-SPREAD_MIN_ESS = 50
-"""Least importance ESS of a curve-emulator sample function's posterior on its support
-(:mod:`smcbayes.posterior.curve_spread`) for the spread it shows to be measured."""
 VANISHING_LOSS_KN2 = 1e-8
 """A best loss below this (kN^2) is a curve reproduced to round-off: noise-free data."""
 NOISE_FREE_REASON = ("the training curves are noise-free simulator output: the loss vanishes at the "
@@ -108,9 +106,11 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
                    f"yet; {remedy}")
     thin = min((spread or {}).get("function_ess") or [math.inf])
     if thin < SPREAD_MIN_ESS:
+        remedy = ("lower refine_tolerance_nats in the project's [posterior] table" if active.get("converged")
+                  else "raise --refine")
         out.append(f"a GP sample function's posterior rests on {thin:.0f} effective points of the "
                    f"emulated posterior's sample (< {SPREAD_MIN_ESS}): it lies mostly where that sample "
-                   "has no points, so the emulator's spread is larger than measured; raise --refine")
+                   f"has no points, so the emulator's spread is larger than measured; {remedy}")
     return out
 
 
@@ -140,8 +140,10 @@ def _curve_budget_reason(active: dict[str, Any]) -> str:
 
     errors, shifts = active.get("last_errors_nats") or [], active.get("last_quantile_shifts") or []
     spread = active.get("last_spread")
-    spread_words = "" if spread is None else (f"; its sample functions moving a quantile by {spread:.2g}, "
-                                              f"to be at most {SPREAD_MAX}")
+    spread_words = ("" if "last_spread" not in active or not active.get("rounds") else
+                    f"; its sample functions' move of a quantile not measured (to be at most {SPREAD_MAX})"
+                    if spread is None else
+                    f"; its sample functions moving a quantile by {spread:.2g}, to be at most {SPREAD_MAX}")
     return (f"the active learning spent its {active.get('evaluations')} forward runs before the emulator was "
             f"validated where the posterior lies (its last rounds' errors at fresh posterior draws "
             f"{words(errors, ' nats')}, each to be within {active.get('tolerance_nats', math.nan):.2g}; "

@@ -160,7 +160,7 @@ def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSetti
         CurveFeatures(ctx.problem)  # a loss the curves cannot give is refused before any run
         if settings.functions > 0:
             logger.warning("--functions %d draws sample functions of the log-loss emulator; the curve "
-                           "emulator's posterior is that of its mean curves, so it is ignored",
+                           "emulator pools its own four (see --no-pool-functions), so it is ignored",
                            settings.functions)
     if slow and settings.correct_draws > 0:
         # each correction draw inside the box is one run of the user's solver per configuration

@@ -121,12 +121,8 @@ def _inference_data(az: Any, space: ParameterSpace, chains: Sequence[Chains], at
 
 
 def _rows_of(unit: Array, picked: Array) -> Array:
-    """Row index in ``unit`` ``(N, d)`` of every row of ``picked`` ``(R, d)`` (resampled copies):
-    the first of equal rows (a pooled sample repeats the mean's rows after them, with the
-    sample functions' log targets)."""
-    lookup: dict[bytes, int] = {}
-    for i, row in enumerate(unit):
-        lookup.setdefault(row.tobytes(), i)
+    """Row index in ``unit`` ``(N, d)`` of every row of ``picked`` ``(R, d)`` (resampled copies)."""
+    lookup = {row.tobytes(): i for i, row in enumerate(unit)}
     return np.array([lookup[row.tobytes()] for row in picked], dtype=int)
 
 

@@ -329,7 +329,7 @@ def test_an_unsettled_correction_says_how_many_draws_would_settle_it() -> None:
     assert "of 3000" in res.warnings[0]
 
 
-def test_proposal_density_of_several_kernels_across_chunks() -> None:
+def test_proposal_density_of_several_kernels() -> None:
     """The compiled density of several kernels against scipy's."""
     rng = np.random.default_rng(8)
     centres = rng.random((3, 2))

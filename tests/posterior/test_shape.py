@@ -124,7 +124,7 @@ def test_a_curve_emulator_out_of_budget_names_its_last_rounds_and_spread() -> No
     space = _space()
     narrow = [{"name": p.name, "q05": p.lower + 0.4 * (p.upper - p.lower),
                "q95": p.lower + 0.5 * (p.upper - p.lower), "r_hat": 1.01} for p in space.free]
-    active = {"enabled": True, "kind": "curves", "converged": False, "evaluations": 640,
+    active = {"enabled": True, "kind": "curves", "converged": False, "evaluations": 640, "rounds": 16,
               "tolerance_nats": 1.0,
               "last_errors_nats": [0.7, None, 0.9], "last_quantile_shifts": [0.02, 0.03, None],
               "last_spread": 0.23}

@@ -497,10 +497,12 @@ def _emulator_sample(emulator: CurveEmulator, n_eff: float, count: int, seed: in
 
 
 def test_the_curve_emulator_spread_and_its_pooled_posterior(run_dir: Path) -> None:
-    """Sample functions of an emulator of few points move its posterior and the pooled
-    sample gives each function's posterior and the mean's an equal share; an emulator
-    without uncertainty moves nothing; the same seed gives the same result."""
+    """Sample functions of an emulator of few points move its posterior; the pooled sample
+    keeps the mean's points, each with the mean's share of its weight plus the functions';
+    an emulator without uncertainty moves nothing and its pooled posterior is the mean's;
+    the same seed gives the same result."""
     from smcbayes.posterior.curve_spread import curve_spread
+    from smcbayes.posterior.weights import weighted_quantile
 
     features, u, y, _ = _rows(run_dir, 25, 5)
     emulator = CurveEmulator(features, u, y)
@@ -512,15 +514,24 @@ def test_the_curve_emulator_spread_and_its_pooled_posterior(run_dir: Path) -> No
     np.testing.assert_array_equal(again[1].log_weight, pooled.log_weight)
     assert spread["functions"] == 3 and set(spread["per_parameter"]) == set(names)
     assert spread["max_quantile_shift"] > 0.0 and min(spread["function_ess"]) > 1.0
+    np.testing.assert_array_equal(pooled.unit, sample.unit)
+    np.testing.assert_array_equal(pooled.log_target, sample.log_target)
     w = pooled.weights
-    assert np.isclose(w.sum(), 1.0) and np.isclose(w[: len(sample.unit)].sum(), 0.25)
-    assert np.all(pooled.iteration[len(sample.unit):] == -1) and pooled.unit.shape[1] == 2
+    assert np.isclose(w.sum(), 1.0) and pooled.ess == pytest.approx(1.0 / np.sum(w * w))
+    # a point off the support keeps the mean's quarter share of its weight
+    off = w < 0.25 * sample.weights * (1 + 1e-9) + 1e-300
+    assert off.sum() > 1000
+    np.testing.assert_allclose(w[off], 0.25 * sample.weights[off], rtol=1e-9)
     sure = CurveEmulator(features, u, y)
     sure.scale2 = np.zeros_like(sure.scale2)
     still, same = curve_spread(sure, 4.0, sample, names, np.random.default_rng(1), functions=3)
     assert still["max_quantile_shift"] == 0.0
-    per_function = np.split(same.log_weight[len(sample.unit):], 3)
-    np.testing.assert_allclose(per_function[0], per_function[2])
+    # each function's share is then the mean's posterior on the support, drawn with
+    # probabilities ~ sqrt(weight) and weighted back: the pooled quantiles are the mean's
+    for k in range(2):
+        q_same = weighted_quantile(sample.unit[:, k], same.weights, [0.05, 0.5, 0.95])
+        q_mean = weighted_quantile(sample.unit[:, k], sample.weights, [0.05, 0.5, 0.95])
+        np.testing.assert_allclose(q_same, q_mean, atol=0.02)
 
 
 def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

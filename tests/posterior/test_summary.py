@@ -227,10 +227,3 @@ def test_inference_data_with_correction_holds_resample_weights_and_emulator_chai
     assert idata.emulator_posterior["n"].values.shape == (4, 25)
     np.testing.assert_array_equal(idata.importance["iteration"].values[0], corrected.iteration)
     np.testing.assert_allclose(idata.importance["tau_c_MPa"].values[0], SPACE.from_unit(unit)[:, 1])
-
-
-def test_resampled_rows_are_found_at_their_first_copy() -> None:
-    from smcbayes.posterior.summary import _rows_of
-
-    unit = np.array([[0.1, 0.2], [0.3, 0.4], [0.1, 0.2], [0.3, 0.4]])
-    np.testing.assert_array_equal(_rows_of(unit, unit[[3, 2, 1]]), [1, 0, 1])
