@@ -97,8 +97,11 @@ def print_summary(info: dict[str, Any]) -> None:
     spread = info.get("emulator_spread")
     if spread:
         pooled = " (their posteriors are pooled into the table above)" if spread.get("pooled") else ""
+        # the log-loss emulator's spread is net of its chains' noise; the curve emulator's
+        # functions share the mean's points, so there is none to take off
+        noise = " beyond the chains' own noise" if spread.get("steps") else ""
         print(f"emulator spread: GP sample functions move a 5/50/95 % quantile by up to "
-              f"{spread['max_quantile_shift']:.2f} of its range beyond the sampling's own noise{pooled}")
+              f"{spread['max_quantile_shift']:.2f} of its range{noise}{pooled}")
     for cid, b in info["bands"].items():
         if b["coverage90"] == b["coverage90"]:
             scores = "".join(f", {label} {b[key]:.3g} kN" for key, label in

@@ -123,10 +123,10 @@ def curve_spread(emulator: CurveEmulator, n_eff: float, sample: ImportanceSample
         functions: sample functions.
 
     Returns:
-        The spread as :func:`smcbayes.posterior.spread.emulator_spread` records it: the
-        functions' shifts net of the sampling noise of a support (the mean's posterior on a
-        second, independent support against the first), with each function's ESS on the
-        support; and the pooled sample: the mean's points, each weighted by the mean's share
+        The spread in the keys :func:`smcbayes.posterior.spread.emulator_spread` records:
+        the functions' shifts against the mean's posterior on the same support (not net of
+        any noise; ``sampling_noise`` is the support's own, against the whole sample), with
+        each function's ESS on the support; and the pooled sample: the mean's points, each weighted by the mean's share
         plus the functions' shares of it (its ``log_target`` stays the mean's).
     """
     rows, log_w0 = _support(sample, rng)
@@ -134,10 +134,10 @@ def curve_spread(emulator: CurveEmulator, n_eff: float, sample: ImportanceSample
     lik = [_log_lik(emulator, out, n_eff) for out in joint_outputs(emulator, x, functions, rng)]
     log_ws = [_normalised(log_w0 + lj - base) for lj in lik]
     ref = _quantiles(x, np.exp(log_w0 - np.max(log_w0)))
-    rows2, log_w2 = _support(sample, rng)
-    noise = np.max(np.abs(_quantiles(sample.unit[rows2], np.exp(log_w2 - np.max(log_w2))) - ref), axis=0)
-    moved = np.max([_function_shift(x, ref, lw) for lw in log_ws], axis=0)
-    shifts = np.maximum(moved - noise, 0.0)
+    # on the common support the support's own subsampling cancels (as in the rounds'
+    # quantile shift); its noise against the whole sample is reported, not subtracted
+    noise = np.max(np.abs(ref - _quantiles(sample.unit, np.exp(sample.log_weight))), axis=0)
+    shifts = np.max([_function_shift(x, ref, lw) for lw in log_ws], axis=0)
     spread = {"functions": functions, "steps": 0, "support_points": int(len(rows)),
               "max_quantile_shift": float(np.max(shifts)),
               "per_parameter": {n: float(v) for n, v in zip(names, shifts, strict=True)},
