@@ -181,7 +181,7 @@ REFINE_CURVES = 1400
 learns from whole force curves and stops once validated: on the synthetic accuracy
 benchmark after 420-620 runs (the calibration's points simulated again included; 431-631
 forward runs in all), on the
-nine measured thesis trials (7 free parameters) after 1,010-1,210, not within 600."""
+nine measured thesis trials (7 free parameters) after 1,010-1,410, not within 600."""
 
 
 class PosteriorSpec(Strict):
