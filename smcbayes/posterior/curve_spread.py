@@ -126,8 +126,9 @@ def curve_spread(emulator: CurveEmulator, n_eff: float, sample: ImportanceSample
         The spread in the keys :func:`smcbayes.posterior.spread.emulator_spread` records:
         the functions' shifts against the mean's posterior on the same support (not net of
         any noise; ``sampling_noise`` is the support's own, against the whole sample), with
-        each function's ESS on the support; and the pooled sample: the mean's points, each weighted by the mean's share
-        plus the functions' shares of it (its ``log_target`` stays the mean's).
+        each function's ESS on the support; and the pooled sample: the mean's points, each
+        weighted by the mean's share plus the functions' shares of it (its ``log_target``
+        stays the mean's).
     """
     rows, log_w0 = _support(sample, rng)
     x, base = sample.unit[rows], sample.log_target[rows]

@@ -7,9 +7,9 @@ stage's forward cache), then runs rounds of ``batch`` forward runs: half draws o
 emulated posterior pooled with those of GP sample functions
 (:mod:`smcbayes.posterior.curve_spread`), half of the tempered one (likelihood^``temper``)
 of the optimistic loss (curves one emulator sd closer to the data), which reaches regions
-the emulator's mean rates too low because it has no points there.  Each round samples the emulated
-posterior by adaptive importance sampling on the emulator (the correction's algorithm,
-no forward run): emcee chains started at the best point under-sample a flat arm of the
+the emulator's mean rates too low because it has no points there.  Each round samples the
+emulated posterior by adaptive importance sampling on the emulator (the correction's
+algorithm, no forward run): emcee chains started at the best point under-sample a flat arm of the
 accuracy benchmark's first case (1.2 % of the mass where the exact posterior has 6.5 %),
 and a stopping rule judged on them stopped early and called a posterior reliable that was
 0.34 off in a correlation.  Two measures decide when to stop, in each of the last
@@ -248,7 +248,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         ``quantile_shift`` (the last round's), ``last_errors_nats`` and
         ``last_quantile_shifts`` (those of the last :data:`VALIDATED_ROUNDS` rounds; ``None``
         for a round with nothing to compare, or a sample too thin to tell) and
-        ``last_spread`` (the last round's; ``None`` when not measured)).  The first
+        ``last_spread`` (the last round's; ``None`` without a round)).  The first
         round has no earlier emulator to compare with, so the emulator can be validated
         after ``VALIDATED_ROUNDS + 1`` rounds at the earliest.
     """
@@ -298,8 +298,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
 
 
 def _round_record(emulator: CurveEmulator, step: _Round) -> dict[str, Any]:
-    """What ``refine.jsonl`` keeps of a round's sample and emulator (the spread ``None``
-    when it was not measured)."""
+    """What ``refine.jsonl`` keeps of a round's sample, spread and emulator."""
     return {"spread": _finite(step.spread), "importance_ess": step.sample.ess, "k_hat": step.sample.k_hat,
             "components": emulator.components, "lengthscales": emulator.corr.lengthscales.tolist()}
 

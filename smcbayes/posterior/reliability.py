@@ -140,9 +140,7 @@ def _curve_budget_reason(active: dict[str, Any]) -> str:
 
     errors, shifts = active.get("last_errors_nats") or [], active.get("last_quantile_shifts") or []
     spread = active.get("last_spread")
-    spread_words = ("" if "last_spread" not in active or not active.get("rounds") else
-                    f"; its sample functions' move of a quantile not measured (to be at most {SPREAD_MAX})"
-                    if spread is None else
+    spread_words = ("" if spread is None else
                     f"; its sample functions moving a quantile by {spread:.2g}, to be at most {SPREAD_MAX}")
     return (f"the active learning spent its {active.get('evaluations')} forward runs before the emulator was "
             f"validated where the posterior lies (its last rounds' errors at fresh posterior draws "
