@@ -525,7 +525,7 @@ def test_the_curve_emulator_spread_and_its_pooled_posterior(run_dir: Path) -> No
     sure = CurveEmulator(features, u, y)
     sure.scale2 = np.zeros_like(sure.scale2)
     still, same = curve_spread(sure, 4.0, sample, names, np.random.default_rng(1), functions=3)
-    assert still["max_quantile_shift"] == 0.0
+    assert still["max_quantile_shift"] < 1e-12  # the same weights, to rounding
     # each function's share is then the mean's posterior on the support, drawn with
     # probabilities ~ sqrt(weight) and weighted back: the pooled quantiles are the mean's
     for k in range(2):
