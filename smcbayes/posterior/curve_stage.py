@@ -248,7 +248,9 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         ``quantile_shift`` (the last round's), ``last_errors_nats`` and
         ``last_quantile_shifts`` (those of the last :data:`VALIDATED_ROUNDS` rounds; ``None``
         for a round with nothing to compare, or a sample too thin to tell) and
-        ``last_spread`` (the last round's; ``None`` without a round)).  The first
+        ``last_spread`` (the last round's; ``None`` without a round) and
+        ``variance_factor`` (the range of the last emulator's calibration of its output
+        variances, :meth:`~smcbayes.posterior.curves.CurveEmulator.calibrate`)).  The first
         round has no earlier emulator to compare with, so the emulator can be validated
         after ``VALIDATED_ROUNDS + 1`` rounds at the earliest.
     """
@@ -257,6 +259,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     errors: list[Array] = []
     shifts: list[float | None] = []
     spreads: list[float] = []
+    recent: list[Array] = []
     before: Callable[[Array], Array] | None = None
     a = 0.5 * n_eff
     start = x[np.argsort(features.loss(y))[:walkers]]
@@ -264,6 +267,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     while True:
         t0 = time.perf_counter()
         emulator = CurveEmulator(features, x, y, start=emulator)
+        if recent:  # the variance where the rounds sample, not over the exploration's far points
+            emulator.calibrate(np.vstack(recent[-VALIDATED_ROUNDS:]))
         converged = _validated(errors, shifts, tolerance_nats, spreads)
         if converged or spent >= budget:
             break
@@ -280,6 +285,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         emulated = -a * np.log(np.maximum(emulator.loss(step.new[:step.posterior][at]), 1e-300))
         exact = -a * np.log(np.maximum(features.loss(y_new[:step.posterior][at]), 1e-300))
         errors.append(np.abs(emulated - exact) if np.any(at) else np.array([np.inf]))
+        recent.append(step.new[ok])
         x, y = np.vstack([x, step.new[ok]]), np.vstack([y, y_new[ok]])
         record = {"round": rounds, "training_points": len(np.unique(x, axis=0)), "forward_runs": spent,
                   "error_nats": _finite(np.mean(errors[-1])), "quantile_shift": shifts[-1],
@@ -294,13 +300,20 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     return emulator, x, y, {"evaluations": spent, "converged": converged, "rounds": rounds,
                             "error_nats": worst, "quantile_shift": shifts[-1] if shifts else None,
                             "last_errors_nats": last, "last_quantile_shifts": shifts[-VALIDATED_ROUNDS:],
-                            "last_spread": _finite(spreads[-1]) if spreads else None}
+                            "last_spread": _finite(spreads[-1]) if spreads else None,
+                            "variance_factor": _factor_range(emulator.variance_factor)}
+
+
+def _factor_range(factor: Array) -> dict[str, float]:
+    """Least, median and largest calibration factor of the emulator's output variances."""
+    return {"min": float(np.min(factor)), "median": float(np.median(factor)), "max": float(np.max(factor))}
 
 
 def _round_record(emulator: CurveEmulator, step: _Round) -> dict[str, Any]:
     """What ``refine.jsonl`` keeps of a round's sample, spread and emulator."""
     return {"spread": _finite(step.spread), "importance_ess": step.sample.ess, "k_hat": step.sample.k_hat,
-            "components": emulator.components, "lengthscales": emulator.corr.lengthscales.tolist()}
+            "components": emulator.components, "lengthscales": emulator.corr.lengthscales.tolist(),
+            "variance_factor": emulator.variance_factor.tolist()}
 
 
 def _finite(value: float) -> float | None:

@@ -21,6 +21,8 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
+
 from smcbayes.forward.parameters import ParameterSpace
 from smcbayes.posterior.correct import K_HAT_WARN, draws_advice
 from smcbayes.posterior.curve_spread import SPREAD_MIN_ESS
@@ -100,18 +102,33 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
         remedy = ("use the correction (--correct-draws) where the simulator is cheap, or lower "
                   "refine_tolerance_nats in the project's [posterior] table" if active.get("converged")
                   else "raise --refine or use the correction (--correct-draws)")
-        out.append(f"the emulator's own uncertainty moves the posterior: with a GP sample function instead "
-                   f"of its mean a 5/50/95 % quantile of {worst} moves by {spread['max_quantile_shift']:.2f} "
-                   f"of its range (> {SPREAD_MAX}), so a tail or an arm of the posterior is not pinned down "
-                   f"yet; {remedy}")
-    thin = min((spread or {}).get("function_ess") or [math.inf])
+        out.append(f"the emulator's own uncertainty moves the posterior: with {_which(spread)} "
+                   f"instead of its mean a 5/50/95 % quantile of {worst} moves by "
+                   f"{spread['max_quantile_shift']:.2f} of its range (> {SPREAD_MAX}), so a tail or an arm "
+                   f"of the posterior is not pinned down yet; {remedy}")
+    thin = _thin_ess(spread or {})
     if thin < SPREAD_MIN_ESS:
         remedy = ("lower refine_tolerance_nats in the project's [posterior] table" if active.get("converged")
                   else "raise --refine")
-        out.append(f"a GP sample function's posterior rests on {thin:.0f} effective points of the "
-                   f"emulated posterior's sample (< {SPREAD_MIN_ESS}): it lies mostly where that sample "
-                   f"has no points, so the emulator's spread is larger than measured; {remedy}")
+        which = ("a GP sample function's posterior rests" if spread.get("shift_level", 1.0) >= 1.0
+                 else f"the posterior of {_which(spread)} rests")
+        out.append(f"{which} on {thin:.0f} effective points of the emulated posterior's sample or fewer "
+                   f"(< {SPREAD_MIN_ESS}): it lies mostly where that sample has no points, so the emulator's "
+                   f"spread is larger than measured; {remedy}")
     return out
+
+
+def _which(spread: dict[str, Any]) -> str:
+    """Which GP sample functions a spread speaks of: any one, or one in ten of them."""
+    level = spread.get("shift_level", 1.0)
+    return "a GP sample function" if level >= 1.0 else f"one GP sample function in {1 / (1 - level):.0f}"
+
+
+def _thin_ess(spread: dict[str, Any]) -> float:
+    """The ESS of the functions' posteriors that the spread's level leaves out (the least
+    when the spread is the largest move)."""
+    ess = spread.get("function_ess")
+    return float(np.quantile(ess, 1.0 - spread.get("shift_level", 1.0))) if ess else math.inf
 
 
 def _budget_reason(active: dict[str, Any]) -> str:

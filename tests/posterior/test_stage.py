@@ -464,6 +464,37 @@ def test_the_emulator_ignores_repeated_rows(run_dir: Path) -> None:
     np.testing.assert_allclose(twice.loss(u[30:]), emulator.loss(u[30:]), rtol=1e-9)
 
 
+def test_the_emulator_calibrates_its_variance_by_leave_one_out_errors(run_dir: Path) -> None:
+    """The variance factor of each output is the mean squared standardised error of the GP
+    refitted without each chosen row (same correlation and trend), computed here by brute
+    force; too few chosen rows, or rows not in the data, leave the fit as it is."""
+    from smcbayes.posterior.curves import CALIBRATION_BOUNDS, matern52
+
+    features, u, y, _ = _rows(run_dir, 40, 8)
+    emulator = CurveEmulator(features, u, y)
+    chol, ls, nugget = emulator.corr.chol, emulator.corr.lengthscales, emulator.corr.nugget
+    z = chol @ (chol.T @ emulator.alpha)  # the outputs less the trend
+    chosen = np.arange(10, 35)
+    z2 = []
+    for i in chosen:
+        rest = np.delete(np.arange(len(u)), i)
+        k_rest = matern52(u[rest], u[rest], ls) + (nugget + 1e-8) * np.eye(len(rest))
+        k_i = matern52(u[i:i + 1], u[rest], ls)[0]
+        mean = k_i @ np.linalg.solve(k_rest, z[rest])
+        var = 1.0 + nugget + 1e-8 - k_i @ np.linalg.solve(k_rest, k_i)
+        z2.append((z[i] - mean) ** 2 / var / np.where(emulator.scale2 > 0, emulator.scale2, np.inf))
+    expected = np.where(emulator.scale2 > 0, np.clip(np.mean(z2, axis=0), *CALIBRATION_BOUNDS), 1.0)
+    _, before = emulator.predict(u[:3] + 0.01, variance=True)
+    emulator.calibrate(np.vstack([u[chosen], np.full((5, u.shape[1]), 0.123)]))
+    np.testing.assert_allclose(emulator.variance_factor, expected, rtol=1e-6)
+    assert not np.allclose(emulator.variance_factor, 1.0)
+    _, after = emulator.predict(u[:3] + 0.01, variance=True)
+    np.testing.assert_allclose(after, before * emulator.variance_factor, rtol=1e-9)
+    fresh = CurveEmulator(features, u, y)
+    fresh.calibrate(u[:19])
+    np.testing.assert_array_equal(fresh.variance_factor, 1.0)
+
+
 def test_sample_functions_of_the_curve_emulator_follow_its_variance(run_dir: Path) -> None:
     """Joint draws of the emulator's outputs: at its points they stay at the mean; far from
     them their spread is the GP's latent variance (the prediction's less the nugget)."""
@@ -538,6 +569,7 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     """``emulator = "curves"``: the truth inside the 90 % intervals, the slip pair's
     correlation sign right, the runs counted and logged, and a rerun with the same settings
     simulating nothing (every curve batch is seeded and kept in the stage's cache)."""
+    import smcbayes.posterior.curve_spread as curve_spread
     import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.stage import PosteriorSettings, run_posterior
 
@@ -551,7 +583,9 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     _truth_inside_and_slip_pair_positive(info)
     active = info["active_learning"]
     assert active["kind"] == "curves" and info["emulator_spread"]["pooled"]
-    assert info["emulator_spread"]["functions"] == 4 and len(info["emulator_spread"]["function_ess"]) == 4
+    functions = curve_spread.CURVE_FUNCTIONS
+    assert info["emulator_spread"]["functions"] == functions
+    assert len(info["emulator_spread"]["function_ess"]) == functions
     spent = active["evaluations"] - active["start_runs"]
     assert 0 < spent <= 120 and active["start_runs"] == active["start_points"]["calibration_gp"]
     assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5
