@@ -9,6 +9,7 @@ from typing import Any
 from smcbayes.commands.common import add_executor_options
 from smcbayes.config import PosteriorSpec, choices_of, help_of, override
 from smcbayes.errors import UnreliablePosteriorWarning
+from smcbayes.posterior.spread import spread_words
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import make_executor
 
@@ -97,11 +98,7 @@ def print_summary(info: dict[str, Any]) -> None:
     spread = info.get("emulator_spread")
     if spread:
         pooled = " (their posteriors are pooled into the table above)" if spread.get("pooled") else ""
-        # the log-loss emulator's spread is net of its chains' noise; the curve emulator's
-        # functions share the mean's points, so there is none to take off
-        noise = " beyond the chains' own noise" if spread.get("steps") else ""
-        print(f"emulator spread: GP sample functions move a 5/50/95 % quantile by up to "
-              f"{spread['max_quantile_shift']:.2f} of its range{noise}{pooled}")
+        print(f"emulator spread: {spread_words(spread)}{pooled}")
     for cid, b in info["bands"].items():
         if b["coverage90"] == b["coverage90"]:
             scores = "".join(f", {label} {b[key]:.3g} kN" for key, label in

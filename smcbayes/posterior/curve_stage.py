@@ -191,10 +191,9 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     half = max(1, size // 2)
     new = np.vstack([pooled.unit[_choose(pooled.weights, half, rng)],
                      wide[rng.choice(len(wide), size - half, replace=size - half > len(wide))]])
-    # a function resting on few points of a round's sample (half the draws of the stage's
-    # final one, an ESS of a few hundred) still counts: on the measured thesis trials one
-    # of four did in every round, and the rounds could never validate; the stage's own
-    # check asks it
+    # functions resting on few points of a round's sample (half the draws of the stage's
+    # final one, an ESS of a few hundred) still count: on the measured thesis trials some
+    # did in every round, and the rounds could never validate; the stage's own check asks it
     return _Round(new, half, sample, spread["max_quantile_shift"])
 
 

@@ -64,3 +64,20 @@ def emulator_spread(reported_unit: Array, control_unit: Array, function_draws: S
     return {"functions": len(function_draws), "steps": int(steps), "max_quantile_shift": float(np.max(shifts)),
             "per_parameter": {n: float(v) for n, v in zip(names, shifts, strict=True)},
             "sampling_noise": {n: float(v) for n, v in zip(names, noise, strict=True)}}
+
+
+def spread_words(spread: dict[str, Any]) -> str:
+    """A spread record (:func:`emulator_spread`, or the curve emulator's, which bounds the
+    move of a share ``shift_level`` of its functions) in words, for the terminal and the report."""
+    level, count = spread.get("shift_level", 1.0), spread.get("functions")
+    shift = spread.get("max_quantile_shift")
+    amount = "n/a" if shift is None else f"{shift:.2f}"
+    # the log-loss emulator's spread is net of its chains' noise; the curve emulator's
+    # functions share the mean's points, so there is none to take off
+    noise = " beyond the chains' own noise" if spread.get("steps") else ""
+    if level >= 1.0:
+        return (f"the posteriors of {count} GP sample functions move a 5/50/95 % quantile by up to "
+                f"{amount} of its range{noise}")
+    return (f"{round(10 * level)} in 10 of {count} GP sample functions' posteriors move a 5/50/95 % "
+            f"quantile by at most {amount} of its range{noise}")
+

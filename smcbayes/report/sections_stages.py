@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from smcbayes.posterior.spread import SPREAD_MAX
+from smcbayes.posterior.spread import SPREAD_MAX, spread_words
 from smcbayes.report.collect import RunFiles
 from smcbayes.report.document import Bullets, Figure, Heading, Paragraph, Section, Table, fmt, pct
 
@@ -129,11 +129,8 @@ def _spread_paragraph(spread: dict[str, Any]) -> Paragraph | None:
         return None
     pooled = (" Their posteriors are pooled with the GP mean's in the table above, so the "
               "emulator's uncertainty widens it." if spread.get("pooled") else "")
-    # the curve emulator's functions reweight the mean's own points: no chains, no noise to take off
-    noise = " beyond the chains' own noise" if spread.get("steps") else ""
     return Paragraph(
-        f"Emulator spread: the posteriors of {fmt(spread.get('functions'))} GP sample functions move "
-        f"a 5/50/95 % quantile by up to {fmt(spread.get('max_quantile_shift'), 2)} of its range{noise}; "
+        f"Emulator spread: {spread_words(spread)}; "
         f"above {SPREAD_MAX} the simulator runs spent on the emulator do not yet determine the "
         f"posterior.{pooled}"
     )
