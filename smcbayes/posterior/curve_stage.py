@@ -248,8 +248,9 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         ``last_quantile_shifts`` (those of the last :data:`VALIDATED_ROUNDS` rounds; ``None``
         for a round with nothing to compare, or a sample too thin to tell) and
         ``last_spread`` (the last round's; ``None`` without a round) and
-        ``variance_factor`` (the range of the last emulator's calibration of its output
-        variances, :meth:`~smcbayes.posterior.curves.CurveEmulator.calibrate`)).  The first
+        ``variance_factor`` (the last emulator's calibration of its output variances,
+        :meth:`~smcbayes.posterior.curves.CurveEmulator.calibrate`: rows used and range;
+        ``None`` when nothing calibrated them)).  The first
         round has no earlier emulator to compare with, so the emulator can be validated
         after ``VALIDATED_ROUNDS + 1`` rounds at the earliest.
     """
@@ -260,14 +261,11 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     spreads: list[float] = []
     recent: list[Array] = []
     before: Callable[[Array], Array] | None = None
-    a = 0.5 * n_eff
     start = x[np.argsort(features.loss(y))[:walkers]]
     emulator = None
     while True:
         t0 = time.perf_counter()
-        emulator = CurveEmulator(features, x, y, start=emulator)
-        if recent:  # the variance where the rounds sample, not over the exploration's far points
-            emulator.calibrate(np.vstack(recent[-VALIDATED_ROUNDS:]))
+        emulator = _fit(features, x, y, emulator, recent)
         converged = _validated(errors, shifts, tolerance_nats, spreads)
         if converged or spent >= budget:
             break
@@ -280,10 +278,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         t1 = time.perf_counter()
         y_new, ok = simulate(step.new)
         spent, rounds = spent + len(step.new), rounds + 1
-        at = ok[:step.posterior]
-        emulated = -a * np.log(np.maximum(emulator.loss(step.new[:step.posterior][at]), 1e-300))
-        exact = -a * np.log(np.maximum(features.loss(y_new[:step.posterior][at]), 1e-300))
-        errors.append(np.abs(emulated - exact) if np.any(at) else np.array([np.inf]))
+        errors.append(_fresh_errors(emulator, n_eff, step, y_new, ok))
         recent.append(step.new[ok])
         x, y = np.vstack([x, step.new[ok]]), np.vstack([y, y_new[ok]])
         record = {"round": rounds, "training_points": len(np.unique(x, axis=0)), "forward_runs": spent,
@@ -300,12 +295,43 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
                             "error_nats": worst, "quantile_shift": shifts[-1] if shifts else None,
                             "last_errors_nats": last, "last_quantile_shifts": shifts[-VALIDATED_ROUNDS:],
                             "last_spread": _finite(spreads[-1]) if spreads else None,
-                            "variance_factor": _factor_range(emulator.variance_factor)}
+                            "variance_factor": _factor_range(emulator)}
 
 
-def _factor_range(factor: Array) -> dict[str, float]:
-    """Least, median and largest calibration factor of the emulator's output variances."""
-    return {"min": float(np.min(factor)), "median": float(np.median(factor)), "max": float(np.max(factor))}
+def _fit(features: CurveFeatures, x: Array, y: Array, earlier: CurveEmulator | None,
+         recent: list[Array]) -> CurveEmulator:
+    """The emulator of the rows ``x`` ``(N, d)`` and features ``y`` ``(N, F)``, its
+    correlation's fit started from the ``earlier`` one's and its variances calibrated at the
+    last :data:`VALIDATED_ROUNDS` batches of ``recent`` rows (where the rounds sample, not
+    over the exploration's far points)."""
+    emulator = CurveEmulator(features, x, y, start=earlier)
+    if recent:
+        emulator.calibrate(np.vstack(recent[-VALIDATED_ROUNDS:]))
+    return emulator
+
+
+def _fresh_errors(emulator: CurveEmulator, n_eff: float, step: _Round, y_new: Array,
+                  ok: NDArray[np.bool_]) -> Array:
+    """|Emulated - simulated| log-likelihood (nats) at the round's successfully simulated
+    posterior draws ``(P,)``, from their features ``y_new`` ``(B, F)``; ``[inf]`` when none
+    succeeded."""
+    at = ok[:step.posterior]
+    if not np.any(at):
+        return np.array([np.inf])
+    a = 0.5 * n_eff
+    emulated = -a * np.log(np.maximum(emulator.loss(step.new[:step.posterior][at]), 1e-300))
+    exact = -a * np.log(np.maximum(emulator.features.loss(y_new[:step.posterior][at]), 1e-300))
+    return np.abs(emulated - exact)
+
+
+def _factor_range(emulator: CurveEmulator) -> dict[str, float] | None:
+    """The rows that calibrated the emulator's output variances and the least, median and
+    largest factor of the outputs with a variance; ``None`` when none calibrated them."""
+    if not emulator.calibration_rows:
+        return None
+    factor = emulator.variance_factor[emulator.scale2 > 0.0]
+    return {"rows": emulator.calibration_rows, "min": float(np.min(factor)),
+            "median": float(np.median(factor)), "max": float(np.max(factor))}
 
 
 def _round_record(emulator: CurveEmulator, step: _Round) -> dict[str, Any]:

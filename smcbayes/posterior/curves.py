@@ -269,6 +269,7 @@ class CurveEmulator:
         self.alpha = cho_solve((self.corr.chol, True), z)
         self.scale2 = np.einsum("ij,ij->j", z, self.alpha) / len(x)
         self.variance_factor = np.ones_like(self.scale2)
+        self.calibration_rows = 0
 
     @property
     def output_variance(self) -> Array:
@@ -283,7 +284,12 @@ class CurveEmulator:
 
         Leave-one-out by the closed form of Dubrule (1983, "Cross validation of kriging in
         a unique neighborhood", Math. Geol. 15, 687), the trend held fixed: the error at
-        row i is ``alpha_i / (K^-1)_ii`` and its variance ``scale2 / (K^-1)_ii``.
+        row i is ``alpha_i / (K^-1)_ii`` and its variance ``scale2 / (K^-1)_ii``.  The
+        principal components and the trend keep the left-out row, so the errors of later
+        components are somewhat low; the factor is measured on the noisy prediction
+        (nugget included) and scales the latent variance too.  It holds wherever the
+        emulator's variance is read: the sample functions and the optimistic loss of the
+        rounds' exploration.  Each call starts from the fit's own variances.
         """
         index = {row.tobytes(): k for k, row in enumerate(self.x)}
         keys = [r.tobytes() for r in np.asarray(points, dtype=float)]
@@ -297,6 +303,7 @@ class CurveEmulator:
             z2 = self.alpha[rows] ** 2 / diag[:, None] / self.scale2[None, :]
         factor = np.clip(np.mean(z2, axis=0), *CALIBRATION_BOUNDS)
         self.variance_factor = np.where(self.scale2 > 0.0, factor, 1.0)
+        self.calibration_rows = len(rows)
 
     @staticmethod
     def _h(x: Array) -> Array:

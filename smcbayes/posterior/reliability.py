@@ -27,7 +27,7 @@ from smcbayes.forward.parameters import ParameterSpace
 from smcbayes.posterior.correct import K_HAT_WARN, draws_advice
 from smcbayes.posterior.curve_spread import SPREAD_MIN_ESS
 from smcbayes.posterior.curve_stage import QUANTILE_SHIFT
-from smcbayes.posterior.spread import SPREAD_MAX
+from smcbayes.posterior.spread import SPREAD_MAX, share_words
 
 R_HAT_MAX = 1.05
 CHECK_MAX_NATS = 1.0
@@ -102,33 +102,35 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
         remedy = ("use the correction (--correct-draws) where the simulator is cheap, or lower "
                   "refine_tolerance_nats in the project's [posterior] table" if active.get("converged")
                   else "raise --refine or use the correction (--correct-draws)")
-        out.append(f"the emulator's own uncertainty moves the posterior: with {_which(spread)} "
-                   f"instead of its mean a 5/50/95 % quantile of {worst} moves by "
-                   f"{spread['max_quantile_shift']:.2f} of its range (> {SPREAD_MAX}), so a tail or an arm "
-                   f"of the posterior is not pinned down yet; {remedy}")
-    thin = _thin_ess(spread or {})
-    if thin < SPREAD_MIN_ESS:
+        which = ("a GP sample function" if spread.get("shift_level", 1.0) >= 1.0
+                 else share_words(spread).replace("one in", "one GP sample function in"))
+        out.append(f"the emulator's own uncertainty moves the posterior: with {which} instead of its mean "
+                   f"a 5/50/95 % quantile of {worst} moves by {spread['max_quantile_shift']:.2f} of its range "
+                   f"or more (> {SPREAD_MAX}), so a tail or an arm of the posterior is not pinned down yet; "
+                   f"{remedy}")
+    thin = _thin_functions(spread or {})
+    if thin:
         remedy = ("lower refine_tolerance_nats in the project's [posterior] table" if active.get("converged")
                   else "raise --refine")
-        which = ("a GP sample function's posterior rests" if spread.get("shift_level", 1.0) >= 1.0
-                 else f"the posterior of {_which(spread)} rests")
-        out.append(f"{which} on {thin:.0f} effective points of the emulated posterior's sample or fewer "
-                   f"(< {SPREAD_MIN_ESS}): it lies mostly where that sample has no points, so the emulator's "
-                   f"spread is larger than measured; {remedy}")
+        out.append(f"{thin}: such a posterior lies mostly where that sample has no points, so the spread is "
+                   f"larger than measured; {remedy}")
     return out
 
 
-def _which(spread: dict[str, Any]) -> str:
-    """Which GP sample functions a spread speaks of: any one, or one in ten of them."""
-    level = spread.get("shift_level", 1.0)
-    return "a GP sample function" if level >= 1.0 else f"one GP sample function in {1 / (1 - level):.0f}"
-
-
-def _thin_ess(spread: dict[str, Any]) -> float:
-    """The ESS of the functions' posteriors that the spread's level leaves out (the least
-    when the spread is the largest move)."""
-    ess = spread.get("function_ess")
-    return float(np.quantile(ess, 1.0 - spread.get("shift_level", 1.0))) if ess else math.inf
+def _thin_functions(spread: dict[str, Any]) -> str:
+    """Which GP sample functions' posteriors rest on fewer than :data:`SPREAD_MIN_ESS`
+    effective points, in words, when more of them do than the spread's level leaves out
+    (any one when the spread is the largest move; the spread's level and the count need not
+    leave out the same functions); empty otherwise."""
+    ess = np.asarray(spread.get("function_ess") or [], dtype=float)
+    count = int(np.count_nonzero(ess < SPREAD_MIN_ESS))
+    if count == 0 or count <= (1.0 - spread.get("shift_level", 1.0)) * len(ess) + 1e-9:  # 1 - 0.9 < 0.1
+        return ""
+    where = f"effective points of the emulated posterior's sample (< {SPREAD_MIN_ESS})"
+    if spread.get("shift_level", 1.0) >= 1.0:
+        return f"a GP sample function's posterior rests on {np.min(ess):.0f} {where}"
+    return (f"{count} of {len(ess)} GP sample functions' posteriors, more than {share_words(spread)}, "
+            f"rest on {np.min(ess):.0f}-{np.max(ess[ess < SPREAD_MIN_ESS]):.0f} {where}")
 
 
 def _budget_reason(active: dict[str, Any]) -> str:

@@ -66,10 +66,16 @@ def emulator_spread(reported_unit: Array, control_unit: Array, function_draws: S
             "sampling_noise": {n: float(v) for n, v in zip(names, noise, strict=True)}}
 
 
+def share_words(spread: dict[str, Any]) -> str:
+    """The share of sample functions a spread leaves out, in words ("one in 10")."""
+    return f"one in {1.0 / (1.0 - spread.get('shift_level', 1.0)):.0f}"
+
+
 def spread_words(spread: dict[str, Any]) -> str:
     """A spread record (:func:`emulator_spread`, or the curve emulator's, which bounds the
-    move of a share ``shift_level`` of its functions) in words, for the terminal and the report."""
-    level, count = spread.get("shift_level", 1.0), spread.get("functions")
+    move of all but a share ``1 - shift_level`` of its functions) in words, for the
+    terminal and the report."""
+    level, count = spread.get("shift_level", 1.0), spread.get("functions") or 0
     shift = spread.get("max_quantile_shift")
     amount = "n/a" if shift is None else f"{shift:.2f}"
     # the log-loss emulator's spread is net of its chains' noise; the curve emulator's
@@ -78,6 +84,5 @@ def spread_words(spread: dict[str, Any]) -> str:
     if level >= 1.0:
         return (f"the posteriors of {count} GP sample functions move a 5/50/95 % quantile by up to "
                 f"{amount} of its range{noise}")
-    return (f"{round(10 * level)} in 10 of {count} GP sample functions' posteriors move a 5/50/95 % "
-            f"quantile by at most {amount} of its range{noise}")
-
+    return (f"for each parameter and 5/50/95 % quantile, all but {share_words(spread)} of {count} GP "
+            f"sample functions' posteriors move it by at most {amount} of its range{noise}")

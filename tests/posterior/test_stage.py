@@ -468,6 +468,7 @@ def test_the_emulator_calibrates_its_variance_by_leave_one_out_errors(run_dir: P
     """The variance factor of each output is the mean squared standardised error of the GP
     refitted without each chosen row (same correlation and trend), computed here by brute
     force; too few chosen rows, or rows not in the data, leave the fit as it is."""
+    from smcbayes.posterior.curve_spread import joint_outputs
     from smcbayes.posterior.curves import CALIBRATION_BOUNDS, matern52
 
     features, u, y, _ = _rows(run_dir, 40, 8)
@@ -485,14 +486,27 @@ def test_the_emulator_calibrates_its_variance_by_leave_one_out_errors(run_dir: P
         z2.append((z[i] - mean) ** 2 / var / np.where(emulator.scale2 > 0, emulator.scale2, np.inf))
     expected = np.where(emulator.scale2 > 0, np.clip(np.mean(z2, axis=0), *CALIBRATION_BOUNDS), 1.0)
     _, before = emulator.predict(u[:3] + 0.01, variance=True)
-    emulator.calibrate(np.vstack([u[chosen], np.full((5, u.shape[1]), 0.123)]))
-    np.testing.assert_allclose(emulator.variance_factor, expected, rtol=1e-6)
-    assert not np.allclose(emulator.variance_factor, 1.0)
+    # rows not in the data are ignored and a repeated row counts once
+    emulator.calibrate(np.vstack([u[chosen], u[chosen[:4]], np.full((5, u.shape[1]), 0.123)]))
+    factor = emulator.variance_factor
+    np.testing.assert_allclose(factor, expected, rtol=1e-6)
+    assert emulator.calibration_rows == len(chosen)
+    assert np.any((factor > CALIBRATION_BOUNDS[0]) & (factor < CALIBRATION_BOUNDS[1]) & (np.abs(factor - 1) > 0.05))
     _, after = emulator.predict(u[:3] + 0.01, variance=True)
-    np.testing.assert_allclose(after, before * emulator.variance_factor, rtol=1e-9)
+    np.testing.assert_allclose(after, before * factor, rtol=1e-9)
+    # a second call starts from the fit, not from the first call's factors
+    emulator.calibrate(u[chosen])
+    np.testing.assert_allclose(emulator.variance_factor, factor, rtol=1e-12)
+    # the sample functions' spread about the mean follows the calibrated variance
+    far = np.random.default_rng(4).random((3, u.shape[1]))
+    draws = joint_outputs(emulator, far, 4000, np.random.default_rng(5))
+    latent = emulator.predict(far, variance=True)[1] - emulator.corr.nugget * emulator.output_variance
+    varies = emulator.scale2 > 0
+    np.testing.assert_allclose(draws.var(axis=0)[:, varies], latent[:, varies], rtol=0.15)
     fresh = CurveEmulator(features, u, y)
     fresh.calibrate(u[:19])
     np.testing.assert_array_equal(fresh.variance_factor, 1.0)
+    assert fresh.calibration_rows == 0
 
 
 def test_sample_functions_of_the_curve_emulator_follow_its_variance(run_dir: Path) -> None:
