@@ -179,9 +179,10 @@ that covers the posterior, not validated to a nat."""
 REFINE_CURVES = 1400
 """Default active-learning budget of the curve emulator (``emulator = "curves"``), which
 learns from whole force curves and stops once validated: on the synthetic accuracy
-benchmark after 300-500 runs (the calibration's points simulated again included; 311-511
-forward runs in all), on the nine measured thesis trials (7 free parameters) after
-1,010-1,410, not within 600."""
+benchmark after 340-500 runs (the calibration's points simulated again included; 411-571
+forward runs with the calibration's own), on the nine measured thesis trials (7 free
+parameters) after 1,050-1,210 and on five of the six cross-validation folds after
+740-1,380, not within 600."""
 
 
 class PosteriorSpec(Strict):
