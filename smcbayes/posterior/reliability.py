@@ -103,11 +103,11 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
                   "refine_tolerance_nats in the project's [posterior] table" if active.get("converged")
                   else "raise --refine or use the correction (--correct-draws)")
         which = ("a GP sample function" if spread.get("shift_level", 1.0) >= 1.0
-                 else share_words(spread).replace("one in", "one GP sample function in"))
+                 else share_words(spread, "GP sample function "))
         out.append(f"the emulator's own uncertainty moves the posterior: with {which} instead of its mean "
-                   f"a 5/50/95 % quantile of {worst} moves by {spread['max_quantile_shift']:.2f} of its range "
-                   f"or more (> {SPREAD_MAX}), so a tail or an arm of the posterior is not pinned down yet; "
-                   f"{remedy}")
+                   f"a 5/50/95 % quantile of {worst} moves by {spread['max_quantile_shift']:.2f} of its "
+                   f"range or more (> {SPREAD_MAX}), so a tail or an arm of the posterior is not pinned "
+                   f"down yet; {remedy}")
     thin = _thin_functions(spread or {})
     if thin:
         remedy = ("lower refine_tolerance_nats in the project's [posterior] table" if active.get("converged")
@@ -124,7 +124,8 @@ def _thin_functions(spread: dict[str, Any]) -> str:
     leave out the same functions); empty otherwise."""
     ess = np.asarray(spread.get("function_ess") or [], dtype=float)
     count = int(np.count_nonzero(ess < SPREAD_MIN_ESS))
-    if count == 0 or count <= (1.0 - spread.get("shift_level", 1.0)) * len(ess) + 1e-9:  # 1 - 0.9 < 0.1
+    # the tolerance: 1 - 0.9 is a little below 0.1 in floating point
+    if count == 0 or count <= (1.0 - spread.get("shift_level", 1.0)) * len(ess) + 1e-9:
         return ""
     where = f"effective points of the emulated posterior's sample (< {SPREAD_MIN_ESS})"
     if spread.get("shift_level", 1.0) >= 1.0:

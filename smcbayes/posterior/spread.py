@@ -66,9 +66,10 @@ def emulator_spread(reported_unit: Array, control_unit: Array, function_draws: S
             "sampling_noise": {n: float(v) for n, v in zip(names, noise, strict=True)}}
 
 
-def share_words(spread: dict[str, Any]) -> str:
-    """The share of sample functions a spread leaves out, in words ("one in 10")."""
-    return f"one in {1.0 / (1.0 - spread.get('shift_level', 1.0)):.0f}"
+def share_words(spread: dict[str, Any], noun: str = "") -> str:
+    """The share of sample functions a spread below 1 leaves out, in words ("one in 10",
+    or with ``noun`` "GP sample function ", "one GP sample function in 10")."""
+    return f"one {noun}in {1.0 / (1.0 - spread.get('shift_level', 1.0)):.0f}"
 
 
 def spread_words(spread: dict[str, Any]) -> str:
