@@ -181,7 +181,7 @@ REFINE_CURVES = 1400
 learns from whole force curves and stops once validated: on the synthetic accuracy
 benchmark after 340-500 runs (the calibration's points simulated again included; 411-571
 forward runs with the calibration's own), on the nine measured thesis trials (7 free
-parameters) after 1,050-1,210 and on five of the six cross-validation folds after
+parameters) after 1,050-1,450 and on five of the six cross-validation folds after
 740-1,380, not within 600."""
 
 
