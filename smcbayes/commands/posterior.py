@@ -97,7 +97,11 @@ def print_summary(info: dict[str, Any]) -> None:
               f"out-of-sample error of its last rounds {error:.2g} nats, {verdict}")
     spread = info.get("emulator_spread")
     if spread:
-        pooled = " (their posteriors are pooled into the table above)" if spread.get("pooled") else ""
+        pooled = ""
+        if spread.get("pooled"):
+            moved = spread.get("pooled_shift")
+            by = "" if moved is None else f", moving a quantile by up to {moved:.2g} of its range"
+            pooled = f" (their posteriors are pooled into the table above{by})"
         print(f"emulator spread: {spread_words(spread)}{pooled}")
     for cid, b in info["bands"].items():
         if b["coverage90"] == b["coverage90"]:

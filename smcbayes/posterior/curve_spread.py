@@ -1,6 +1,8 @@
 """How far the curve emulator's own uncertainty moves its posterior, and the pooled result.
 
-The curve emulator's reported posterior is that of its mean curves, sampled by importance.
+The curve emulator's reported posterior is that of its expected loss (the mean curves' loss
+plus the emulator's variance of it), sampled by importance; below, "the mean's posterior" is
+that one, the emulator's own without a sample function.
 A GP sample function of the emulator's outputs (principal-component scores, switch times,
 end heights) gives other curves, another loss and so another posterior.  As for the log-loss
 emulator (:mod:`smcbayes.posterior.spread`: Kandasamy, Schneider & Poczos 2017, Artificial
@@ -120,6 +122,46 @@ def _function_shift(x: Array, ref: Array, log_w: Array) -> Array:
     return np.abs(_quantiles(x, np.exp(log_w)) - ref)
 
 
+@dataclasses.dataclass
+class FunctionPosteriors:
+    """GP sample functions' posteriors on a support of an importance sample of the mean's.
+
+    Attributes:
+        rows: the support's indices into the sample ``(P,)`` (distinct).
+        log_mean: the mean's normalised log weights on the support ``(P,)``.
+        log_functions: each function's normalised log weights ``(F, P)``.
+        log_lik: each function's log-likelihood ``(F, P)`` (nats).
+    """
+
+    rows: NDArray[np.intp]
+    log_mean: Array
+    log_functions: Array
+    log_lik: Array
+
+    def pooled(self) -> Array:
+        """The pooled posterior's weights on the support ``(P,)``: the mean and each function
+        an equal share (summing to one)."""
+        w = (np.exp(self.log_mean) + np.sum(np.exp(self.log_functions), axis=0)) / (len(self.log_lik) + 1.0)
+        return w / w.sum()
+
+    def disagreement(self) -> Array:
+        """Standard deviation over the functions of the log-likelihood at each support point
+        ``(P,)`` (nats): where more forward runs would move the functions' posteriors most."""
+        return np.std(self.log_lik, axis=0)
+
+
+def function_posteriors(emulator: CurveEmulator, n_eff: float, sample: ImportanceSample,
+                        rng: np.random.Generator, functions: int = CURVE_FUNCTIONS) -> FunctionPosteriors:
+    """``functions`` sample functions' posteriors on a support drawn from ``sample`` (the
+    mean's importance sample: unit cube ``(N, d)``, its ``log_target`` the emulated log
+    posterior)."""
+    rows, log_w0 = _support(sample, rng)
+    x, base = sample.unit[rows], sample.log_target[rows]
+    lik = np.array([_log_lik(emulator, out, n_eff) for out in joint_outputs(emulator, x, functions, rng)])
+    log_ws = np.array([_normalised(log_w0 + lj - base) for lj in lik])
+    return FunctionPosteriors(rows, _normalised(log_w0), log_ws, lik)
+
+
 def curve_spread(emulator: CurveEmulator, n_eff: float, sample: ImportanceSample, names: Sequence[str],
                  rng: np.random.Generator, functions: int = CURVE_FUNCTIONS,
                  ) -> tuple[dict[str, Any], ImportanceSample]:
@@ -127,28 +169,39 @@ def curve_spread(emulator: CurveEmulator, n_eff: float, sample: ImportanceSample
     mean's importance sample pooled with them (each posterior an equal share).
 
     Args:
-        emulator: the curve emulator whose mean curves ``sample`` weights.
+        emulator: the curve emulator whose posterior ``sample`` weights.
         n_eff: effective points of the likelihood.
         sample: the mean's importance sample (unit cube, ``(N, d)``; its ``log_target``
-            the emulated log posterior of the mean curves).
+            the emulated log posterior).
         names: the free parameters' names, ``d`` of them.
         rng: draws the support and the functions.
         functions: sample functions.
+
+    Returns:
+        :func:`spread_and_pool` of the functions' posteriors.
+    """
+    return spread_and_pool(function_posteriors(emulator, n_eff, sample, rng, functions), sample, names)
+
+
+def spread_and_pool(posteriors: FunctionPosteriors, sample: ImportanceSample, names: Sequence[str],
+                    ) -> tuple[dict[str, Any], ImportanceSample]:
+    """The spread of the functions' ``posteriors`` around the mean's ``sample``, and the
+    sample pooled with them.
 
     Returns:
         The spread in the keys :func:`smcbayes.posterior.spread.emulator_spread` records:
         per parameter, the move of a quantile against the mean's posterior on the same
         support that one function in ten exceeds (``shift_level``; not net of any noise;
         ``sampling_noise`` is the support's own, against the whole sample), with each
-        function's ESS on the support; and the pooled sample: the mean's points, each
+        function's ESS on the support, and ``pooled_shift``, the largest move of a quantile
+        from the mean's posterior to the pooled one (both on the whole sample); and the
+        pooled sample: the mean's points, each
         weighted by the mean's share plus the functions' shares of it (its ``log_target``
         stays the mean's).
     """
-    rows, log_w0 = _support(sample, rng)
-    x, base = sample.unit[rows], sample.log_target[rows]
-    lik = [_log_lik(emulator, out, n_eff) for out in joint_outputs(emulator, x, functions, rng)]
-    log_ws = [_normalised(log_w0 + lj - base) for lj in lik]
-    ref = _quantiles(x, np.exp(log_w0 - np.max(log_w0)))
+    rows, log_ws, functions = posteriors.rows, posteriors.log_functions, len(posteriors.log_lik)
+    x = sample.unit[rows]
+    ref = _quantiles(x, np.exp(posteriors.log_mean))
     # on the common support the support's own subsampling cancels (as in the rounds'
     # quantile shift); its noise against the whole sample is reported, not subtracted
     noise = np.max(np.abs(ref - _quantiles(sample.unit, np.exp(sample.log_weight))), axis=0)
@@ -165,4 +218,8 @@ def curve_spread(emulator: CurveEmulator, n_eff: float, sample: ImportanceSample
         np.add.at(weight, rows, np.exp(lw) / (functions + 1.0))
     with np.errstate(divide="ignore"):
         log_weight = np.log(weight / weight.sum())
+    # how far the pooling moved the reported posterior from the mean's: on the same points,
+    # so that only the weights differ
+    spread["pooled_shift"] = float(np.max(np.abs(_quantiles(sample.unit, np.exp(log_weight))
+                                                 - _quantiles(sample.unit, np.exp(sample.log_weight)))))
     return spread, dataclasses.replace(sample, log_weight=log_weight, ess=ess_of(log_weight))

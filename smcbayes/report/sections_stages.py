@@ -127,8 +127,12 @@ def _spread_paragraph(spread: dict[str, Any]) -> Paragraph | None:
     """How far GP sample functions move the posterior, and whether they widen it."""
     if not spread:
         return None
-    pooled = (" Their posteriors are pooled with the GP mean's in the table above, so the "
-              "emulator's uncertainty widens it." if spread.get("pooled") else "")
+    pooled = ""
+    if spread.get("pooled"):
+        moved = spread.get("pooled_shift")
+        by = "" if moved is None else f", moving a 5/50/95 % quantile by up to {moved:.2g} of its range"
+        pooled = (" Their posteriors are pooled with the emulator's own in the table above, so the "
+                  f"emulator's uncertainty widens it{by}.")
     return Paragraph(
         f"Emulator spread: {spread_words(spread)}; "
         f"above {SPREAD_MAX} the simulator runs spent on the emulator do not yet determine the "

@@ -1,16 +1,25 @@
-"""The curve emulator path's stopping rule: the posterior's move between rounds on common
-draws, and when rounds validate the emulator."""
+"""The curve emulator path's rounds: the draws that lean to the sample functions' disagreement,
+the error at them, the posterior's move between rounds on common draws, and when rounds
+validate the emulator."""
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 from scipy.stats import norm
 
 from smcbayes.posterior.correct import ImportanceSample
+from smcbayes.posterior.curve_spread import FunctionPosteriors
 from smcbayes.posterior.curve_stage import (
     QUANTILE_SHIFT,
+    TARGETED,
     VALIDATED_ROUNDS,
     _choose,
+    _fresh_error,
+    _lift,
+    _Round,
+    _targeted,
     _validated,
     quantile_shift,
 )
@@ -52,8 +61,56 @@ def test_choose_draws_distinct_points_by_weight_and_repeats_only_when_it_must() 
     assert set(_choose(w, 5, rng).tolist()) <= {0, 1, 2}  # more than carry weight: repeats
 
 
+def _posteriors(log_lik: np.ndarray, seed: int = 0) -> FunctionPosteriors:
+    """Functions' posteriors on a support of ``log_lik.shape[1]`` points under a flat mean."""
+    count = log_lik.shape[1]
+    log_mean = np.full(count, -np.log(count))
+    log_f = log_lik - np.logaddexp.reduce(log_lik, axis=1, keepdims=True)
+    return FunctionPosteriors(np.arange(count), log_mean, log_f, log_lik)
+
+
+def test_the_targeted_draws_lean_to_disagreement_with_bounded_error_weights() -> None:
+    rng = np.random.default_rng(0)
+    # 400 support points; the functions agree on the first 300 and disagree on the rest
+    log_lik = np.zeros((8, 400))
+    log_lik[:, 300:] = rng.normal(0.0, 1.0, (8, 100))
+    posteriors = _posteriors(log_lik)
+    p, s = posteriors.pooled(), posteriors.disagreement()
+    assert np.isclose(p.sum(), 1.0) and np.all(s[:300] == 0.0) and np.all(s[300:] > 0.0)
+    lift = _lift(p, s)
+    # a proposal (sums to one) whose importance weights p / q are bounded
+    assert np.isclose(np.sum(p * lift), 1.0)
+    assert np.max(1.0 / lift) <= 1.0 / (1.0 - TARGETED) + 1e-12
+    np.testing.assert_allclose(lift[:300], 1.0 - TARGETED)
+    chosen, weight = _targeted(posteriors, 40, rng)
+    assert len(np.unique(chosen)) == 40
+    np.testing.assert_allclose(weight, 1.0 / lift[chosen])
+    # the disagreeing quarter of the posterior gets more than its share of the draws
+    q_far = np.sum((p * lift)[300:])
+    assert q_far > 0.5 and np.sum(chosen >= 300) > 10
+    # weighted by p / q, draws estimate posterior means: the identity behind the error's weights
+    f = rng.random(400)
+    assert np.isclose(np.sum(p * lift * (f / lift)), np.sum(p * f))
+    # functions that agree everywhere leave the posterior's own draws, each of weight one
+    still = _lift(p, np.zeros(400))
+    np.testing.assert_allclose(still, 1.0)
+
+
+def test_the_rounds_error_is_the_weighted_mean_at_its_simulated_posterior_draws() -> None:
+    # emulated loss e^1 everywhere; simulated e^(1 + k / 10) at row k: errors of k / 10 * N_eff / 2
+    features = SimpleNamespace(loss=lambda y: np.exp(1.0 + y[:, 0] / 10.0))
+    emulator = SimpleNamespace(loss=lambda x, variance=False: np.full(len(x), np.e), features=features)
+    new = np.zeros((5, 2))
+    y_new = np.arange(5.0)[:, None]
+    step = _Round(new, 3, None, 0.0, np.array([2.0, 1.0, 1.0]))
+    ok = np.array([True, True, False, True, True])
+    # rows 3 and 4 are exploration; row 2 failed: (2 * 0 + 1 * 0.1) / 3 * 4 / 2
+    assert np.isclose(_fresh_error(emulator, 4.0, step, y_new, ok), 0.2 / 3)
+    assert _fresh_error(emulator, 4.0, step, y_new, np.zeros(5, dtype=bool)) == np.inf
+
+
 def test_rounds_validate_only_when_stable_and_accurate_together() -> None:
-    small = [np.full(20, 0.5)] * VALIDATED_ROUNDS
+    small = [0.5] * VALIDATED_ROUNDS
     stable = [QUANTILE_SHIFT / 2] * VALIDATED_ROUNDS
     narrow = [SPREAD_MAX / 2] * VALIDATED_ROUNDS
     assert _validated(small, [None, *stable], 1.0, narrow)
@@ -61,9 +118,9 @@ def test_rounds_validate_only_when_stable_and_accurate_together() -> None:
     assert not _validated(small, [*stable[:-1], 2 * QUANTILE_SHIFT], 1.0, narrow)  # the last round moved
     assert not _validated(small, [None, *stable[:-1]], 1.0, narrow)  # a round with nothing to compare
     # every round must be within the tolerance: a good mean over the rounds is not enough
-    assert not _validated([np.full(20, 0.2), np.full(20, 0.2), np.full(20, 1.4)], stable, 1.0, narrow)
+    assert not _validated([0.2, 0.2, 1.4], stable, 1.0, narrow)
     # earlier rounds do not count
-    assert _validated([np.full(20, 50.0), *small], stable, 1.0, [1.0, *narrow])
+    assert _validated([50.0, *small], stable, 1.0, [1.0, *narrow])
     # the last round's sample functions must agree with the mean; only the last round's count
     assert not _validated(small, stable, 1.0, [*narrow[:-1], 2 * SPREAD_MAX])
     assert _validated(small, stable, 1.0, [2 * SPREAD_MAX, *narrow[1:]])

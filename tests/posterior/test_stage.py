@@ -601,6 +601,7 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     functions = curve_spread.CURVE_FUNCTIONS
     assert info["emulator_spread"]["functions"] == functions
     assert len(info["emulator_spread"]["function_ess"]) == functions
+    assert 0.0 <= info["emulator_spread"]["pooled_shift"] < 1.0
     spent = active["evaluations"] - active["start_runs"]
     assert 0 < spent <= 120 and active["start_runs"] == active["start_points"]["calibration_gp"]
     assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5

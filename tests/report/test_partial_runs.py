@@ -205,6 +205,8 @@ def test_posterior_section_states_how_n_eff_was_estimated(tmp_path: Path, budget
 @pytest.mark.parametrize(("extra", "sampled", "pooled"), [
     ({"emulator_spread": {"functions": 4, "max_quantile_shift": 0.31, "pooled": True},
       "settings": {"functions": 0}}, "the GP mean and 4 GP sample functions, pooled", True),
+    ({"emulator_spread": {"functions": 32, "max_quantile_shift": 0.08, "pooled": True, "pooled_shift": 0.065},
+      "settings": {"functions": 0}}, "the GP mean and 32 GP sample functions, pooled", True),
     ({"emulator_spread": {"functions": 4, "max_quantile_shift": 0.04, "pooled": False},
       "settings": {"functions": 0}}, "the GP mean,", False),
     ({"settings": {"functions": 8}}, "8 GP sample functions,", False),
@@ -218,6 +220,8 @@ def test_posterior_section_states_what_was_sampled_and_the_spread(tmp_path: Path
     if spread is not None:
         assert f"up to {spread['max_quantile_shift']:.2f} of its range" in text
     assert ("widens it" in text) == pooled
+    moved = (spread or {}).get("pooled_shift")
+    assert ("moving a 5/50/95 % quantile by up to 0.065 of its range" in text) == (moved is not None)
 
 
 def test_the_emulators_start_and_active_learning_are_stated() -> None:
