@@ -38,7 +38,7 @@ from _posterior_common import posterior_samples, write_result
 from posterior_accuracy import Q_TARGET, R_TARGET, compare
 
 from smcbayes.posterior.correct import CorrectionSettings
-from smcbayes.posterior.curve_stage import learn, sample_chains, sample_emulator
+from smcbayes.posterior.curve_stage import EXPECTED_LOSS, learn, sample_chains, sample_emulator
 from smcbayes.posterior.curves import CurveFeatures
 from smcbayes.posterior.stage import load_run, residual_budget
 from smcbayes.surrogate.gp import load_surrogate
@@ -92,7 +92,8 @@ def run_seed(run_dir: Path, ref: tuple[np.ndarray, np.ndarray], budgets: list[in
         row: dict[str, Any] = {"seed": seed, "budget": spent, "rows": len(x), "n_eff": n_eff,
                                "components": emulator.components,
                                "lengthscales": emulator.corr.lengthscales.tolist()}
-        draws = sample_chains(emulator, n_eff, rng, centre, steps=10000).samples.reshape(-1, x.shape[1])
+        draws = sample_chains(emulator, n_eff, rng, centre, steps=10000,
+                              variance=EXPECTED_LOSS).samples.reshape(-1, x.shape[1])
         row["emcee"] = summary(compare(NAMES, ref, draws, np.zeros(len(NAMES))))
         sample = sample_emulator(emulator, n_eff, draws, CorrectionSettings(), rng)
         row["importance"] = summary(compare(NAMES, ref, sample.unit, np.zeros(len(NAMES)), sample.weights))
@@ -100,7 +101,7 @@ def run_seed(run_dir: Path, ref: tuple[np.ndarray, np.ndarray], budgets: list[in
         # the error at the stage's posterior, on the forward model
         check = sample.resample(CHECK_DRAWS, rng)
         exact = -0.5 * n_eff * np.log(ctx.runner.loss(ctx.space.from_unit(check)))
-        emulated = -0.5 * n_eff * np.log(emulator.loss(check))
+        emulated = -0.5 * n_eff * np.log(emulator.loss(check, variance=EXPECTED_LOSS))
         row["check_mae_nats"] = float(np.nanmean(np.abs(exact - emulated)))
         row["seconds"] = time.perf_counter() - start
         rows.append(row)

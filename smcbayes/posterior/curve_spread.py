@@ -218,8 +218,8 @@ def spread_and_pool(posteriors: FunctionPosteriors, sample: ImportanceSample, na
         np.add.at(weight, rows, np.exp(lw) / (functions + 1.0))
     with np.errstate(divide="ignore"):
         log_weight = np.log(weight / weight.sum())
-    # how far the pooling moved the reported posterior from the mean's: on the same points,
-    # so that only the weights differ
+    # how far the pooling moved the reported posterior from the mean's, on the same points
+    # (the functions' shares sit on the support, so its subsampling noise is included)
     spread["pooled_shift"] = float(np.max(np.abs(_quantiles(sample.unit, np.exp(log_weight))
                                                  - _quantiles(sample.unit, np.exp(sample.log_weight)))))
     return spread, dataclasses.replace(sample, log_weight=log_weight, ess=ess_of(log_weight))

@@ -136,12 +136,12 @@ class CurveEmulation:
 
     def log_loss(self, u: Array) -> Array:
         """Emulated log loss ``(P,)`` at unit-cube points ``(P, d)`` (the expected loss, as sampled)."""
-        return np.log(np.maximum(self.emulator.loss(np.atleast_2d(u), EXPECTED_LOSS), 1e-300))
+        return np.log(np.maximum(self.emulator.loss(np.atleast_2d(u), variance=EXPECTED_LOSS), 1e-300))
 
 
 def sample_chains(emulator: CurveEmulator, n_eff: float, rng: np.random.Generator, centre: Array,
                   temper: float = 1.0, steps: int = ROUND_STEPS, walkers: int = 32,
-                  variance: bool = False, label: str = "", optimistic: bool = False) -> Chains:
+                  variance: bool = EXPECTED_LOSS, label: str = "", optimistic: bool = False) -> Chains:
     """emcee chains (differential evolution, from ``centre`` ``(d,)``) of the emulated
     posterior, tempered by ``temper``, of the loss ``variance`` and ``optimistic`` ask for
     (:meth:`~smcbayes.posterior.curves.CurveEmulator.loss`)."""
@@ -156,8 +156,8 @@ class _Round:
 
     Attributes:
         new: the rows to simulate ``(B, d)``: the first ``posterior`` are draws of the
-            emulated posterior pooled with its GP sample functions', the rest of the
-            tempered optimistic one.
+            emulated posterior pooled with its GP sample functions', leaning to where
+            they disagree (:func:`_targeted`), the rest of the tempered optimistic one.
         posterior: how many of ``new`` are posterior draws.
         sample: the round's importance sample of the emulated posterior (the mean's).
         spread: how far the sample functions move its 5/50/95 % quantiles (share of the
@@ -234,7 +234,9 @@ def _targeted(posteriors: FunctionPosteriors, count: int, rng: np.random.Generat
     errors still estimate the error at posterior draws with bounded weights.
     """
     p = posteriors.pooled()
-    lift = _lift(p, posteriors.disagreement())
+    s = posteriors.disagreement()
+    # a function whose loss is not finite at a point has no spread there to measure
+    lift = _lift(p, np.where(np.isfinite(s), s, 0.0))
     chosen = _choose(p * lift, count, rng)
     return chosen, 1.0 / lift[chosen]
 
@@ -373,7 +375,8 @@ def _fresh_error(emulator: CurveEmulator, n_eff: float, step: _Round, y_new: Arr
     if not np.any(at):
         return float("inf")
     a = 0.5 * n_eff
-    emulated = -a * np.log(np.maximum(emulator.loss(step.new[:step.posterior][at], EXPECTED_LOSS), 1e-300))
+    emulated = -a * np.log(np.maximum(emulator.loss(step.new[:step.posterior][at], variance=EXPECTED_LOSS),
+                                      1e-300))
     exact = -a * np.log(np.maximum(emulator.features.loss(y_new[:step.posterior][at]), 1e-300))
     return float(np.average(np.abs(emulated - exact), weights=step.error_weight[at]))
 

@@ -140,6 +140,22 @@ def _spread_paragraph(spread: dict[str, Any]) -> Paragraph | None:
     )
 
 
+def _method_words(post: dict[str, Any]) -> str:
+    """What emulated the likelihood and what sampled it."""
+    s = post.get("settings") or {}
+    seed, seconds = fmt(s.get("seed")), fmt(post.get("seconds"), 3)
+    if (post.get("active_learning") or {}).get("kind") == "curves":
+        spread = post.get("emulator_spread") or {}
+        pooled = (f", pooled with {fmt(spread.get('functions'))} GP sample functions' posteriors"
+                  if spread.get("pooled") else "")
+        return (f"A Gaussian process emulates the force curves{_active_words(post)}; the likelihood of their "
+                f"expected loss is sampled by importance on the emulator (no forward run{pooled}, seed {seed}; "
+                f"{seconds} s).")
+    return (f"The calibration's Gaussian process emulates the likelihood{_active_words(post)}; "
+            f"emcee samples it ({fmt(s.get('walkers'))} walkers, up to {fmt(s.get('steps'))} steps, "
+            f"{_sampled_words(post)}, seed {seed}; {seconds} s).")
+
+
 def _sampled_words(post: dict[str, Any]) -> str:
     """What emcee sampled: the GP mean, a mixture of sample functions, or both pooled."""
     functions = (post.get("settings") or {}).get("functions") or 0
@@ -316,16 +332,10 @@ def posterior_section(
         return None
     ranges = ranges or {}
     truth = (run.truth or {}).get("parameters") or post.get("truth") or {}
-    s = post.get("settings") or {}
     params = post.get("parameters") or []
     sec = Section("posterior", "Posterior")
     sec.add(
-        Paragraph(
-            f"The calibration's Gaussian process emulates the likelihood{_active_words(post)}; "
-            f"emcee samples it ({fmt(s.get('walkers'))} walkers, up to {fmt(s.get('steps'))} steps, "
-            f"{_sampled_words(post)}, seed {fmt(s.get('seed'))}; "
-            f"{fmt(post.get('seconds'), 3)} s)."
-        ),
+        Paragraph(_method_words(post)),
         _posterior_table(params, truth, ranges),
         Heading("Diagnostics"),
         *_verdict(post),
