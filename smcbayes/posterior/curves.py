@@ -288,8 +288,9 @@ class CurveEmulator:
         principal components and the trend keep the left-out row, so the errors of later
         components are somewhat low; the factor is measured on the noisy prediction
         (nugget included) and scales the latent variance too.  It holds wherever the
-        emulator's variance is read: the sample functions and the optimistic loss of the
-        rounds' exploration.  Each call starts from the fit's own variances.
+        emulator's variance is read: the sample functions, the optimistic loss of the
+        rounds' exploration and the expected loss.  Each call starts from the fit's own
+        variances.
         """
         index = {row.tobytes(): k for k, row in enumerate(self.x)}
         keys = [r.tobytes() for r in np.asarray(points, dtype=float)]
