@@ -68,10 +68,9 @@ emulator check) is that of the expected loss: the mean curves' loss plus the emu
 so the mean curves' loss is the lower one wherever the emulator is unsure: on the accuracy
 benchmark's two cases the mean curves' posterior put too much mass where tau* is large (a
 flat arm: a yield stress above every flow stress), and posteriors called reliable missed
-tau*'s 95 % quantile by up to 0.13 of its range.
-Before the variances were calibrated, the expected loss lowered the likelihood too much
-where the emulator has few points (after 140-380 runs its posterior was further from the
-exact one than the mean curves')."""
+tau*'s 95 % quantile by up to 0.13 of its range.  Before the variances were calibrated,
+the expected loss lowered the likelihood too much where the emulator has few points
+(after 140-380 runs its posterior was further from the exact one than the mean curves')."""
 
 TARGETED = 0.5
 """Share of the rounds' posterior draws' proposal that leans to where the sample
