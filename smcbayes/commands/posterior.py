@@ -9,7 +9,7 @@ from typing import Any
 from smcbayes.commands.common import add_executor_options
 from smcbayes.config import PosteriorSpec, choices_of, help_of, override
 from smcbayes.errors import UnreliablePosteriorWarning
-from smcbayes.posterior.spread import spread_words
+from smcbayes.posterior.spread import pooled_words, spread_words
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import make_executor
 
@@ -99,9 +99,8 @@ def print_summary(info: dict[str, Any]) -> None:
     if spread:
         pooled = ""
         if spread.get("pooled"):
-            moved = spread.get("pooled_shift")
-            by = "" if moved is None else f", moving a quantile by up to {moved:.2g} of its range"
-            pooled = f" (their posteriors are pooled into the table above{by})"
+            by = pooled_words(spread)
+            pooled = f" (their posteriors are pooled into the table above{', ' + by if by else ''})"
         print(f"emulator spread: {spread_words(spread)}{pooled}")
     for cid, b in info["bands"].items():
         if b["coverage90"] == b["coverage90"]:

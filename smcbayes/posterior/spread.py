@@ -72,6 +72,13 @@ def share_words(spread: dict[str, Any], noun: str = "") -> str:
     return f"one {noun}in {1.0 / (1.0 - spread.get('shift_level', 1.0)):.0f}"
 
 
+def pooled_words(spread: dict[str, Any]) -> str:
+    """How far pooling the sample functions' posteriors moved the reported posterior
+    (``pooled_shift`` of a curve emulator's spread), or "" when not recorded."""
+    moved = spread.get("pooled_shift")
+    return "" if moved is None else f"moving a 5/50/95 % quantile by up to {moved:.2g} of its range"
+
+
 def spread_words(spread: dict[str, Any]) -> str:
     """A spread record (:func:`emulator_spread`, or the curve emulator's, which bounds the
     move of all but a share ``1 - shift_level`` of its functions) in words, for the

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from smcbayes.posterior.spread import SPREAD_MAX, spread_words
+from smcbayes.posterior.spread import SPREAD_MAX, pooled_words, spread_words
 from smcbayes.report.collect import RunFiles
 from smcbayes.report.document import Bullets, Figure, Heading, Paragraph, Section, Table, fmt, pct
 
@@ -129,10 +129,9 @@ def _spread_paragraph(spread: dict[str, Any]) -> Paragraph | None:
         return None
     pooled = ""
     if spread.get("pooled"):
-        moved = spread.get("pooled_shift")
-        by = "" if moved is None else f", moving a 5/50/95 % quantile by up to {moved:.2g} of its range"
+        by = pooled_words(spread)
         pooled = (" Their posteriors are pooled with the emulator's own in the table above, so the "
-                  f"emulator's uncertainty widens it{by}.")
+                  f"emulator's uncertainty widens it{', ' + by if by else ''}.")
     return Paragraph(
         f"Emulator spread: {spread_words(spread)}; "
         f"above {SPREAD_MAX} the simulator runs spent on the emulator do not yet determine the "
