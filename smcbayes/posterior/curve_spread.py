@@ -185,37 +185,16 @@ def curve_spread(emulator: CurveEmulator, n_eff: float, sample: ImportanceSample
 
 def spread_and_pool(posteriors: FunctionPosteriors, sample: ImportanceSample, names: Sequence[str],
                     ) -> tuple[dict[str, Any], ImportanceSample]:
-    """The spread of the functions' ``posteriors`` around the mean's ``sample``, and the
-    sample pooled with them.
-
-    Returns:
-        The spread in the keys :func:`smcbayes.posterior.spread.emulator_spread` records:
-        per parameter, the move of a quantile against the mean's posterior on the same
-        support that one function in ten exceeds (``shift_level``; not net of any noise;
-        ``sampling_noise`` is the support's own, against the whole sample), with each
-        function's ESS on the support, and ``pooled_shift``, the largest move of a quantile
-        from the mean's posterior to the pooled one (both on the whole sample); and the
-        pooled sample: the mean's points, each
-        weighted by the mean's share plus the functions' shares of it (its ``log_target``
-        stays the mean's).
-    """
-    rows, log_ws, functions = posteriors.rows, posteriors.log_functions, len(posteriors.log_lik)
-    x = sample.unit[rows]
-    ref = _quantiles(x, np.exp(posteriors.log_mean))
-    # on the common support the support's own subsampling cancels (as in the rounds'
-    # quantile shift); its noise against the whole sample is reported, not subtracted
-    noise = np.max(np.abs(ref - _quantiles(sample.unit, np.exp(sample.log_weight))), axis=0)
-    moves = np.array([_function_shift(x, ref, lw) for lw in log_ws])
-    shifts = np.max(np.quantile(moves, SHIFT_LEVEL, axis=0), axis=0)
-    spread = {"functions": functions, "steps": 0, "support_points": int(len(rows)),
-              "shift_level": SHIFT_LEVEL,
-              "max_quantile_shift": float(np.max(shifts)),
-              "per_parameter": {n: float(v) for n, v in zip(names, shifts, strict=True)},
-              "sampling_noise": {n: float(v) for n, v in zip(names, noise, strict=True)},
-              "function_ess": [ess_of(lw) for lw in log_ws]}
+    """The spread of the functions' ``posteriors`` around the mean's ``sample``
+    (:func:`function_spread`) with ``pooled_shift``, the largest move of a quantile from the
+    mean's posterior to the pooled one (both on the whole sample), and the pooled sample:
+    the mean's points, each weighted by the mean's share plus the functions' shares of it
+    (its ``log_target`` stays the mean's)."""
+    spread = function_spread(posteriors, sample, names)
+    functions = len(posteriors.log_lik)
     weight = np.exp(sample.log_weight) / (functions + 1.0)
-    for lw in log_ws:
-        np.add.at(weight, rows, np.exp(lw) / (functions + 1.0))
+    for lw in posteriors.log_functions:
+        np.add.at(weight, posteriors.rows, np.exp(lw) / (functions + 1.0))
     with np.errstate(divide="ignore"):
         log_weight = np.log(weight / weight.sum())
     # how far the pooling moved the reported posterior from the mean's, on the same points
@@ -223,3 +202,26 @@ def spread_and_pool(posteriors: FunctionPosteriors, sample: ImportanceSample, na
     spread["pooled_shift"] = float(np.max(np.abs(_quantiles(sample.unit, np.exp(log_weight))
                                                  - _quantiles(sample.unit, np.exp(sample.log_weight)))))
     return spread, dataclasses.replace(sample, log_weight=log_weight, ess=ess_of(log_weight))
+
+
+def function_spread(posteriors: FunctionPosteriors, sample: ImportanceSample,
+                    names: Sequence[str]) -> dict[str, Any]:
+    """The spread of the functions' ``posteriors`` around the mean's ``sample``, in the keys
+    :func:`smcbayes.posterior.spread.emulator_spread` records: per parameter, the move of a
+    quantile against the mean's posterior on the same support that one function in ten
+    exceeds (``shift_level``; not net of any noise; ``sampling_noise`` is the support's own,
+    against the whole sample), with each function's ESS on the support."""
+    rows, log_ws = posteriors.rows, posteriors.log_functions
+    x = sample.unit[rows]
+    ref = _quantiles(x, np.exp(posteriors.log_mean))
+    # on the common support the support's own subsampling cancels (as in the rounds'
+    # quantile shift); its noise against the whole sample is reported, not subtracted
+    noise = np.max(np.abs(ref - _quantiles(sample.unit, np.exp(sample.log_weight))), axis=0)
+    moves = np.array([_function_shift(x, ref, lw) for lw in log_ws])
+    shifts = np.max(np.quantile(moves, SHIFT_LEVEL, axis=0), axis=0)
+    return {"functions": len(posteriors.log_lik), "steps": 0, "support_points": int(len(rows)),
+            "shift_level": SHIFT_LEVEL,
+            "max_quantile_shift": float(np.max(shifts)),
+            "per_parameter": {n: float(v) for n, v in zip(names, shifts, strict=True)},
+            "sampling_noise": {n: float(v) for n, v in zip(names, noise, strict=True)},
+            "function_ess": [ess_of(lw) for lw in log_ws]}

@@ -45,7 +45,7 @@ from smcbayes.config import PosteriorSpec
 from smcbayes.errors import SmcBayesWarning, SurrogateError
 from smcbayes.posterior.context import RunContext
 from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample, correct, weighted_quantile
-from smcbayes.posterior.curve_spread import FunctionPosteriors, function_posteriors, spread_and_pool
+from smcbayes.posterior.curve_spread import FunctionPosteriors, function_posteriors, function_spread
 from smcbayes.posterior.curves import CurveEmulator, CurveFeatures, log_posterior
 from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
 from smcbayes.posterior.spread import SPREAD_MAX
@@ -207,7 +207,7 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     # the posterior half from the pooled posterior, which the stage reports, leaning to
     # where its sample functions disagree: there the next runs settle it
     posteriors = function_posteriors(emulator, n_eff, sample, rng)
-    spread, _ = spread_and_pool(posteriors, sample, [str(k) for k in range(d)])
+    spread = function_spread(posteriors, sample, [str(k) for k in range(d)])
     half = max(1, size // 2)
     rows, error_weight = _targeted(posteriors, half, rng)
     new = np.vstack([sample.unit[posteriors.rows[rows]],
