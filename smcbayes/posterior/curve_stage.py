@@ -6,7 +6,7 @@ Starts from the calibration GP's points (simulated again for their curves, throu
 stage's forward cache), then runs rounds of ``batch`` forward runs: half draws of the
 emulated posterior pooled with those of GP sample functions
 (:mod:`smcbayes.posterior.curve_spread`), leaning to where the functions disagree
-(:func:`_targeted`), half of the tempered one (likelihood^``temper``)
+(:func:`~smcbayes.posterior.curve_aim.targeted`), half of the tempered one (likelihood^``temper``)
 of the optimistic loss (curves one emulator sd closer to the data), which reaches regions
 the emulator's mean rates too low because it has no points there.  Each round samples the
 emulated posterior by adaptive importance sampling on the emulator (the correction's
@@ -34,7 +34,7 @@ import logging
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +45,8 @@ from smcbayes.config import PosteriorSpec
 from smcbayes.errors import SmcBayesWarning, SurrogateError
 from smcbayes.posterior.context import RunContext
 from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample, correct, weighted_quantile
-from smcbayes.posterior.curve_spread import FunctionPosteriors, function_posteriors, function_spread
+from smcbayes.posterior.curve_aim import targeted
+from smcbayes.posterior.curve_spread import function_posteriors, function_spread
 from smcbayes.posterior.curves import CurveEmulator, CurveFeatures, log_posterior
 from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
 from smcbayes.posterior.spread import SPREAD_MAX
@@ -71,10 +72,6 @@ flat arm: a yield stress above every flow stress), and posteriors called reliabl
 tau*'s 95 % quantile by up to 0.13 of its range.  Before the variances were calibrated,
 the expected loss lowered the likelihood too much where the emulator has few points
 (after 140-380 runs its posterior was further from the exact one than the mean curves')."""
-
-TARGETED = 0.5
-"""Share of the rounds' posterior draws' proposal that leans to where the sample
-functions disagree (:func:`_targeted`)."""
 
 VALIDATED_ROUNDS = 3
 """Rounds in a row whose out-of-sample error is within the tolerance and whose posterior
@@ -156,13 +153,17 @@ class _Round:
     Attributes:
         new: the rows to simulate ``(B, d)``: the first ``posterior`` are draws of the
             emulated posterior pooled with its GP sample functions', leaning to where
-            they disagree (:func:`_targeted`), the rest of the tempered optimistic one.
+            they disagree (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest of
+            the tempered optimistic one.
         posterior: how many of ``new`` are posterior draws.
         sample: the round's importance sample of the emulated posterior (the mean's).
         spread: how far the sample functions move its 5/50/95 % quantiles (share of the
             unit cube; :func:`~smcbayes.posterior.curve_spread.curve_spread`).
         error_weight: the weights ``(posterior,)`` of the posterior draws' errors in the
-            round's mean error (:func:`_targeted`).
+            round's mean error (:func:`~smcbayes.posterior.curve_aim.targeted`).
+        aim: what ``refine.jsonl`` keeps of the aiming: the posterior draws' ESS under
+            ``error_weight`` and the functions' mean disagreement under the pooled
+            posterior (nats).
     """
 
     new: Array
@@ -170,13 +171,7 @@ class _Round:
     sample: ImportanceSample
     spread: float
     error_weight: Array
-
-
-def _choose(weights: Array, count: int, rng: np.random.Generator) -> NDArray[np.int_]:
-    """``count`` distinct indices drawn by ``weights`` ``(N,)`` (with repeats only when fewer
-    than ``count`` points carry weight)."""
-    positive = int(np.count_nonzero(weights > 0))
-    return rng.choice(len(weights), count, replace=count > positive, p=weights / weights.sum())
+    aim: dict[str, float] = field(default_factory=dict)
 
 
 def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec: CorrectionSettings,
@@ -188,7 +183,8 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     holds only the best training points, nearly all tempered; twice as many draws once
     more when its ESS is below :data:`ROUND_ESS`) and pooled with the posteriors of GP
     sample functions on a support of its points, leaning to where they disagree
-    (:func:`_targeted`), half from the tempered posterior of the optimistic loss (emcee)."""
+    (:func:`~smcbayes.posterior.curve_aim.targeted`), half from the tempered posterior of
+    the optimistic loss (emcee)."""
     d = emulator.x.shape[1]
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
     # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
@@ -208,46 +204,17 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     # where its sample functions disagree: there the next runs settle it
     posteriors = function_posteriors(emulator, n_eff, sample, rng)
     spread = function_spread(posteriors, sample, [str(k) for k in range(d)])
-    half = max(1, size // 2)
-    rows, error_weight = _targeted(posteriors, half, rng)
+    rows, error_weight = targeted(posteriors, max(1, size // 2), rng)
+    half = len(rows)
     new = np.vstack([sample.unit[posteriors.rows[rows]],
                      wide[rng.choice(len(wide), size - half, replace=size - half > len(wide))]])
     # functions resting on few points of a round's sample (half the draws of the stage's
     # final one, an ESS of a few hundred) still count: on the measured thesis trials some
     # did in every round, and the rounds could never validate; the stage's own check asks it
-    return _Round(new, half, sample, spread["max_quantile_shift"], error_weight)
-
-
-def _targeted(posteriors: FunctionPosteriors, count: int, rng: np.random.Generator
-              ) -> tuple[NDArray[np.int_], Array]:
-    """``count`` support points drawn from the pooled posterior p, each point's weight
-    raised by its sample functions' disagreement s (sd of the log-likelihood, nats): from
-    the mixture ``q = (1 - TARGETED) p + TARGETED p s / E_p[s]``, and the importance
-    weights ``p / q`` ``(count,)`` (at most ``1 / (1 - TARGETED)``) that turn the errors
-    at those points into the posterior's mean error.
-
-    Density times the emulator's uncertainty is the acquisition of Acerbi (2018,
-    "Variational Bayesian Monte Carlo", NeurIPS) and of Kandasamy, Schneider & Poczos
-    (2017, Artificial Intelligence 243); mixed with the density itself (defensive
-    importance sampling: Hesterberg 1995, Technometrics 37, 185), so that the rounds'
-    errors still estimate the error at posterior draws with bounded weights.
-    """
-    p = posteriors.pooled()
     s = posteriors.disagreement()
-    # a function whose loss is not finite at a point has no spread there to measure
-    lift = _lift(p, np.where(np.isfinite(s), s, 0.0))
-    chosen = _choose(p * lift, count, rng)
-    return chosen, 1.0 / lift[chosen]
-
-
-def _lift(p: Array, s: Array) -> Array:
-    """The ratio ``q / p`` ``(P,)`` of :func:`_targeted`'s proposal to the posterior weights
-    ``p`` ``(P,)`` (summing to one), from the disagreement ``s`` ``(P,)``; one everywhere
-    where the functions agree everywhere."""
-    mean = float(np.sum(p * s))
-    if not (mean > 0.0 and np.isfinite(mean)):
-        return np.ones_like(p)
-    return (1.0 - TARGETED) + TARGETED * s / mean
+    aim = {"error_weight_ess": float(error_weight.sum() ** 2 / np.sum(error_weight ** 2)),
+           "mean_disagreement_nats": float(np.sum(posteriors.pooled() * np.where(np.isfinite(s), s, 0.0)))}
+    return _Round(new, half, sample, spread["max_quantile_shift"], error_weight, aim)
 
 
 def quantile_shift(sample: ImportanceSample, before: Callable[[Array], Array]) -> float:
@@ -280,7 +247,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
 
     The emulator is validated when, in each of the last :data:`VALIDATED_ROUNDS` rounds,
     its mean absolute error at the round's fresh posterior draws (weighted back to the
-    posterior's shares, :func:`_targeted`; measured before they
+    posterior's shares, :func:`~smcbayes.posterior.curve_aim.targeted`; measured before they
     join its data) is at most ``tolerance_nats`` and the quantiles of the emulated
     posterior moved by at most :data:`QUANTILE_SHIFT`, and the last round's sample
     functions moved them by at most :data:`~smcbayes.posterior.spread.SPREAD_MAX`.
@@ -393,6 +360,7 @@ def _factor_range(emulator: CurveEmulator) -> dict[str, float] | None:
 def _round_record(emulator: CurveEmulator, step: _Round) -> dict[str, Any]:
     """What ``refine.jsonl`` keeps of a round's sample, spread and emulator."""
     return {"spread": _finite(step.spread), "importance_ess": step.sample.ess, "k_hat": step.sample.k_hat,
+            "posterior_draws": step.posterior, **step.aim,
             "components": emulator.components, "lengthscales": emulator.corr.lengthscales.tolist(),
             "variance_factor": emulator.variance_factor.tolist()}
 

@@ -10,16 +10,13 @@ import numpy as np
 from scipy.stats import norm
 
 from smcbayes.posterior.correct import ImportanceSample
-from smcbayes.posterior.curve_spread import FunctionPosteriors
+from smcbayes.posterior.curve_aim import TARGETED, draws, lift, targeted
+from smcbayes.posterior.curve_spread import FunctionPosteriors, function_spread
 from smcbayes.posterior.curve_stage import (
     QUANTILE_SHIFT,
-    TARGETED,
     VALIDATED_ROUNDS,
-    _choose,
     _fresh_error,
-    _lift,
     _Round,
-    _targeted,
     _validated,
     quantile_shift,
 )
@@ -53,12 +50,28 @@ def test_the_shift_is_the_move_of_the_quantiles_between_two_posteriors() -> None
     assert abs(cut - (norm.ppf(0.525, 0.5, 0.1) - norm.ppf(0.05, 0.5, 0.1))) < 0.01, cut
 
 
-def test_choose_draws_distinct_points_by_weight_and_repeats_only_when_it_must() -> None:
+def test_the_draws_stop_at_distinct_points_of_weight_and_count_repeats() -> None:
     rng = np.random.default_rng(0)
     w = np.array([0.5, 0.3, 0.2, 0.0, 0.0])
-    picked = _choose(w, 3, rng)
-    assert sorted(picked.tolist()) == [0, 1, 2]  # no point without weight, none twice
-    assert set(_choose(w, 5, rng).tolist()) <= {0, 1, 2}  # more than carry weight: repeats
+    picked, times = draws(w, 3, rng)
+    assert picked.tolist() == [0, 1, 2] and np.all(times >= 1)  # no point without weight
+    # more wanted than carry weight: each point of weight once, with how often it came up
+    again, times = draws(w, 5, rng)
+    assert again.tolist() == [0, 1, 2] and times.sum() >= 3
+
+
+def test_the_weighted_draws_estimate_a_concentrated_posteriors_mean() -> None:
+    # a posterior with 0.9 on one point of 60: ten distinct points drawn without
+    # replacement would hold it once in ten; the draws' multiplicities keep its share
+    rng = np.random.default_rng(1)
+    p = np.full(60, 0.1 / 59)
+    p[0] = 0.9
+    f = (np.arange(60) == 0).astype(float)
+    est = []
+    for _ in range(2000):
+        rows, times = draws(p, 10, rng)
+        est.append(np.average(f[rows], weights=times))
+    assert abs(np.mean(est) - 0.9) < 0.02, np.mean(est)
 
 
 def _posteriors(log_lik: np.ndarray, seed: int = 0) -> FunctionPosteriors:
@@ -77,23 +90,25 @@ def test_the_targeted_draws_lean_to_disagreement_with_bounded_error_weights() ->
     posteriors = _posteriors(log_lik)
     p, s = posteriors.pooled(), posteriors.disagreement()
     assert np.isclose(p.sum(), 1.0) and np.all(s[:300] == 0.0) and np.all(s[300:] > 0.0)
-    lift = _lift(p, s)
+    up = lift(p, s)
     # a proposal (sums to one) whose importance weights p / q are bounded
-    assert np.isclose(np.sum(p * lift), 1.0)
-    assert np.max(1.0 / lift) <= 1.0 / (1.0 - TARGETED) + 1e-12
-    np.testing.assert_allclose(lift[:300], 1.0 - TARGETED)
-    chosen, weight = _targeted(posteriors, 40, rng)
+    assert np.isclose(np.sum(p * up), 1.0)
+    assert np.max(1.0 / up) <= 1.0 / (1.0 - TARGETED) + 1e-12
+    np.testing.assert_allclose(up[:300], 1.0 - TARGETED)
+    chosen, weight = targeted(posteriors, 40, rng)
     assert len(np.unique(chosen)) == 40
-    np.testing.assert_allclose(weight, 1.0 / lift[chosen])
+    # each point's importance weight times how often it was drawn
+    times = np.rint(weight * up[chosen])
+    assert np.all(times >= 1) and np.allclose(weight, times / up[chosen])
     # the disagreeing quarter of the posterior gets more than its share of the draws
-    q_far = np.sum((p * lift)[300:])
+    q_far = np.sum((p * up)[300:])
     assert q_far > 0.5 and np.sum(chosen >= 300) > 10
     # functions that agree everywhere leave the posterior's own draws, each of weight one
-    still = _lift(p, np.zeros(400))
+    still = lift(p, np.zeros(400))
     np.testing.assert_allclose(still, 1.0)
 
 
-def test_the_rounds_error_is_the_weighted_mean_at_its_simulated_posterior_draws() -> None:
+def test_the_rounds_error_is_the_weighted_mean_at_its_simulated_posteriordraws() -> None:
     # expected loss e^1 everywhere (the mean curves' e^3); simulated e^(1 + k / 10) at row k:
     # errors of k / 10 * N_eff / 2
     features = SimpleNamespace(loss=lambda y: np.exp(1.0 + y[:, 0] / 10.0))
@@ -164,3 +179,16 @@ def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> N
     out = np.zeros(rows)
     force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, out)
     assert np.isnan(out[2]) and np.all(np.isfinite(np.delete(out, 2)))
+
+
+def test_the_spread_counts_the_functions_common_lean_away_from_the_mean() -> None:
+    # 32 functions that agree with one another and all shift the posterior 0.1 to the right:
+    # around their pool they barely spread, but the emulator is that unsure of the mean's
+    # posterior, and the spread says so
+    sample = _sample(0.5)
+    rows = np.arange(len(sample.unit))
+    lik = np.tile(norm.logpdf(sample.unit[:, 0], 0.6, 0.1), (32, 1))
+    log_f = np.array([lw - np.logaddexp.reduce(lw) for lw in sample.log_weight + lik - sample.log_target])
+    posteriors = FunctionPosteriors(rows, sample.log_weight, log_f, lik)
+    spread = function_spread(posteriors, sample, ["x"])
+    assert abs(spread["max_quantile_shift"] - 0.1) < 0.01, spread
