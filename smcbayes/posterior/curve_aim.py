@@ -25,26 +25,36 @@ posterior on fewer points than the batch wants gives fewer runs, not an endless 
 
 
 def targeted(posteriors: FunctionPosteriors, count: int, rng: np.random.Generator
-             ) -> tuple[NDArray[np.int_], Array]:
+             ) -> tuple[NDArray[np.int_], Array, dict[str, float]]:
     """Up to ``count`` distinct support points drawn from the pooled posterior p, each
     point's weight raised by its sample functions' disagreement s (sd of the log-likelihood,
     nats): independent draws (:func:`draws`) from the mixture
-    ``q = (1 - TARGETED) p + TARGETED p s / E_p[s]``, and the weights ``(points,)`` that
-    turn the errors at those points into the posterior's mean error: how often each was
-    drawn times its importance weight ``p / q`` (at most ``1 / (1 - TARGETED)``).
+    ``q = (1 - TARGETED) p + TARGETED p s / E_p[s]``.
 
     Density times the emulator's uncertainty is the acquisition of Acerbi (2018,
     "Variational Bayesian Monte Carlo", NeurIPS) and of Kandasamy, Schneider & Poczos
     (2017, Artificial Intelligence 243); mixed with the density itself (defensive
     importance sampling: Hesterberg 1995, Technometrics 37, 185), so that the rounds'
     errors still estimate the error at posterior draws with bounded weights.
+
+    Returns:
+        The points' indices into the support ``(points,)``; the weights ``(points,)`` that
+        turn the errors at them into the posterior's mean error (how often each was drawn
+        times its importance weight ``p / q``, at most ``1 / (1 - TARGETED)``); and what
+        ``refine.jsonl`` keeps of the aiming: the points, the draws, the points' ESS under
+        those weights and the functions' mean disagreement under p (nats).
     """
     p = posteriors.pooled()
     s = posteriors.disagreement()
     # a function whose loss is not finite at a point has no spread there to measure
-    up = lift(p, np.where(np.isfinite(s), s, 0.0))
+    s = np.where(np.isfinite(s), s, 0.0)
+    up = lift(p, s)
     chosen, times = draws(p * up, count, rng)
-    return chosen, times / up[chosen]
+    weight = times / up[chosen]
+    aim = {"posterior_points": float(len(chosen)), "draws": float(times.sum()),
+           "error_weight_ess": float(weight.sum() ** 2 / np.sum(weight ** 2)),
+           "mean_disagreement_nats": float(np.sum(p * s))}
+    return chosen, weight, aim
 
 
 def lift(p: Array, s: Array) -> Array:
@@ -58,21 +68,27 @@ def lift(p: Array, s: Array) -> Array:
 
 
 def draws(weights: Array, count: int, rng: np.random.Generator) -> tuple[NDArray[np.int_], NDArray[np.int_]]:
-    """Independent draws by ``weights`` ``(N,)`` until ``count`` distinct indices turned up
-    (fewer when fewer carry weight, or after :data:`MOST_DRAWS` times ``count`` draws): the
-    distinct indices and how often each was drawn.
+    """Independent draws by ``weights`` ``(N,)`` until ``count`` (at least one) distinct
+    indices turned up (fewer when fewer carry weight, or after :data:`MOST_DRAWS` times
+    ``count`` draws): the distinct indices and how often each was drawn.
 
-    Each draw is independent and the stop depends only on which indices turned up, so a
-    multiplicity-weighted mean over the draws estimates the mean under ``weights``
-    (Wald's identity), where the distinct draws of a weighted choice without replacement
-    under-weight the heavy points of a concentrated posterior."""
+    The draws are independent and whether to stop depends only on those made so far, so
+    the mean over the draws (each point's value counted as often as it was drawn) is a
+    consistent estimate of the mean under ``weights``: the draw that stops them falls on a
+    new point and over-weights it by that one draw, a bias of order one over the number
+    drawn.  The distinct points of a weighted choice without replacement count each point
+    once, however heavy: a point holding 90 % of the weight gets a 20th of it among 20.
+    """
+    if count < 1:
+        raise ValueError(f"draws needs a count of at least one, not {count}")
     p = weights / weights.sum()
     target = min(count, int(np.count_nonzero(p > 0)))
     drawn = np.empty(0, dtype=np.int_)
-    while True:
+    while len(drawn) < MOST_DRAWS * count:
         drawn = np.concatenate([drawn, rng.choice(len(p), 4 * count, p=p)])
         _, first = np.unique(drawn, return_index=True)
-        if len(first) >= target or len(drawn) >= MOST_DRAWS * count:
+        if len(first) >= target:
+            # the draws after the one that completed the set were not needed
+            drawn = drawn[:np.sort(first)[target - 1] + 1]
             break
-    stop = np.sort(first)[min(target, len(first)) - 1] + 1
-    return np.unique(drawn[:stop], return_counts=True)
+    return np.unique(drawn, return_counts=True)

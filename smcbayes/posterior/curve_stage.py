@@ -161,9 +161,8 @@ class _Round:
             unit cube; :func:`~smcbayes.posterior.curve_spread.curve_spread`).
         error_weight: the weights ``(posterior,)`` of the posterior draws' errors in the
             round's mean error (:func:`~smcbayes.posterior.curve_aim.targeted`).
-        aim: what ``refine.jsonl`` keeps of the aiming: the posterior draws' ESS under
-            ``error_weight`` and the functions' mean disagreement under the pooled
-            posterior (nats).
+        aim: what ``refine.jsonl`` keeps of the aiming
+            (:func:`~smcbayes.posterior.curve_aim.targeted`).
     """
 
     new: Array
@@ -176,15 +175,16 @@ class _Round:
 
 def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec: CorrectionSettings,
            rng: np.random.Generator, walkers: int) -> _Round:
-    """The next batch of ``size`` rows: half drawn from the emulated posterior, sampled by
-    importance (:data:`ROUND_DRAWS` emulator evaluations; its first proposal fitted to the
-    earlier round's posterior draws ``start`` ``(S, d)`` and tempered draws, a quarter of
-    :data:`START_ROWS` or as many as the chains hold; on the first round, whose ``start``
-    holds only the best training points, nearly all tempered; twice as many draws once
-    more when its ESS is below :data:`ROUND_ESS`) and pooled with the posteriors of GP
-    sample functions on a support of its points, leaning to where they disagree
-    (:func:`~smcbayes.posterior.curve_aim.targeted`), half from the tempered posterior of
-    the optimistic loss (emcee)."""
+    """The next batch of ``size`` rows: half (fewer when the posterior rests on fewer support
+    points) drawn from the emulated posterior, sampled by importance (:data:`ROUND_DRAWS`
+    emulator evaluations; its first proposal fitted to the earlier round's posterior draws
+    ``start`` ``(S, d)`` and tempered draws, a quarter of :data:`START_ROWS` or as many as
+    the chains hold; on the first round, whose ``start`` holds only the best training
+    points, nearly all tempered; twice as many draws once more when its ESS is below
+    :data:`ROUND_ESS`) and pooled with the posteriors of GP sample functions on a support
+    of its points, leaning to where they disagree
+    (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest from the tempered posterior
+    of the optimistic loss (emcee)."""
     d = emulator.x.shape[1]
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
     # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
@@ -203,17 +203,15 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     # the posterior half from the pooled posterior, which the stage reports, leaning to
     # where its sample functions disagree: there the next runs settle it
     posteriors = function_posteriors(emulator, n_eff, sample, rng)
-    spread = function_spread(posteriors, sample, [str(k) for k in range(d)])
-    rows, error_weight = targeted(posteriors, max(1, size // 2), rng)
-    half = len(rows)
-    new = np.vstack([sample.unit[posteriors.rows[rows]],
-                     wide[rng.choice(len(wide), size - half, replace=size - half > len(wide))]])
     # functions resting on few points of a round's sample (half the draws of the stage's
     # final one, an ESS of a few hundred) still count: on the measured thesis trials some
     # did in every round, and the rounds could never validate; the stage's own check asks it
-    s = posteriors.disagreement()
-    aim = {"error_weight_ess": float(error_weight.sum() ** 2 / np.sum(error_weight ** 2)),
-           "mean_disagreement_nats": float(np.sum(posteriors.pooled() * np.where(np.isfinite(s), s, 0.0)))}
+    spread = function_spread(posteriors, sample, [str(k) for k in range(d)])
+    rows, error_weight, aim = targeted(posteriors, max(1, size // 2), rng)
+    # fewer distinct posterior points (a posterior on few support points): more exploration
+    half = len(rows)
+    new = np.vstack([sample.unit[posteriors.rows[rows]],
+                     wide[rng.choice(len(wide), size - half, replace=size - half > len(wide))]])
     return _Round(new, half, sample, spread["max_quantile_shift"], error_weight, aim)
 
 
@@ -360,7 +358,7 @@ def _factor_range(emulator: CurveEmulator) -> dict[str, float] | None:
 def _round_record(emulator: CurveEmulator, step: _Round) -> dict[str, Any]:
     """What ``refine.jsonl`` keeps of a round's sample, spread and emulator."""
     return {"spread": _finite(step.spread), "importance_ess": step.sample.ess, "k_hat": step.sample.k_hat,
-            "posterior_draws": step.posterior, **step.aim,
+            **step.aim,
             "components": emulator.components, "lengthscales": emulator.corr.lengthscales.tolist(),
             "variance_factor": emulator.variance_factor.tolist()}
 

@@ -55,14 +55,18 @@ def test_the_draws_stop_at_distinct_points_of_weight_and_count_repeats() -> None
     w = np.array([0.5, 0.3, 0.2, 0.0, 0.0])
     picked, times = draws(w, 3, rng)
     assert picked.tolist() == [0, 1, 2] and np.all(times >= 1)  # no point without weight
-    # more wanted than carry weight: each point of weight once, with how often it came up
+    # more wanted than carry weight: each point of weight, with how often it came up
     again, times = draws(w, 5, rng)
-    assert again.tolist() == [0, 1, 2] and times.sum() >= 3
+    assert again.tolist() == [0, 1, 2] and np.all(times >= 1)
+    # one wanted: the first draw settles it
+    one, times = draws(w, 1, rng)
+    assert len(one) == 1 and times.tolist() == [1]
 
 
 def test_the_weighted_draws_estimate_a_concentrated_posteriors_mean() -> None:
     # a posterior with 0.9 on one point of 60: ten distinct points drawn without
-    # replacement would hold it once in ten; the draws' multiplicities keep its share
+    # replacement would hold it once in ten; the draws' multiplicities keep its share, up
+    # to the one extra draw of the point that stops them
     rng = np.random.default_rng(1)
     p = np.full(60, 0.1 / 59)
     p[0] = 0.9
@@ -95,11 +99,12 @@ def test_the_targeted_draws_lean_to_disagreement_with_bounded_error_weights() ->
     assert np.isclose(np.sum(p * up), 1.0)
     assert np.max(1.0 / up) <= 1.0 / (1.0 - TARGETED) + 1e-12
     np.testing.assert_allclose(up[:300], 1.0 - TARGETED)
-    chosen, weight = targeted(posteriors, 40, rng)
-    assert len(np.unique(chosen)) == 40
+    chosen, weight, aim = targeted(posteriors, 40, rng)
+    assert len(np.unique(chosen)) == 40 and aim["posterior_points"] == 40
     # each point's importance weight times how often it was drawn
     times = np.rint(weight * up[chosen])
-    assert np.all(times >= 1) and np.allclose(weight, times / up[chosen])
+    assert np.allclose(weight * up[chosen], times) and np.all(times >= 1) and times.sum() == aim["draws"]
+    assert np.isclose(aim["mean_disagreement_nats"], np.sum(p * s)) and 1.0 <= aim["error_weight_ess"] <= 40
     # the disagreeing quarter of the posterior gets more than its share of the draws
     q_far = np.sum((p * up)[300:])
     assert q_far > 0.5 and np.sum(chosen >= 300) > 10
@@ -108,7 +113,7 @@ def test_the_targeted_draws_lean_to_disagreement_with_bounded_error_weights() ->
     np.testing.assert_allclose(still, 1.0)
 
 
-def test_the_rounds_error_is_the_weighted_mean_at_its_simulated_posteriordraws() -> None:
+def test_the_rounds_error_is_the_weighted_mean_at_its_simulated_posterior_draws() -> None:
     # expected loss e^1 everywhere (the mean curves' e^3); simulated e^(1 + k / 10) at row k:
     # errors of k / 10 * N_eff / 2
     features = SimpleNamespace(loss=lambda y: np.exp(1.0 + y[:, 0] / 10.0))
