@@ -21,7 +21,8 @@ functions disagree (:func:`targeted`)."""
 
 MOST_DRAWS = 100
 """Most draws per wanted distinct point of a round's posterior draws (:func:`draws`): a
-posterior on fewer points than the batch wants gives fewer runs, not an endless loop."""
+posterior whose weight rests on a few points, the others' weights tiny, gives fewer runs,
+not an endless loop."""
 
 
 def targeted(posteriors: FunctionPosteriors, count: int, rng: np.random.Generator
@@ -51,7 +52,7 @@ def targeted(posteriors: FunctionPosteriors, count: int, rng: np.random.Generato
     up = lift(p, s)
     chosen, times = draws(p * up, count, rng)
     weight = times / up[chosen]
-    aim = {"posterior_points": float(len(chosen)), "draws": float(times.sum()),
+    aim = {"posterior_points": len(chosen), "draws": int(times.sum()),
            "error_weight_ess": float(weight.sum() ** 2 / np.sum(weight ** 2)),
            "mean_disagreement_nats": float(np.sum(p * s))}
     return chosen, weight, aim
