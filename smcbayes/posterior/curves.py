@@ -162,9 +162,10 @@ class CurveFeatures:
             ts = np.maximum(features[:, k_count * n + k], 1e-9)
             delay = self._delays(features, k)
             flow_stop = self.spec.clip == "flow_stop"
-            end = np.full(ts.shape, m.flow_stop_s) if flow_stop else np.maximum(ts + delay, m.force.time_s[-1])
+            common = m.flow_stop_s if flow_stop else m.force.time_s[-1]
+            end = np.full(ts.shape, common) if flow_stop else np.maximum(ts + delay, common)
             force_mse_kernel(np.ascontiguousarray(features[:, k * n:(k + 1) * n]), ts, delay, end, self.grid,
-                             m.force.time_s, m.force.values, out)
+                             m.force.time_s, m.force.values, out, float(common))
         return self.spec.w_force * out / k_count
 
 
@@ -312,13 +313,19 @@ class CurveEmulator:
 
     def predict(self, x: Array, variance: bool = False) -> tuple[Array, Array | None]:
         """GP mean ``(P, J + S)`` of the outputs at ``x (P, d)`` and, if asked, their variance."""
+        mean, share = self._mean_and_share(x, variance)
+        return mean, None if share is None else share[:, None] * self.output_variance[None, :]
+
+    def _mean_and_share(self, x: Array, variance: bool) -> tuple[Array, Array | None]:
+        """GP mean ``(P, J + S)`` at ``x (P, d)`` and, if asked, the correlation's share of
+        every output's variance ``(P,)`` (one correlation: the variances are this share
+        times :attr:`output_variance`)."""
         r = matern52(x, self.x, self.corr.lengthscales)
         mean = r @ self.alpha + self._h(x) @ self.trend
         if not variance:
             return mean, None
         v = solve_triangular(self.corr.chol, r.T, lower=True)
-        share = np.maximum(1.0 + self.corr.nugget - np.sum(v * v, axis=0), 0.0)
-        return mean, share[:, None] * self.output_variance[None, :]
+        return mean, np.maximum(1.0 + self.corr.nugget - np.sum(v * v, axis=0), 0.0)
 
     def curves(self, outputs: Array) -> Array:
         """Features ``(P, size)`` of predicted outputs ``(P, J + S)`` (S scalar features)."""
@@ -332,13 +339,15 @@ class CurveEmulator:
         order var F = (F + 1 kN)^2 var log(F + 1 kN)), the expected loss; ``optimistic``:
         the loss of curves one s closer to the data, (sqrt(L) - s)^2, floored at a tenth of
         L: where the emulator is unsure the data may fit better than its mean says."""
-        mean, var = self.predict(x, variance or optimistic)
+        mean, share = self._mean_and_share(x, variance or optimistic)
         y = self.curves(mean)
         out = self.features.loss(y)
-        if var is not None:
+        if share is not None:
             nk = len(self.features.ids) * self.features.nodes
-            var_log = var[:, :self.components] @ (self.basis ** 2)
-            s2 = self.features.spec.w_force * np.mean((y[:, :nk] + FORCE_FLOOR_KN) ** 2 * var_log, axis=1)
+            # var log(F + 1 kN) at the nodes is share x (output variances @ basis^2): a product
+            # of a row's share and one node profile, so no (P, J) @ (J, nodes) product is needed
+            profile = self.output_variance[:self.components] @ (self.basis ** 2)
+            s2 = self.features.spec.w_force * share * (((y[:, :nk] + FORCE_FLOOR_KN) ** 2) @ profile) / nk
             if optimistic:
                 return np.maximum(np.sqrt(out) - np.sqrt(s2), np.sqrt(0.1 * out)) ** 2
             out = out + s2

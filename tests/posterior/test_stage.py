@@ -7,6 +7,7 @@ import dataclasses
 import json
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import arviz as az
 import numpy as np
@@ -17,7 +18,7 @@ from smcbayes.config.specs import LossSpec
 from smcbayes.posterior.active import STABLE_ROUNDS
 from smcbayes.posterior.context import load_run
 from smcbayes.posterior.correct import ImportanceSample
-from smcbayes.posterior.curves import CurveEmulator, CurveFeatures, CurveLossUnsupported
+from smcbayes.posterior.curves import FORCE_FLOOR_KN, CurveEmulator, CurveFeatures, CurveLossUnsupported
 from smcbayes.posterior.spread import SPREAD_MAX
 from smcbayes.surrogate.gp import load_surrogate
 
@@ -446,6 +447,13 @@ def test_the_emulator_interpolates_its_points_and_predicts_new_ones(run_dir: Pat
     assert np.all(with_var > mean_loss) and np.all(optimistic < mean_loss)
     for kind in ({"variance": True}, {"optimistic": True}):
         np.testing.assert_allclose(emulator.loss(u[:45], **kind), emulator.loss(u[:45]), rtol=1e-3)
+    # the variance term is the nodes' mean of (F + 1 kN)^2 var log(F + 1 kN), var log from
+    # the predicted variances of the principal components
+    mean, var = emulator.predict(u[45:], variance=True)
+    force = emulator.curves(mean)[:, :len(features.ids) * features.nodes] + FORCE_FLOOR_KN
+    var_log = var[:, :emulator.components] @ emulator.basis ** 2
+    s2 = features.spec.w_force * np.mean(force ** 2 * var_log, axis=1)
+    np.testing.assert_allclose(with_var, mean_loss + s2, rtol=1e-12)
     # far from every point, where the emulator's sd exceeds the fit's error, the optimistic
     # loss is still at most the mean curves' (floored at a tenth of it)
     far = np.random.default_rng(7).random((200, u.shape[1]))
@@ -591,10 +599,26 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     # a small budget: the importance sampling's algorithm has its own tests
     monkeypatch.setattr(curve_stage, "EMULATOR_DRAWS", 8000)
     monkeypatch.setattr(curve_stage, "ROUND_DRAWS", 4000)
+    tempered: list[tuple[int, Any, Any]] = []  # each round's tempered chains: steps, start, end
+
+    def record(*args: Any, **kwargs: Any) -> Any:
+        chains = sample_chains(*args, **kwargs)
+        if kwargs.get("optimistic"):
+            tempered.append((args[5], kwargs.get("initial"), chains.samples[-1]))
+        return chains
+
+    sample_chains = curve_stage.sample_chains
+    monkeypatch.setattr(curve_stage, "sample_chains", record)
     settings = PosteriorSettings(emulator="curves", walkers=16, steps=1500, refine=120, draws=20,
                                  correct_draws=0, seed=1)
     folder = _fresh_copy(run_dir, tmp_path / "curves")
     info = run_posterior(folder, settings)
+    # the first round's tempered chains start at the best point, each later one where the
+    # last ended, for fewer steps
+    assert [steps for steps, _, _ in tempered] == [curve_stage.ROUND_STEPS] + [curve_stage.WARM_STEPS] * 2
+    assert tempered[0][1] is None
+    for (_, _, end), (_, start, _) in zip(tempered[:-1], tempered[1:], strict=True):
+        np.testing.assert_array_equal(start, end)
     _truth_inside_and_slip_pair_positive(info)
     active = info["active_learning"]
     assert active["kind"] == "curves" and info["emulator_spread"]["pooled"]
