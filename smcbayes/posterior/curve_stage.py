@@ -88,10 +88,10 @@ ROUND_STEPS = 1000
 training point."""
 
 WARM_STEPS = 250
-"""emcee steps of a later round's tempered sampling, from the walkers where the last
-round's chains ended: the tempered posterior moves little between rounds, so the chains
-need no new burn-in, and the tempered sampling (nearly half of a round's time at a
-thousand steps on the measured thesis trials) costs a quarter."""
+"""Most emcee steps of a later round's tempered sampling, from the last round's last kept
+walkers: a round moves the posterior's quantiles by a few hundredths (median 0.02, at most
+0.17, over 92 rounds on the thesis trials), so they start in the bulk, and the tempered
+sampling (nearly half a round's time at 1,000 steps) costs a quarter."""
 
 CHAIN_STEPS = 3000
 """Most emcee steps of the final chains, which only start the importance sampling (of the
@@ -142,18 +142,19 @@ class CurveEmulation:
         return np.log(np.maximum(self.emulator.loss(np.atleast_2d(u), variance=EXPECTED_LOSS), 1e-300))
 
 
-def sample_chains(emulator: CurveEmulator, n_eff: float, rng: np.random.Generator, centre: Array,
+def sample_chains(emulator: CurveEmulator, n_eff: float, rng: np.random.Generator, centre: Array | None,
                   temper: float = 1.0, steps: int = ROUND_STEPS, walkers: int = 32,
                   variance: bool = EXPECTED_LOSS, label: str = "", optimistic: bool = False,
                   initial: Array | None = None) -> Chains:
     """emcee chains (differential evolution, from a ball around ``centre`` ``(d,)``, or from
-    the walkers ``initial`` ``(walkers, d)``) of the emulated posterior, tempered by
+    the walkers ``initial`` ``(W, d)``, whose count then replaces ``walkers``) of the
+    emulated posterior, tempered by
     ``temper``, of the loss ``variance`` and ``optimistic`` ask for
     (:meth:`~smcbayes.posterior.curves.CurveEmulator.loss`)."""
     settings = SamplerSettings(walkers=walkers, max_steps=steps, min_steps=min(500, steps),
                                check_every=min(250, steps), moves="de")
     return run_ensemble(log_posterior(emulator, n_eff, temper, variance, optimistic), emulator.x.shape[1],
-                        settings, rng, centre, label, initial)
+                        settings, rng, centre, label=label, initial=initial)
 
 
 @dataclass
@@ -173,8 +174,8 @@ class _Round:
             round's mean error (:func:`~smcbayes.posterior.curve_aim.targeted`).
         aim: what ``refine.jsonl`` keeps of the aiming
             (:func:`~smcbayes.posterior.curve_aim.targeted`).
-        walkers: where the tempered sampling's walkers ended ``(walkers, d)``: the next
-            round's start.
+        last_walkers: the last kept draw of the tempered sampling's walkers ``(W, d)``:
+            the next round's start.
     """
 
     new: Array
@@ -182,8 +183,8 @@ class _Round:
     sample: ImportanceSample
     spread: float
     error_weight: Array
+    last_walkers: Array
     aim: dict[str, float] = field(default_factory=dict)
-    walkers: Array | None = None
 
 
 def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec: CorrectionSettings,
@@ -197,11 +198,11 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     :data:`ROUND_ESS`) and pooled with the posteriors of GP sample functions on a support
     of its points, leaning to where they disagree
     (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest from the tempered posterior
-    of the optimistic loss (emcee: :data:`ROUND_STEPS` steps from the best training point
-    or, from the walkers ``warm`` ``(walkers, d)`` where the last round's ended,
+    of the optimistic loss (emcee: :data:`ROUND_STEPS` steps from a ball around the best
+    training point or, from the last round's last walkers ``warm`` ``(W, d)``,
     :data:`WARM_STEPS`)."""
     d = emulator.x.shape[1]
-    centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
+    centre = None if warm is not None else emulator.x[np.argmin(emulator.features.loss(emulator.y))]
     chains = sample_chains(emulator, n_eff, rng, centre, TEMPER, ROUND_STEPS if warm is None else WARM_STEPS,
                            walkers, optimistic=True, initial=warm)
     # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
@@ -228,7 +229,7 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     half = len(rows)
     new = np.vstack([sample.unit[posteriors.rows[rows]],
                      wide[rng.choice(len(wide), size - half, replace=size - half > len(wide))]])
-    return _Round(new, half, sample, spread["max_quantile_shift"], error_weight, aim, chains.samples[-1])
+    return _Round(new, half, sample, spread["max_quantile_shift"], error_weight, chains.samples[-1], aim)
 
 
 def quantile_shift(sample: ImportanceSample, before: Callable[[Array], Array]) -> float:
@@ -305,7 +306,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         if converged or spent >= budget:
             break
         step = _round(emulator, n_eff, min(BATCH, budget - spent), start, spec, rng, walkers, warm)
-        warm = step.walkers
+        warm = step.last_walkers
         unclear = before is None or step.sample.ess < ROUND_ESS
         shifts.append(None if unclear else quantile_shift(step.sample, before))
         spreads.append(step.spread)

@@ -130,7 +130,9 @@ def run_ensemble(log_prob: Callable[[Array], Array], d: int, settings: SamplerSe
             if sampler.iteration < settings.min_steps:
                 bar.update(settings.check_every)
                 continue
-            tau = sampler.get_autocorr_time(tol=0)
+            with warnings.catch_warnings():  # a chain of a few steps has no autocorrelation yet
+                warnings.simplefilter("ignore", RuntimeWarning)
+                tau = sampler.get_autocorr_time(tol=0)
             bar.update(settings.check_every, note=f"tau ~ {np.nanmax(tau):.0f} steps")
             ok = np.all(np.isfinite(tau)) and np.all(sampler.iteration > settings.tau_factor * tau)
             if ok and np.all(np.abs(old_tau - tau) / tau < settings.tau_rtol):

@@ -122,7 +122,7 @@ def test_the_rounds_error_is_the_weighted_mean_at_its_simulated_posterior_draws(
                                features=features)
     new = np.zeros((5, 2))
     y_new = np.arange(5.0)[:, None]
-    step = _Round(new, 3, None, 0.0, np.array([2.0, 1.0, 1.0]))
+    step = _Round(new, 3, None, 0.0, np.array([2.0, 1.0, 1.0]), new[:2])
     ok = np.array([True, True, False, True, True])
     # rows 3 and 4 are exploration; row 2 failed: (2 * 0 + 1 * 0.1) / 3 * 4 / 2
     assert np.isclose(_fresh_error(emulator, 4.0, step, y_new, ok), 0.2 / 3)
@@ -189,7 +189,8 @@ def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> N
     t = end[:, None] * grid[None, :]
     x = np.clip((t - delay[:, None]) / switch[:, None], 0.0, 1.0) * (nodes - 1)
     i = np.minimum(np.floor(x).astype(int), nodes - 2)
-    sim = np.take_along_axis(force, i, 1) * (1 - (x - i)) + np.take_along_axis(force, i + 1, 1) * (x - i)
+    w = x - i
+    sim = np.take_along_axis(force, i, 1) * (1 - w) + np.take_along_axis(force, i + 1, 1) * w
     np.testing.assert_allclose(shared, np.mean((sim - np.interp(t, time_m, force_m)) ** 2, axis=1), rtol=1e-12)
     # a row without a switch time has no loss, not an arbitrary one
     switch[2] = np.nan
