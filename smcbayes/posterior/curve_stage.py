@@ -84,14 +84,7 @@ QUANTILE_SHIFT = 0.05
 the unit cube) that a validated round allows."""
 
 ROUND_STEPS = 1000
-"""Most emcee steps of the first round's tempered sampling, from a ball around the best
-training point."""
-
-WARM_STEPS = 250
-"""Most emcee steps of a later round's tempered sampling, from the last round's last kept
-walkers: a round moves the posterior's quantiles by a few hundredths (median 0.02, at most
-0.17, over 92 rounds on the thesis trials), so they start in the bulk, and the tempered
-sampling (nearly half a round's time at 1,000 steps) costs a quarter."""
+"""Most emcee steps of a round's tempered sampling."""
 
 CHAIN_STEPS = 3000
 """Most emcee steps of the final chains, which only start the importance sampling (of the
@@ -142,19 +135,15 @@ class CurveEmulation:
         return np.log(np.maximum(self.emulator.loss(np.atleast_2d(u), variance=EXPECTED_LOSS), 1e-300))
 
 
-def sample_chains(emulator: CurveEmulator, n_eff: float, rng: np.random.Generator, centre: Array | None,
+def sample_chains(emulator: CurveEmulator, n_eff: float, rng: np.random.Generator, centre: Array,
                   temper: float = 1.0, steps: int = ROUND_STEPS, walkers: int = 32,
-                  variance: bool = EXPECTED_LOSS, label: str = "", optimistic: bool = False,
-                  initial: Array | None = None) -> Chains:
-    """emcee chains (differential evolution, from a ball around ``centre`` ``(d,)``, or from
-    the walkers ``initial`` ``(W, d)``, whose count then replaces ``walkers``) of the
-    emulated posterior, tempered by
-    ``temper``, of the loss ``variance`` and ``optimistic`` ask for
+                  variance: bool = EXPECTED_LOSS, label: str = "", optimistic: bool = False) -> Chains:
+    """emcee chains (differential evolution, from ``centre`` ``(d,)``) of the emulated
+    posterior, tempered by ``temper``, of the loss ``variance`` and ``optimistic`` ask for
     (:meth:`~smcbayes.posterior.curves.CurveEmulator.loss`)."""
-    settings = SamplerSettings(walkers=walkers, max_steps=steps, min_steps=min(500, steps),
-                               check_every=min(250, steps), moves="de")
+    settings = SamplerSettings(walkers=walkers, max_steps=steps, min_steps=min(500, steps), moves="de")
     return run_ensemble(log_posterior(emulator, n_eff, temper, variance, optimistic), emulator.x.shape[1],
-                        settings, rng, centre, label=label, initial=initial)
+                        settings, rng, centre, label)
 
 
 @dataclass
@@ -174,8 +163,6 @@ class _Round:
             round's mean error (:func:`~smcbayes.posterior.curve_aim.targeted`).
         aim: what ``refine.jsonl`` keeps of the aiming
             (:func:`~smcbayes.posterior.curve_aim.targeted`).
-        last_walkers: the last kept draw of the tempered sampling's walkers ``(W, d)``:
-            the next round's start.
     """
 
     new: Array
@@ -183,12 +170,11 @@ class _Round:
     sample: ImportanceSample
     spread: float
     error_weight: Array
-    last_walkers: Array
     aim: dict[str, float] = field(default_factory=dict)
 
 
 def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec: CorrectionSettings,
-           rng: np.random.Generator, walkers: int, warm: Array | None = None) -> _Round:
+           rng: np.random.Generator, walkers: int) -> _Round:
     """The next batch of ``size`` rows: half (fewer when the posterior rests on fewer support
     points) drawn from the emulated posterior, sampled by importance (:data:`ROUND_DRAWS`
     emulator evaluations; its first proposal fitted to the earlier round's posterior draws
@@ -198,15 +184,12 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     :data:`ROUND_ESS`) and pooled with the posteriors of GP sample functions on a support
     of its points, leaning to where they disagree
     (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest from the tempered posterior
-    of the optimistic loss (emcee: :data:`ROUND_STEPS` steps from a ball around the best
-    training point or, from the last round's last walkers ``warm`` ``(W, d)``,
-    :data:`WARM_STEPS`)."""
+    of the optimistic loss (emcee)."""
     d = emulator.x.shape[1]
-    centre = None if warm is not None else emulator.x[np.argmin(emulator.features.loss(emulator.y))]
-    chains = sample_chains(emulator, n_eff, rng, centre, TEMPER, ROUND_STEPS if warm is None else WARM_STEPS,
-                           walkers, optimistic=True, initial=warm)
+    centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
     # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
-    wide = np.unique(chains.samples.reshape(-1, d), axis=0)
+    wide = np.unique(sample_chains(emulator, n_eff, rng, centre, TEMPER, ROUND_STEPS, walkers,
+                                   optimistic=True).samples.reshape(-1, d), axis=0)
     # after the first round mostly the last round's posterior: the tempered draws alone,
     # twice as wide in every direction, make a first proposal that wastes most of its draws
     # in seven dimensions
@@ -229,7 +212,7 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     half = len(rows)
     new = np.vstack([sample.unit[posteriors.rows[rows]],
                      wide[rng.choice(len(wide), size - half, replace=size - half > len(wide))]])
-    return _Round(new, half, sample, spread["max_quantile_shift"], error_weight, chains.samples[-1], aim)
+    return _Round(new, half, sample, spread["max_quantile_shift"], error_weight, aim)
 
 
 def quantile_shift(sample: ImportanceSample, before: Callable[[Array], Array]) -> float:
@@ -298,15 +281,14 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     recent: list[Array] = []
     before: Callable[[Array], Array] | None = None
     start = x[np.argsort(features.loss(y))[:walkers]]
-    emulator, warm = None, None
+    emulator = None
     while True:
         t0 = time.perf_counter()
         emulator = _fit(features, x, y, emulator, recent)
         converged = _validated(errors, shifts, tolerance_nats, spreads)
         if converged or spent >= budget:
             break
-        step = _round(emulator, n_eff, min(BATCH, budget - spent), start, spec, rng, walkers, warm)
-        warm = step.last_walkers
+        step = _round(emulator, n_eff, min(BATCH, budget - spent), start, spec, rng, walkers)
         unclear = before is None or step.sample.ess < ROUND_ESS
         shifts.append(None if unclear else quantile_shift(step.sample, before))
         spreads.append(step.spread)

@@ -77,14 +77,10 @@ class Chains:
 
 
 def _start(log_prob: Callable[[Array], Array], d: int, walkers: int, rng: np.random.Generator,
-           centre: Array | None, initial: Array | None = None) -> Array:
-    """Initial walkers: ``initial`` ``(walkers, d)`` if given, else a small ball around
-    ``centre`` (or uniform); a walker of no finite density is replaced by a uniform one."""
-    if initial is not None:
-        pos = np.array(initial, dtype=float)
-    else:
-        base = np.full(d, 0.5) if centre is None else np.clip(centre, 0.02, 0.98)
-        pos = np.clip(base + 0.02 * rng.standard_normal((walkers, d)), 1e-6, 1 - 1e-6)
+           centre: Array | None) -> Array:
+    """Initial walkers: a small ball around ``centre`` (or uniform), all of finite density."""
+    base = np.full(d, 0.5) if centre is None else np.clip(centre, 0.02, 0.98)
+    pos = np.clip(base + 0.02 * rng.standard_normal((walkers, d)), 1e-6, 1 - 1e-6)
     bad = ~np.isfinite(log_prob(pos))
     if np.any(bad):
         pos[bad] = rng.random((int(bad.sum()), d))
@@ -92,8 +88,7 @@ def _start(log_prob: Callable[[Array], Array], d: int, walkers: int, rng: np.ran
 
 
 def run_ensemble(log_prob: Callable[[Array], Array], d: int, settings: SamplerSettings,
-                 rng: np.random.Generator, centre: Array | None = None, label: str = "",
-                 initial: Array | None = None) -> Chains:
+                 rng: np.random.Generator, centre: Array | None = None, label: str = "") -> Chains:
     """Sample ``log_prob`` (vectorised over walkers) on the unit cube with emcee.
 
     Stops when the chain is longer than ``tau_factor`` autocorrelation times and the
@@ -111,18 +106,15 @@ def run_ensemble(log_prob: Callable[[Array], Array], d: int, settings: SamplerSe
         centre: start of the walkers ``(d,)`` (a small ball around it), or None: the
             cube's centre.
         label: appended to the progress description, e.g. ``" (component 2/4)"``.
-        initial: the walkers' start ``(walkers, d)`` instead of a ball around ``centre``
-            (e.g. the last positions of chains on a nearby density); its row count sets
-            the ensemble's size.
     """
-    walkers = max(settings.walkers, 2 * d + 2) if initial is None else len(initial)
+    walkers = max(settings.walkers, 2 * d + 2)
     moves = None
     if settings.moves == "de":
         moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
     sampler = emcee.EnsembleSampler(walkers, d, log_prob, vectorize=True, moves=moves)
     # emcee draws its moves from its own RandomState: seed it from our generator
     sampler.random_state = np.random.RandomState(int(rng.integers(2**31 - 1))).get_state()
-    state = _start(log_prob, d, walkers, rng, centre, initial)
+    state = _start(log_prob, d, walkers, rng, centre)
     old_tau, converged = np.inf, False
     with Progress(settings.max_steps, f"sampling{label}", "step") as bar:
         while sampler.iteration < settings.max_steps:
@@ -130,9 +122,7 @@ def run_ensemble(log_prob: Callable[[Array], Array], d: int, settings: SamplerSe
             if sampler.iteration < settings.min_steps:
                 bar.update(settings.check_every)
                 continue
-            with warnings.catch_warnings():  # a chain of a few steps has no autocorrelation yet
-                warnings.simplefilter("ignore", RuntimeWarning)
-                tau = sampler.get_autocorr_time(tol=0)
+            tau = sampler.get_autocorr_time(tol=0)
             bar.update(settings.check_every, note=f"tau ~ {np.nanmax(tau):.0f} steps")
             ok = np.all(np.isfinite(tau)) and np.all(sampler.iteration > settings.tau_factor * tau)
             if ok and np.all(np.abs(old_tau - tau) / tau < settings.tau_rtol):

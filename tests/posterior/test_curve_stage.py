@@ -122,7 +122,7 @@ def test_the_rounds_error_is_the_weighted_mean_at_its_simulated_posterior_draws(
                                features=features)
     new = np.zeros((5, 2))
     y_new = np.arange(5.0)[:, None]
-    step = _Round(new, 3, None, 0.0, np.array([2.0, 1.0, 1.0]), new[:2])
+    step = _Round(new, 3, None, 0.0, np.array([2.0, 1.0, 1.0]))
     ok = np.array([True, True, False, True, True])
     # rows 3 and 4 are exploration; row 2 failed: (2 * 0 + 1 * 0.1) / 3 * 4 / 2
     assert np.isclose(_fresh_error(emulator, 4.0, step, y_new, ok), 0.2 / 3)

@@ -25,7 +25,7 @@ from smcbayes.posterior.likelihood import (
     integrated_autocorr_time,
     sandwich_points,
 )
-from smcbayes.posterior.sampler import Chains, SamplerSettings, _start, run_ensemble
+from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
 from smcbayes.posterior.summary import ParameterSummary, warnings_for
 from smcbayes.surrogate.gp import (
     condition_surrogate,
@@ -302,31 +302,6 @@ def test_same_seed_same_chains(moves: str) -> None:
     a = run_ensemble(log_prob, 2, s, np.random.default_rng(9))
     b = run_ensemble(log_prob, 2, s, np.random.default_rng(9))
     np.testing.assert_array_equal(a.samples, b.samples)
-
-
-def test_walkers_start_where_asked_and_only_those_of_no_density_move() -> None:
-    def log_prob(u: np.ndarray) -> np.ndarray:
-        return np.where(u[:, 0] < 0.9, -0.5 * np.sum(((u - 0.5) / 0.1) ** 2, axis=1), -np.inf)
-
-    initial = np.random.default_rng(3).uniform(0.2, 0.8, (8, 2))
-    initial[2] = [0.95, 0.5]  # no density there: the walker must start elsewhere
-    start = _start(log_prob, 2, 8, np.random.default_rng(4), None, initial)
-    np.testing.assert_array_equal(np.delete(start, 2, axis=0), np.delete(initial, 2, axis=0))
-    assert np.any(start[2] != initial[2]) and np.all((start[2] >= 0) & (start[2] <= 1))
-    # the ensemble's size is the start's, the first positions evaluated are the start's,
-    # and the chains sample the density from a start far from its centre
-    initial = np.random.default_rng(6).uniform(0.75, 0.85, (8, 2))
-    seen: list[np.ndarray] = []
-
-    def recorded(u: np.ndarray) -> np.ndarray:
-        seen.append(u.copy())
-        return log_prob(u)
-
-    chains = run_ensemble(recorded, 2, SamplerSettings(walkers=32, max_steps=2000, min_steps=500),
-                          np.random.default_rng(5), initial=initial)
-    np.testing.assert_array_equal(seen[0], initial)
-    assert chains.samples.shape[1] == 8
-    np.testing.assert_allclose(chains.samples.reshape(-1, 2).mean(0), 0.5, atol=0.03)
 
 
 def test_sampler_rejects_unknown_moves() -> None:
