@@ -169,29 +169,27 @@ def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> N
     force_m = np.cumsum(rng.random(40))
     end = np.maximum(switch + delay, time_m[-1] * rng.uniform(0.5, 1.5, rows))  # beyond the measured end too
     grid = np.linspace(0.0, 1.0, 57)
-    # the same comparison in numpy: the simulated curve's first value held before the delayed
-    # contact and its switch value beyond the switch, the measured one's ends held
-    t = end[:, None] * grid[None, :]
-    x = np.clip((t - delay[:, None]) / switch[:, None], 0.0, 1.0) * (nodes - 1)
-    i = np.minimum(np.floor(x).astype(int), nodes - 2)
-    w = x - i
-    sim = np.take_along_axis(force, i, 1) * (1 - w) + np.take_along_axis(force, i + 1, 1) * w
-    expected = np.mean((sim - np.interp(t, time_m, force_m)) ** 2, axis=1)
+
+    def expected(end: np.ndarray) -> np.ndarray:
+        """The same comparison in numpy: the simulated curve's first value held before the
+        delayed contact and its switch value beyond the switch, the measured one's ends held."""
+        t = end[:, None] * grid[None, :]
+        x = np.clip((t - delay[:, None]) / switch[:, None], 0.0, 1.0) * (nodes - 1)
+        i = np.minimum(np.floor(x).astype(int), nodes - 2)
+        w = x - i
+        sim = np.take_along_axis(force, i, 1) * (1 - w) + np.take_along_axis(force, i + 1, 1) * w
+        return np.mean((sim - np.interp(t, time_m, force_m)) ** 2, axis=1)
+
     out = np.zeros(rows)
     force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, out)
-    np.testing.assert_allclose(out, expected, rtol=1e-12)
+    np.testing.assert_allclose(out, expected(end), rtol=1e-12)
     # rows that share the window's end take the measured curve interpolated once: the same sums
     end[::2] = time_m[-1]
     each, shared = np.zeros(rows), np.zeros(rows)
     force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, each)
     force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, shared, time_m[-1])
     np.testing.assert_array_equal(shared, each)
-    t = end[:, None] * grid[None, :]
-    x = np.clip((t - delay[:, None]) / switch[:, None], 0.0, 1.0) * (nodes - 1)
-    i = np.minimum(np.floor(x).astype(int), nodes - 2)
-    w = x - i
-    sim = np.take_along_axis(force, i, 1) * (1 - w) + np.take_along_axis(force, i + 1, 1) * w
-    np.testing.assert_allclose(shared, np.mean((sim - np.interp(t, time_m, force_m)) ** 2, axis=1), rtol=1e-12)
+    np.testing.assert_allclose(shared, expected(end), rtol=1e-12)
     # a row without a switch time has no loss, not an arbitrary one
     switch[2] = np.nan
     out = np.zeros(rows)
