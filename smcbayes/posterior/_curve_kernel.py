@@ -9,7 +9,7 @@ and the measured curve's bracket moves forward with the rising grid.  Most rows 
 window (it ends at the measured curve's end, or at its flow stop): the measured curve on
 that window's grid is interpolated once per call (:func:`measured_on_grid`).  On one
 calibration of the thesis trials (260-960 measured points a trial) the loss of 4,000
-emulated rows took 0.12 s instead of 0.16 s.
+emulated rows took 0.075 s instead of 0.126 s (one core, idle).
 """
 
 from __future__ import annotations
