@@ -16,7 +16,7 @@ from smcbayes.cli import main
 from smcbayes.config.specs import LossSpec
 from smcbayes.posterior.active import STABLE_ROUNDS
 from smcbayes.posterior.context import load_run
-from smcbayes.posterior.correct import ImportanceSample
+from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample
 from smcbayes.posterior.curves import FORCE_FLOOR_KN, CurveEmulator, CurveFeatures, CurveLossUnsupported
 from smcbayes.posterior.spread import SPREAD_MAX
 from smcbayes.surrogate.gp import load_surrogate
@@ -585,6 +585,27 @@ def test_the_curve_emulator_spread_and_its_pooled_posterior(run_dir: Path) -> No
         q_same = weighted_quantile(sample.unit[:, k], same.weights, [0.05, 0.5, 0.95])
         q_mean = weighted_quantile(sample.unit[:, k], sample.weights, [0.05, 0.5, 0.95])
         np.testing.assert_allclose(q_same, q_mean, atol=0.02)
+
+
+def test_the_reported_emulator_sample_aims_past_the_target_it_is_settled_at(run_dir: Path) -> None:
+    """The reported emulated posterior's importance sample draws on to the higher ESS it
+    aims at, and counts as settled at the correction's own targets even where the draws
+    run out before that aim."""
+    from smcbayes.posterior.curve_stage import ROUND_ESS, _emulator_sample
+
+    features, u, y, _ = _rows(run_dir, 25, 5)
+    emulator = CurveEmulator(features, u, y)
+    spec = CorrectionSettings(ess_target=2 * ROUND_ESS)
+    start = np.random.default_rng(0).random((400, u.shape[1]))
+    plain = _emulator_sample(emulator, 4.0, start, spec, 30000, np.random.default_rng(1), per_iteration=2000)
+    aimed = _emulator_sample(emulator, 4.0, start, spec, 30000, np.random.default_rng(1), aim=2500,
+                             per_iteration=2000)
+    assert plain.settled and aimed.settled and plain.ess_target == aimed.ess_target == 2 * ROUND_ESS
+    assert 2500 <= aimed.ess and len(aimed.unit) > len(plain.unit)
+    short = _emulator_sample(emulator, 4.0, start, spec, 4000, np.random.default_rng(1), aim=1e6,
+                             per_iteration=2000)
+    assert short.ess < 1e6 and short.settled == (short.ess >= 2 * ROUND_ESS and short.k_hat <= spec.k_target)
+    assert short.settled and short.draws_needed is None
 
 
 def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
