@@ -138,6 +138,7 @@ class ImportanceSample:
             sample settled or :func:`draws_for_target` has no estimate.
         target: what the weights are exact for: ``forward model`` (the correction) or
             ``emulator`` (an emulated posterior sampled by importance sampling, no forward run).
+        ess_aim: the ESS the sampling drew on to once settled (0: it stopped when settled).
     """
 
     unit: Array
@@ -153,6 +154,7 @@ class ImportanceSample:
     ess_target: float = math.inf
     draws_needed: int | None = None
     target: str = "forward model"
+    ess_aim: float = 0.0
 
     @property
     def weights(self) -> Array:
@@ -224,7 +226,8 @@ class _Points:
 
 def correct(log_target: Callable[[Array], Array], start: Array, settings: CorrectionSettings,
             rng: np.random.Generator, known: tuple[Array, Array] | None = None,
-            label: str = "importance correction", runs: str = "forward runs") -> ImportanceSample:
+            label: str = "importance correction", runs: str = "forward runs",
+            aim: float = 0.0) -> ImportanceSample:
     """AMIS from the emulator draws ``start`` ``(N0, d)`` (unit cube) to the exact posterior.
 
     Iterations of ``settings.per_iteration`` draws run until ``settings.draws`` are spent
@@ -245,6 +248,8 @@ def correct(log_target: Callable[[Array], Array], start: Array, settings: Correc
             they shape the first proposal (see :func:`seed_weights`), not the estimate.
         label, runs: what the progress and the log call the sampling and the target's
             evaluations.
+        aim: an ESS to draw on to once the sample is settled (within ``settings.draws``);
+            the sample is settled at the targets of ``settings`` all the same.
     """
     sizes = _iteration_sizes(settings)
     proposals: list[Proposal] = [fit_proposal(*seed_weights(start, known), settings, rng, settings.widen_first)]
@@ -268,12 +273,13 @@ def correct(log_target: Callable[[Array], Array], start: Array, settings: Correc
             bar.update(size, note=note)
             logger.debug("correction iteration %d: %s", t, note)
             settled = history[-1]["ess"] >= settings.ess_target and k_hat <= settings.k_target
-            if t >= 1 and settled:
+            if t >= 1 and settled and history[-1]["ess"] >= aim:
                 break
             if t + 1 < len(sizes):
                 proposals.append(_next_proposal(points, log_w, log_q, settings, rng, chains, proposals[-1]))
     sample = ImportanceSample(points.unit, points.target, smoothed, points.iteration, k_hat, ess_of(smoothed),
-                              points.evaluations, history, settled, ess_target=settings.ess_target)
+                              points.evaluations, history, settled, ess_target=settings.ess_target,
+                              ess_aim=aim)
     sample.draws_needed = None if settled else draws_for_target(history, settings.ess_target)
     logger.info("%s: %d %s, importance ESS %.0f, k-hat %.2f%s", label, sample.evaluations, runs,
                 sample.ess, sample.k_hat, "" if settled else " (not settled)")

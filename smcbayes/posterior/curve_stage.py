@@ -44,13 +44,7 @@ from numpy.typing import NDArray
 from smcbayes.config import PosteriorSpec
 from smcbayes.errors import SmcBayesWarning, SurrogateError
 from smcbayes.posterior.context import RunContext
-from smcbayes.posterior.correct import (
-    CorrectionSettings,
-    ImportanceSample,
-    correct,
-    draws_for_target,
-    weighted_quantile,
-)
+from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample, correct, weighted_quantile
 from smcbayes.posterior.curve_aim import targeted
 from smcbayes.posterior.curve_spread import function_posteriors, function_spread
 from smcbayes.posterior.curves import CurveEmulator, CurveFeatures, log_posterior
@@ -119,9 +113,9 @@ the accuracy benchmark's second case, eight seeds put tau*'s 95 % quantile at 0.
 0.65-0.68."""
 
 FINAL_ITERATION = 6000
-"""Proposal draws per iteration of the reported emulated posterior's sample: more draws
-each, fewer iterations than the rounds' samples, as each iteration evaluates every proposal
-so far at every draw so far (the time grows with the square of the iterations)."""
+"""Proposal draws per iteration of the reported emulated posterior's sample: fewer, larger
+iterations than the rounds' samples, as each iteration evaluates its new proposal at every
+draw so far (for draws of a given size, the time grows with the square of the iterations)."""
 
 START_ROWS = 4000
 """Most draws the first proposal of an importance sampling of the emulator is fitted to."""
@@ -222,8 +216,8 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     # the posterior half from the pooled posterior, which the stage reports, leaning to
     # where its sample functions disagree: there the next runs settle it
     posteriors = function_posteriors(emulator, n_eff, sample, rng)
-    # functions resting on few points of a round's sample (half the draws of the stage's
-    # final one, an ESS of a few hundred) still count: on the measured thesis trials some
+    # functions resting on few points of a round's sample (fewer draws than the stage's
+    # final one, an ESS of a few hundred on the thesis trials) still count: on the measured thesis trials some
     # did in every round, and the rounds could never validate; the stage's own check asks it
     spread = function_spread(posteriors, sample, [str(k) for k in range(d)])
     rows, error_weight, aim = targeted(posteriors, max(1, size // 2), rng)
@@ -460,11 +454,10 @@ def _emulator_sample(emulator: CurveEmulator, n_eff: float, start: Array, spec: 
     """The emulated posterior (of the expected loss) by adaptive importance sampling from the
     draws ``start`` ``(S, d)``: the correction's algorithm with the emulator as its target,
     at most ``draws`` emulator evaluations in iterations of ``per_iteration`` and no forward
-    run.  It stops at an ESS of ``aim`` where that is above the correction's target, but is
-    settled at the correction's targets."""
-    target = max(spec.ess_target, 2 * ROUND_ESS)
+    run.  It is settled at the correction's k-hat target and an ESS of at least the
+    correction's target and ``2 * ROUND_ESS``, and once settled draws on to an ESS of ``aim``."""
     run = spec.model_copy(update={"draws": draws, "batch": EMULATOR_BATCH, "per_iteration": per_iteration,
-                                  "ess_target": max(target, aim)})
+                                  "ess_target": max(spec.ess_target, 2 * ROUND_ESS)})
     if len(start) > START_ROWS:  # the first proposal's mixture fit needs no more
         start = start[rng.choice(len(start), START_ROWS, replace=False)]
     with warnings.catch_warnings():
@@ -472,10 +465,8 @@ def _emulator_sample(emulator: CurveEmulator, n_eff: float, start: Array, spec: 
         # reliability reasons say what an unsettled sample of the emulator means
         warnings.simplefilter("ignore", SmcBayesWarning)
         sample = correct(log_posterior(emulator, n_eff, variance=EXPECTED_LOSS), start, run, rng,
-                         label="importance sampling of the emulator", runs="emulator evaluations")
-    settled = sample.ess >= target and sample.k_hat <= spec.k_target
-    return dataclasses.replace(sample, target="emulator", warnings=[], settled=settled, ess_target=target,
-                               draws_needed=None if settled else draws_for_target(sample.history, target))
+                         label="importance sampling of the emulator", runs="emulator evaluations", aim=aim)
+    return dataclasses.replace(sample, target="emulator", warnings=[])
 
 
 def sample_emulator(emulator: CurveEmulator, n_eff: float, start: Array, spec: CorrectionSettings,

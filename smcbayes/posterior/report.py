@@ -92,7 +92,7 @@ def correction_info(corrected: Any, settings: Any) -> dict[str, Any]:
     draws = int(sum(h["draws"] for h in corrected.history)) if emulated else settings.correct_draws
     return {"enabled": True, "draws": draws, "evaluations": 0 if emulated else corrected.evaluations,
             "k_hat": corrected.k_hat, "ess": corrected.ess, "reliable": bool(corrected.k_hat <= K_HAT_WARN),
-            "settled": corrected.settled, "ess_target": corrected.ess_target,
+            "settled": corrected.settled, "ess_target": corrected.ess_target, "ess_aim": corrected.ess_aim,
             "draws_needed": corrected.draws_needed, "points": int(corrected.unit.shape[0]),
             "target": corrected.target, "history": corrected.history}
 

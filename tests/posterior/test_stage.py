@@ -587,25 +587,31 @@ def test_the_curve_emulator_spread_and_its_pooled_posterior(run_dir: Path) -> No
         np.testing.assert_allclose(q_same, q_mean, atol=0.02)
 
 
-def test_the_reported_emulator_sample_aims_past_the_target_it_is_settled_at(run_dir: Path) -> None:
-    """The reported emulated posterior's importance sample draws on to the higher ESS it
-    aims at, and counts as settled at the correction's own targets even where the draws
-    run out before that aim."""
-    from smcbayes.posterior.curve_stage import ROUND_ESS, _emulator_sample
+def test_the_reported_emulator_sample_aims_past_the_target_it_is_settled_at(
+        run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The emulated posterior's importance sample draws on to the higher ESS it aims at,
+    and counts as settled at the correction's own targets even where the draws run out
+    before that aim; the stage's reported sample is that sample at the module's aim."""
+    import smcbayes.posterior.curve_stage as curve_stage
 
     features, u, y, _ = _rows(run_dir, 25, 5)
     emulator = CurveEmulator(features, u, y)
-    spec = CorrectionSettings(ess_target=2 * ROUND_ESS)
+    spec = CorrectionSettings(ess_target=2 * curve_stage.ROUND_ESS)
     start = np.random.default_rng(0).random((400, u.shape[1]))
-    plain = _emulator_sample(emulator, 4.0, start, spec, 30000, np.random.default_rng(1), per_iteration=2000)
-    aimed = _emulator_sample(emulator, 4.0, start, spec, 30000, np.random.default_rng(1), aim=2500,
-                             per_iteration=2000)
-    assert plain.settled and aimed.settled and plain.ess_target == aimed.ess_target == 2 * ROUND_ESS
-    assert 2500 <= aimed.ess and len(aimed.unit) > len(plain.unit)
-    short = _emulator_sample(emulator, 4.0, start, spec, 4000, np.random.default_rng(1), aim=1e6,
-                             per_iteration=2000)
-    assert short.ess < 1e6 and short.settled == (short.ess >= 2 * ROUND_ESS and short.k_hat <= spec.k_target)
-    assert short.settled and short.draws_needed is None
+
+    def draw(draws: int, aim: float) -> ImportanceSample:
+        return curve_stage._emulator_sample(emulator, 4.0, start, spec, draws, np.random.default_rng(1),
+                                            aim=aim, per_iteration=2000)
+
+    plain, aimed, short = draw(30000, 0.0), draw(30000, 2500.0), draw(4000, 1e6)
+    assert plain.settled and aimed.settled and plain.ess_target == aimed.ess_target == spec.ess_target
+    assert 2500 <= aimed.ess and len(aimed.unit) > len(plain.unit) and aimed.ess_aim == 2500.0
+    assert short.ess < 1e6 and short.settled and short.draws_needed is None
+    monkeypatch.setattr(curve_stage, "FINAL_ESS", 2500.0)
+    monkeypatch.setattr(curve_stage, "FINAL_ITERATION", 2000)
+    monkeypatch.setattr(curve_stage, "EMULATOR_DRAWS", 30000)
+    reported = curve_stage.sample_emulator(emulator, 4.0, start, spec, np.random.default_rng(1))
+    np.testing.assert_array_equal(reported.unit, aimed.unit)
 
 
 def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -618,6 +624,7 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
 
     # a small budget: the importance sampling's algorithm has its own tests
     monkeypatch.setattr(curve_stage, "EMULATOR_DRAWS", 8000)
+    monkeypatch.setattr(curve_stage, "FINAL_ITERATION", 2000)
     monkeypatch.setattr(curve_stage, "ROUND_DRAWS", 4000)
     settings = PosteriorSettings(emulator="curves", walkers=16, steps=1500, refine=120, draws=20,
                                  correct_draws=0, seed=1)
