@@ -217,8 +217,8 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     # where its sample functions disagree: there the next runs settle it
     posteriors = function_posteriors(emulator, n_eff, sample, rng)
     # functions resting on few points of a round's sample (fewer draws than the stage's
-    # final one, an ESS of a few hundred on the thesis trials) still count: on the measured thesis trials some
-    # did in every round, and the rounds could never validate; the stage's own check asks it
+    # final one; an ESS of a few hundred on the measured thesis trials) still count: there
+    # some did in every round, and the rounds could never validate; the stage's own check asks it
     spread = function_spread(posteriors, sample, [str(k) for k in range(d)])
     rows, error_weight, aim = targeted(posteriors, max(1, size // 2), rng)
     # fewer distinct posterior points (a posterior on few support points): more exploration
