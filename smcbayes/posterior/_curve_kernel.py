@@ -28,16 +28,13 @@ _jit = njit(cache=True, error_model="numpy")
 
 @_jit
 def measured_on_grid(end: float, grid: NDArray[np.float64], time_m: NDArray[np.float64],
-                     force_m: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The measured force ``(G,)`` (kN) at the points ``end * grid`` (s) of a window ending
-    at ``end``, interpolated as :func:`force_mse_kernel` interpolates it."""
-    G = grid.shape[0]
-    out = np.empty(G)
+                     force_m: NDArray[np.float64], out: NDArray[np.float64]) -> None:
+    """Write to ``out`` ``(G,)`` the measured force (kN) at the points ``end * grid`` (s) of
+    a window ending at ``end``, linearly interpolated in the measured curve."""
     j, prev = 1, -np.inf
-    for g in range(G):
+    for g in range(grid.shape[0]):
         j, wm, prev = _bracket(time_m, end * grid[g], j, prev)
         out[g] = force_m[j - 1] + wm * (force_m[j] - force_m[j - 1])
-    return out
 
 
 @_jit
@@ -61,16 +58,15 @@ def force_mse_kernel(force: NDArray[np.float64], switch: NDArray[np.float64], de
     """
     P, n = force.shape
     G = grid.shape[0]
-    common = measured_on_grid(common_end, grid, time_m, force_m) if common_end == common_end else np.empty(0)
+    common = np.empty(G if common_end == common_end else 0)
+    if common_end == common_end:
+        measured_on_grid(common_end, grid, time_m, force_m, common)
     own = np.empty(G)
     for p in range(P):
         measured = common
         if end[p] != common_end:
             measured = own
-            j, prev = 1, -np.inf
-            for g in range(G):
-                j, wm, prev = _bracket(time_m, end[p] * grid[g], j, prev)
-                own[g] = force_m[j - 1] + wm * (force_m[j] - force_m[j - 1])
+            measured_on_grid(end[p], grid, time_m, force_m, own)
         total = 0.0
         for g in range(G):
             t = end[p] * grid[g]
