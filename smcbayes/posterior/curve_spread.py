@@ -20,7 +20,9 @@ support's posterior correlation serves every output and function.  The spread is
 parameter and 5/50/95 % quantile, the move from the mean's posterior that one function in
 ten exceeds (:data:`SHIFT_LEVEL`), largest over them: a level of the functions'
 distribution, where the largest move of a few functions grows with their number and varies
-much from draw to draw.
+much from draw to draw.  The reported posterior's spread pools the functions of several
+supports (:data:`SPREAD_SUPPORTS`), each measured against the mean's posterior on its own
+support.
 """
 
 from __future__ import annotations
@@ -43,8 +45,8 @@ from smcbayes.posterior.weights import ess_of, weighted_quantile
 Array = NDArray[np.float64]
 
 CURVE_FUNCTIONS = 32
-"""Sample functions of the curve emulator (each costs one evaluation of the support's
-curves, about 0.1 s).  On the emulators of 16 rounds of the measured thesis trials, two
+"""Sample functions of the curve emulator on each support (each costs one evaluation of the
+support's curves, about 0.1 s).  On the emulators of 16 rounds of the measured thesis trials, two
 independent draws of the largest move of four functions differed by 0.09 of a parameter's
 range on average (up to 0.38); two of the move that one of 32 in ten exceeds, by 0.03 (up
 to 0.11)."""
@@ -52,6 +54,14 @@ to 0.11)."""
 SHIFT_LEVEL = 0.9
 """Share of the sample functions whose move of a quantile the spread bounds: the spread is
 the move that one function in ten exceeds."""
+
+SPREAD_SUPPORTS = 4
+"""Supports of the reported posterior's spread, each with its own :data:`CURVE_FUNCTIONS`
+functions (the rounds of the active learning draw one).  Where a posterior's tail rests on
+a few heavy points of its sample, whether one function in ten moves a quantile there flips
+from draw to draw: on the final emulator of one run on the measured thesis trials, eight
+draws of one support's spread gave 0.065-0.225 (sd 0.02-0.05 over two samples), of four
+supports' 0.075-0.134 (sd 0.014-0.020)."""
 
 SUPPORT_POINTS = 1500
 """Draws of the support (with repeats) on which the sample functions are drawn jointly."""
@@ -164,10 +174,11 @@ def function_posteriors(emulator: CurveEmulator, n_eff: float, sample: Importanc
 
 
 def curve_spread(emulator: CurveEmulator, n_eff: float, sample: ImportanceSample, names: Sequence[str],
-                 rng: np.random.Generator, functions: int = CURVE_FUNCTIONS,
+                 rng: np.random.Generator, functions: int = CURVE_FUNCTIONS, supports: int = SPREAD_SUPPORTS,
                  ) -> tuple[dict[str, Any], ImportanceSample]:
-    """The spread of ``functions`` sample functions' posteriors around the mean's, and the
-    mean's importance sample pooled with them (each posterior an equal share).
+    """The spread of ``functions`` sample functions' posteriors on each of ``supports``
+    supports around the mean's, and the mean's importance sample pooled with them (each
+    posterior an equal share).
 
     Args:
         emulator: the curve emulator whose posterior ``sample`` weights.
@@ -176,26 +187,29 @@ def curve_spread(emulator: CurveEmulator, n_eff: float, sample: ImportanceSample
             the emulated log posterior).
         names: the free parameters' names, ``d`` of them.
         rng: draws the support and the functions.
-        functions: sample functions.
+        functions: sample functions per support.
+        supports: supports, each drawn anew.
 
     Returns:
         :func:`spread_and_pool` of the functions' posteriors.
     """
-    return spread_and_pool(function_posteriors(emulator, n_eff, sample, rng, functions), sample, names)
+    drawn = [function_posteriors(emulator, n_eff, sample, rng, functions) for _ in range(supports)]
+    return spread_and_pool(drawn, sample, names)
 
 
-def spread_and_pool(posteriors: FunctionPosteriors, sample: ImportanceSample, names: Sequence[str],
+def spread_and_pool(posteriors: Sequence[FunctionPosteriors], sample: ImportanceSample, names: Sequence[str],
                     ) -> tuple[dict[str, Any], ImportanceSample]:
-    """The spread of the functions' ``posteriors`` (:func:`function_spread`) with
-    ``pooled_shift``, the largest move of a quantile from the mean's posterior to the pooled
-    one (both on the whole sample), and the pooled sample: the mean's points, each weighted
-    by the mean's share plus the functions' shares of it (its ``log_target`` stays the
-    mean's)."""
+    """The spread of the functions' ``posteriors`` (one per support, :func:`function_spread`)
+    with ``pooled_shift``, the largest move of a quantile from the mean's posterior to the
+    pooled one (both on the whole sample), and the pooled sample: the mean's points, each
+    weighted by the mean's share plus the functions' shares of it (its ``log_target`` stays
+    the mean's)."""
     spread = function_spread(posteriors, sample, names)
-    functions = len(posteriors.log_lik)
-    weight = np.exp(sample.log_weight) / (functions + 1.0)
-    for lw in posteriors.log_functions:
-        np.add.at(weight, posteriors.rows, np.exp(lw) / (functions + 1.0))
+    share = 1.0 / (spread["functions"] + 1.0)
+    weight = np.exp(sample.log_weight) * share
+    for support in posteriors:
+        for lw in support.log_functions:
+            np.add.at(weight, support.rows, np.exp(lw) * share)
     with np.errstate(divide="ignore"):
         log_weight = np.log(weight / weight.sum())
     # how far the pooling moved the reported posterior from the mean's, on the same points
@@ -205,29 +219,34 @@ def spread_and_pool(posteriors: FunctionPosteriors, sample: ImportanceSample, na
     return spread, dataclasses.replace(sample, log_weight=log_weight, ess=ess_of(log_weight))
 
 
-def function_spread(posteriors: FunctionPosteriors, sample: ImportanceSample,
+def function_spread(posteriors: FunctionPosteriors | Sequence[FunctionPosteriors], sample: ImportanceSample,
                     names: Sequence[str]) -> dict[str, Any]:
-    """The spread of the functions' ``posteriors`` around the mean's ``sample``, in the keys
-    :func:`smcbayes.posterior.spread.emulator_spread` records: per parameter, the move of a
-    quantile against the mean's posterior on the same support that one function in ten
-    exceeds (``shift_level``; not net of any noise; ``sampling_noise`` is the support's own,
-    against the whole sample), with each function's ESS on the support."""
-    rows, log_ws = posteriors.rows, posteriors.log_functions
-    x = sample.unit[rows]
-    # against the mean's posterior, not the pooled one: the functions' posteriors, each of
-    # its own curves' loss, lean together to where the emulator is unsure (there the log of
-    # the expected loss exceeds the expected log loss), and that common lean is part of the
-    # emulator's uncertainty the spread must show (measured against the pooled posterior, a
-    # synthetic posterior 0.18 off in a quantile passed with a spread of 0.086)
-    ref = _quantiles(x, np.exp(posteriors.log_mean))
-    # on the common support the support's own subsampling cancels (as in the rounds'
-    # quantile shift); its noise against the whole sample is reported, not subtracted
-    noise = np.max(np.abs(ref - _quantiles(sample.unit, np.exp(sample.log_weight))), axis=0)
-    moves = np.array([_function_shift(x, ref, lw) for lw in log_ws])
-    shifts = np.max(np.quantile(moves, SHIFT_LEVEL, axis=0), axis=0)
-    return {"functions": len(posteriors.log_lik), "steps": 0, "support_points": int(len(rows)),
+    """The spread of the functions' ``posteriors`` (on one support or several) around the
+    mean's ``sample``, in the keys :func:`smcbayes.posterior.spread.emulator_spread` records:
+    per parameter, the move of a quantile against the mean's posterior on the function's own
+    support that one function in ten exceeds (``shift_level``; not net of any noise;
+    ``sampling_noise`` is the largest of the supports' own, against the whole sample), with
+    each function's ESS on its support."""
+    drawn = [posteriors] if isinstance(posteriors, FunctionPosteriors) else list(posteriors)
+    moves, noise = [], np.zeros(sample.unit.shape[1])
+    for support in drawn:
+        x = sample.unit[support.rows]
+        # against the mean's posterior, not the pooled one: the functions' posteriors, each of
+        # its own curves' loss, lean together to where the emulator is unsure (there the log of
+        # the expected loss exceeds the expected log loss), and that common lean is part of the
+        # emulator's uncertainty the spread must show (measured against the pooled posterior, a
+        # synthetic posterior 0.18 off in a quantile passed with a spread of 0.086)
+        ref = _quantiles(x, np.exp(support.log_mean))
+        # on the common support the support's own subsampling cancels (as in the rounds'
+        # quantile shift); its noise against the whole sample is reported, not subtracted
+        own = np.max(np.abs(ref - _quantiles(sample.unit, np.exp(sample.log_weight))), axis=0)
+        noise = np.maximum(noise, own)
+        moves += [_function_shift(x, ref, lw) for lw in support.log_functions]
+    shifts = np.max(np.quantile(np.array(moves), SHIFT_LEVEL, axis=0), axis=0)
+    return {"functions": len(moves), "steps": 0, "supports": len(drawn),
+            "support_points": int(sum(len(support.rows) for support in drawn)),
             "shift_level": SHIFT_LEVEL,
             "max_quantile_shift": float(np.max(shifts)),
             "per_parameter": {n: float(v) for n, v in zip(names, shifts, strict=True)},
             "sampling_noise": {n: float(v) for n, v in zip(names, noise, strict=True)},
-            "function_ess": [ess_of(lw) for lw in log_ws]}
+            "function_ess": [ess_of(lw) for support in drawn for lw in support.log_functions]}

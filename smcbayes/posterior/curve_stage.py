@@ -19,8 +19,8 @@ measured before they join its data (mean absolute, nats of log-likelihood, each 
 weighted back to the posterior's share; at most
 ``refine_tolerance_nats``), and how far the emulated posterior's quantiles moved
 (:func:`quantile_shift`, on common draws, so that the sampling noise cancels; at most
-:data:`QUANTILE_SHIFT`); the last round's sample functions must also move it by at most
-:data:`~smcbayes.posterior.spread.SPREAD_MAX`.  A stage whose budget runs out first is
+:data:`QUANTILE_SHIFT`); the same rounds' sample functions must also move it by at most
+:data:`~smcbayes.posterior.spread.SPREAD_MAX` on average.  A stage whose budget runs out first is
 reported unreliable.  ``refine.jsonl`` logs each round.  The reported posterior is that of
 the expected loss (:data:`EXPECTED_LOSS`), sampled by importance on the emulator
 (:func:`importance_sample`), which the stage pools with its sample functions' posteriors.
@@ -170,8 +170,7 @@ class _Round:
             the tempered optimistic one.
         posterior: how many of ``new`` are posterior draws.
         sample: the round's importance sample of the emulated posterior (the mean's).
-        spread: how far the sample functions move its 5/50/95 % quantiles (share of the
-            unit cube; :func:`~smcbayes.posterior.curve_spread.curve_spread`).
+        spread: how far its sample functions move its 5/50/95 % quantiles (unit cube).
         error_weight: the weights ``(posterior,)`` of the posterior draws' errors in the
             round's mean error (:func:`~smcbayes.posterior.curve_aim.targeted`).
         aim: what ``refine.jsonl`` keeps of the aiming
@@ -260,8 +259,9 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     its mean absolute error at the round's fresh posterior draws (weighted back to the
     posterior's shares, :func:`~smcbayes.posterior.curve_aim.targeted`; measured before they
     join its data) is at most ``tolerance_nats`` and the quantiles of the emulated
-    posterior moved by at most :data:`QUANTILE_SHIFT`, and the last round's sample
-    functions moved them by at most :data:`~smcbayes.posterior.spread.SPREAD_MAX`.
+    posterior moved by at most :data:`QUANTILE_SHIFT`, and the same rounds' sample functions
+    moved them by at most :data:`~smcbayes.posterior.spread.SPREAD_MAX` on average (one
+    round's, on one support of a thin sample, is too noisy to stop at).
 
     Args:
         simulate: unit-cube rows ``(P, d)`` -> features ``(P, F)`` and success ``(P,)``.
@@ -279,7 +279,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         ``quantile_shift`` (the last round's), ``last_errors_nats`` and
         ``last_quantile_shifts`` (those of the last :data:`VALIDATED_ROUNDS` rounds; ``None``
         for a round with nothing to compare, or a sample too thin to tell) and
-        ``last_spread`` (the last round's; ``None`` without a round) and
+        ``last_spreads`` (those of the last :data:`VALIDATED_ROUNDS` rounds) and
         ``variance_factor`` (the last emulator's calibration of its output variances,
         :meth:`~smcbayes.posterior.curves.CurveEmulator.calibrate`: rows used and range;
         ``None`` when nothing calibrated them)).  The first
@@ -326,7 +326,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     return emulator, x, y, {"evaluations": spent, "converged": converged, "rounds": rounds,
                             "error_nats": worst, "quantile_shift": shifts[-1] if shifts else None,
                             "last_errors_nats": last, "last_quantile_shifts": shifts[-VALIDATED_ROUNDS:],
-                            "last_spread": _finite(spreads[-1]) if spreads else None,
+                            "last_spreads": [_finite(v) for v in spreads[-VALIDATED_ROUNDS:]],
                             "variance_factor": _factor_range(emulator)}
 
 
@@ -383,12 +383,12 @@ def _finite(value: float) -> float | None:
 
 def _validated(errors: list[float], shifts: list[float | None], tolerance_nats: float,
                spreads: list[float]) -> bool:
-    """The last :data:`VALIDATED_ROUNDS` rounds validate the emulator and the last one's
+    """The last :data:`VALIDATED_ROUNDS` rounds validate the emulator and their mean
     spread is small (see :func:`learn`)."""
     recent = shifts[-VALIDATED_ROUNDS:]
     return (len(recent) == VALIDATED_ROUNDS and all(s is not None and s <= QUANTILE_SHIFT for s in recent)
             and all(e <= tolerance_nats for e in errors[-VALIDATED_ROUNDS:])
-            and bool(spreads) and spreads[-1] <= SPREAD_MAX)
+            and bool(np.mean(spreads[-VALIDATED_ROUNDS:]) <= SPREAD_MAX))
 
 
 def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: PosteriorSpec,

@@ -154,14 +154,15 @@ def _budget_reason(active: dict[str, Any]) -> str:
 
 def _curve_budget_reason(active: dict[str, Any]) -> str:
     """Why the curve emulator's active learning was not validated: its last rounds' errors
-    and quantile moves, each of which must be within its bound, and its last round's spread."""
+    and quantile moves, each of which must be within its bound, and their spreads, whose mean
+    must be."""
     def words(values: list[float | None], unit: str) -> str:
         return ", ".join("not measured" if v is None else f"{v:.2g}{unit}" for v in values) or "none"
 
     errors, shifts = active.get("last_errors_nats") or [], active.get("last_quantile_shifts") or []
-    spread = active.get("last_spread")
-    spread_words = ("" if spread is None else
-                    f"; its sample functions moving a quantile by {spread:.2g}, to be at most {SPREAD_MAX}")
+    spreads = active.get("last_spreads") or []
+    spread_words = ("" if not spreads else f"; their sample functions moving a quantile by "
+                    f"{words(spreads, '')}, on average to be at most {SPREAD_MAX}")
     return (f"the active learning spent its {active.get('evaluations')} forward runs before the emulator was "
             f"validated where the posterior lies (its last rounds' errors at fresh posterior draws "
             f"{words(errors, ' nats')}, each to be within {active.get('tolerance_nats', math.nan):.2g}; "

@@ -41,7 +41,7 @@ from smcbayes.posterior.context import (
 )
 from smcbayes.posterior.correct import ImportanceSample, correct
 from smcbayes.posterior.crossfit import LocalFit
-from smcbayes.posterior.curve_spread import CURVE_FUNCTIONS, curve_spread
+from smcbayes.posterior.curve_spread import CURVE_FUNCTIONS, SPREAD_SUPPORTS, curve_spread
 from smcbayes.posterior.curve_stage import CurveEmulation, curve_chains, curve_posterior, importance_sample
 from smcbayes.posterior.curves import CurveFeatures
 from smcbayes.posterior.likelihood import effective_points, sandwich_points
@@ -161,7 +161,7 @@ def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSetti
         if settings.functions > 0:
             logger.warning("--functions %d draws sample functions of the log-loss emulator; the curve "
                            "emulator pools its own %d (see --no-pool-functions), so it is ignored",
-                           settings.functions, CURVE_FUNCTIONS)
+                           settings.functions, CURVE_FUNCTIONS * SPREAD_SUPPORTS)
     if slow and settings.correct_draws > 0:
         # each correction draw inside the box is one run of the user's solver per configuration
         logger.warning("the importance correction may run the %s up to %d times on each of %d "

@@ -127,14 +127,14 @@ def test_a_curve_emulator_out_of_budget_names_its_last_rounds_and_spread() -> No
     active = {"enabled": True, "kind": "curves", "converged": False, "evaluations": 640, "rounds": 16,
               "tolerance_nats": 1.0,
               "last_errors_nats": [0.7, None, 0.9], "last_quantile_shifts": [0.02, 0.03, None],
-              "last_spread": 0.23}
+              "last_spreads": [0.08, 0.23, None]}
     info = {"parameters": narrow, "active_learning": active, "emulator_check": {"mean_abs_error": 0.5},
             "correction": {"enabled": True, "target": "emulator", "k_hat": 0.2, "ess": 2500, "settled": True}}
     verdict = assess(info, space, 10.0)
     assert not verdict["reliable"] and len(verdict["reasons"]) == 1
     reason = verdict["reasons"][0]
     assert "640 forward runs" in reason and "0.7 nats, not measured, 0.9 nats" in reason
-    assert "0.02, 0.03, not measured" in reason and "moving a quantile by 0.23" in reason
+    assert "0.02, 0.03, not measured" in reason and "moving a quantile by 0.08, 0.23, not measured, on average" in reason
     assert reason.endswith("raise --refine")
 
 

@@ -561,8 +561,9 @@ def test_the_curve_emulator_spread_and_its_pooled_posterior(run_dir: Path) -> No
     emulator = CurveEmulator(features, u, y)
     sample = _emulator_sample(emulator, 4.0, 6000, 6)
     names = ["a", "b"]
-    spread, pooled = curve_spread(emulator, 4.0, sample, names, np.random.default_rng(1), functions=3)
-    again = curve_spread(emulator, 4.0, sample, names, np.random.default_rng(1), functions=3)
+    spread, pooled = curve_spread(emulator, 4.0, sample, names, np.random.default_rng(1), functions=3,
+                                  supports=1)
+    again = curve_spread(emulator, 4.0, sample, names, np.random.default_rng(1), functions=3, supports=1)
     assert again[0] == spread
     np.testing.assert_array_equal(again[1].log_weight, pooled.log_weight)
     assert spread["functions"] == 3 and set(spread["per_parameter"]) == set(names)
@@ -577,7 +578,15 @@ def test_the_curve_emulator_spread_and_its_pooled_posterior(run_dir: Path) -> No
     np.testing.assert_allclose(w[off], 0.25 * sample.weights[off], rtol=1e-9)
     sure = CurveEmulator(features, u, y)
     sure.scale2 = np.zeros_like(sure.scale2)
-    still, same = curve_spread(sure, 4.0, sample, names, np.random.default_rng(1), functions=3)
+    # on several supports every function counts and takes an equal share of the pool
+    wide, pooled_wide = curve_spread(emulator, 4.0, sample, names, np.random.default_rng(1), functions=3,
+                                     supports=2)
+    assert wide["functions"] == 6 and wide["supports"] == 2 and len(wide["function_ess"]) == 6
+    assert wide["support_points"] > spread["support_points"]
+    off = pooled_wide.weights < sample.weights / 7 * (1 + 1e-9) + 1e-300
+    assert off.sum() > 1000
+    np.testing.assert_allclose(pooled_wide.weights[off], sample.weights[off] / 7, rtol=1e-9)
+    still, same = curve_spread(sure, 4.0, sample, names, np.random.default_rng(1), functions=3, supports=1)
     assert still["max_quantile_shift"] < 1e-12  # the same weights, to rounding
     # each function's share is then the mean's posterior on the support, drawn with
     # probabilities ~ sqrt(weight) and weighted back: the pooled quantiles are the mean's
@@ -633,7 +642,7 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     _truth_inside_and_slip_pair_positive(info)
     active = info["active_learning"]
     assert active["kind"] == "curves" and info["emulator_spread"]["pooled"]
-    functions = curve_spread.CURVE_FUNCTIONS
+    functions = curve_spread.CURVE_FUNCTIONS * curve_spread.SPREAD_SUPPORTS
     assert info["emulator_spread"]["functions"] == functions
     assert len(info["emulator_spread"]["function_ess"]) == functions
     assert 0.0 <= info["emulator_spread"]["pooled_shift"] < 1.0
