@@ -219,17 +219,19 @@ def spread_and_pool(posteriors: Sequence[FunctionPosteriors], sample: Importance
     return spread, dataclasses.replace(sample, log_weight=log_weight, ess=ess_of(log_weight))
 
 
-def function_spread(posteriors: FunctionPosteriors | Sequence[FunctionPosteriors], sample: ImportanceSample,
+def function_spread(posteriors: Sequence[FunctionPosteriors], sample: ImportanceSample,
                     names: Sequence[str]) -> dict[str, Any]:
-    """The spread of the functions' ``posteriors`` (on one support or several) around the
-    mean's ``sample``, in the keys :func:`smcbayes.posterior.spread.emulator_spread` records:
-    per parameter, the move of a quantile against the mean's posterior on the function's own
+    """The spread of the functions' ``posteriors`` (one per support) around the mean's
+    ``sample``, in the keys :func:`smcbayes.posterior.spread.emulator_spread` records: per
+    parameter, the move of a quantile against the mean's posterior on the function's own
     support that one function in ten exceeds (``shift_level``; not net of any noise;
     ``sampling_noise`` is the largest of the supports' own, against the whole sample), with
-    each function's ESS on its support."""
-    drawn = [posteriors] if isinstance(posteriors, FunctionPosteriors) else list(posteriors)
-    moves, noise = [], np.zeros(sample.unit.shape[1])
-    for support in drawn:
+    each function's ESS on its support, the ``supports`` and their distinct points
+    together (``support_points``)."""
+    moves: list[Array] = []
+    noise = np.zeros(sample.unit.shape[1])
+    whole = _quantiles(sample.unit, np.exp(sample.log_weight))
+    for support in posteriors:
         x = sample.unit[support.rows]
         # against the mean's posterior, not the pooled one: the functions' posteriors, each of
         # its own curves' loss, lean together to where the emulator is unsure (there the log of
@@ -239,14 +241,13 @@ def function_spread(posteriors: FunctionPosteriors | Sequence[FunctionPosteriors
         ref = _quantiles(x, np.exp(support.log_mean))
         # on the common support the support's own subsampling cancels (as in the rounds'
         # quantile shift); its noise against the whole sample is reported, not subtracted
-        own = np.max(np.abs(ref - _quantiles(sample.unit, np.exp(sample.log_weight))), axis=0)
-        noise = np.maximum(noise, own)
+        noise = np.maximum(noise, np.max(np.abs(ref - whole), axis=0))
         moves += [_function_shift(x, ref, lw) for lw in support.log_functions]
     shifts = np.max(np.quantile(np.array(moves), SHIFT_LEVEL, axis=0), axis=0)
-    return {"functions": len(moves), "steps": 0, "supports": len(drawn),
-            "support_points": int(sum(len(support.rows) for support in drawn)),
+    return {"functions": len(moves), "steps": 0, "supports": len(posteriors),
+            "support_points": int(len(np.unique(np.concatenate([support.rows for support in posteriors])))),
             "shift_level": SHIFT_LEVEL,
             "max_quantile_shift": float(np.max(shifts)),
             "per_parameter": {n: float(v) for n, v in zip(names, shifts, strict=True)},
             "sampling_noise": {n: float(v) for n, v in zip(names, noise, strict=True)},
-            "function_ess": [ess_of(lw) for support in drawn for lw in support.log_functions]}
+            "function_ess": [ess_of(lw) for support in posteriors for lw in support.log_functions]}

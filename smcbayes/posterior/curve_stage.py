@@ -170,7 +170,7 @@ class _Round:
             the tempered optimistic one.
         posterior: how many of ``new`` are posterior draws.
         sample: the round's importance sample of the emulated posterior (the mean's).
-        spread: how far its sample functions move its 5/50/95 % quantiles (unit cube).
+        spread: how far its sample functions move its 5/50/95 % quantiles (share of the unit cube).
         error_weight: the weights ``(posterior,)`` of the posterior draws' errors in the
             round's mean error (:func:`~smcbayes.posterior.curve_aim.targeted`).
         aim: what ``refine.jsonl`` keeps of the aiming
@@ -218,7 +218,7 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     # functions resting on few points of a round's sample (fewer draws than the stage's
     # final one; an ESS of a few hundred on the measured thesis trials) still count: there
     # some did in every round, and the rounds could never validate; the stage's own check asks it
-    spread = function_spread(posteriors, sample, [str(k) for k in range(d)])
+    spread = function_spread([posteriors], sample, [str(k) for k in range(d)])
     rows, error_weight, aim = targeted(posteriors, max(1, size // 2), rng)
     # fewer distinct posterior points (a posterior on few support points): more exploration
     half = len(rows)

@@ -162,7 +162,7 @@ def _curve_budget_reason(active: dict[str, Any]) -> str:
     errors, shifts = active.get("last_errors_nats") or [], active.get("last_quantile_shifts") or []
     spreads = active.get("last_spreads") or []
     spread_words = ("" if not spreads else f"; their sample functions moving a quantile by "
-                    f"{words(spreads, '')}, on average to be at most {SPREAD_MAX}")
+                    f"{words(spreads, '')}, their mean to be at most {SPREAD_MAX}")
     return (f"the active learning spent its {active.get('evaluations')} forward runs before the emulator was "
             f"validated where the posterior lies (its last rounds' errors at fresh posterior draws "
             f"{words(errors, ' nats')}, each to be within {active.get('tolerance_nats', math.nan):.2g}; "

@@ -209,5 +209,32 @@ def test_the_spread_counts_the_functions_common_lean_away_from_the_mean() -> Non
     lik = np.tile(norm.logpdf(sample.unit[:, 0], 0.6, 0.1), (32, 1))
     log_f = np.array([lw - np.logaddexp.reduce(lw) for lw in sample.log_weight + lik - sample.log_target])
     posteriors = FunctionPosteriors(rows, sample.log_weight, log_f, lik)
-    spread = function_spread(posteriors, sample, ["x"])
+    spread = function_spread([posteriors], sample, ["x"])
     assert abs(spread["max_quantile_shift"] - 0.1) < 0.01, spread
+
+
+def test_the_spread_over_several_supports_is_the_level_of_all_their_functions() -> None:
+    # each support's functions are measured against the mean's posterior on that support:
+    # ten functions that shift it by 0.1 on one support and ten that leave it on another
+    # are twenty moves, of which more than one in ten is 0.1
+    sample = _sample(0.5)
+    rng = np.random.default_rng(3)
+
+    def support(centre: float | None) -> FunctionPosteriors:
+        rows = np.sort(rng.choice(len(sample.unit), 8000, replace=False))
+        log_mean = sample.log_weight[rows] - np.logaddexp.reduce(sample.log_weight[rows])
+        x = sample.unit[rows, 0]
+        lik = np.zeros((10, len(rows))) if centre is None else np.tile(
+            norm.logpdf(x, centre, 0.1) - norm.logpdf(x, 0.5, 0.1), (10, 1))
+        log_f = np.array([lw - np.logaddexp.reduce(lw) for lw in log_mean + lik])
+        return FunctionPosteriors(rows, log_mean, log_f, lik)
+
+    moved, still = support(0.6), support(None)
+    both = function_spread([moved, still], sample, ["x"])
+    assert both["functions"] == 20 and both["supports"] == 2 and len(both["function_ess"]) == 20
+    assert abs(both["max_quantile_shift"] - 0.1) < 0.015, both
+    assert both["support_points"] == len(np.union1d(moved.rows, still.rows))
+    assert function_spread([still, support(None)], sample, ["x"])["max_quantile_shift"] < 1e-12
+    # the noise is the larger of the two supports' own
+    noise = [function_spread([s], sample, ["x"])["sampling_noise"]["x"] for s in (moved, still)]
+    assert both["sampling_noise"]["x"] == max(noise)
