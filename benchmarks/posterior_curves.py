@@ -38,7 +38,8 @@ from _posterior_common import posterior_samples, write_result
 from posterior_accuracy import Q_TARGET, R_TARGET, compare
 
 from smcbayes.posterior.correct import CorrectionSettings
-from smcbayes.posterior.curve_stage import EXPECTED_LOSS, learn, sample_chains, sample_emulator
+from smcbayes.posterior.curve_sample import EXPECTED_LOSS, sample_chains, sample_emulator
+from smcbayes.posterior.curve_stage import learn
 from smcbayes.posterior.curves import CurveFeatures
 from smcbayes.posterior.stage import load_run, residual_budget
 from smcbayes.surrogate.gp import load_surrogate
@@ -86,8 +87,9 @@ def run_seed(run_dir: Path, ref: tuple[np.ndarray, np.ndarray], budgets: list[in
     start = time.perf_counter()
     for budget in sorted(budgets):
         # a tolerance of 0 never validates a round: every budget is spent
-        emulator, x, y, record = learn(simulate, features, x, y, n_eff, budget - spent, 0.0, rng)
-        spent += record["evaluations"]
+        learned = learn(simulate, features, x, y, n_eff, budget - spent, 0.0, rng)
+        emulator, x, y = learned.emulator, learned.x, learned.y
+        spent += learned.record["evaluations"]
         centre = x[np.argmin(features.loss(y))]
         row: dict[str, Any] = {"seed": seed, "budget": spent, "rows": len(x), "n_eff": n_eff,
                                "components": emulator.components,

@@ -1,5 +1,5 @@
 """The posterior stage's curve emulator path (``--emulator curves``): active learning of
-the force-curve emulator of :mod:`smcbayes.posterior.curves` and the sampling of its
+the force-curve emulator of :mod:`smcbayes.posterior.curves`, confirmed by its reported
 posterior.
 
 Starts from the calibration GP's points (simulated again for their curves, through the
@@ -20,19 +20,19 @@ weighted back to the posterior's share; at most
 ``refine_tolerance_nats``), and how far the emulated posterior's quantiles moved
 (:func:`quantile_shift`, on common draws, so that the sampling noise cancels; at most
 :data:`QUANTILE_SHIFT`); the same rounds' sample functions must also move it by at most
-:data:`~smcbayes.posterior.spread.SPREAD_MAX` on average.  A stage whose budget runs out first is
-reported unreliable.  ``refine.jsonl`` logs each round.  The reported posterior is that of
-the expected loss (:data:`EXPECTED_LOSS`), sampled by importance on the emulator
-(:func:`importance_sample`), which the stage pools with its sample functions' posteriors.
+:data:`~smcbayes.posterior.spread.SPREAD_MAX` on average.  A validated emulator's reported
+posterior (that of the expected loss, :data:`~smcbayes.posterior.curve_sample.EXPECTED_LOSS`,
+sampled by importance on the emulator and pooled with its sample functions' posteriors,
+:mod:`smcbayes.posterior.curve_sample`) is then drawn, and the learning stops only if its own
+spread is within the bound too.  A stage whose budget runs out first is reported unreliable.
+``refine.jsonl`` logs each round.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import time
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,13 +42,23 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.config import PosteriorSpec
-from smcbayes.errors import SmcBayesWarning, SurrogateError
+from smcbayes.errors import SurrogateError
 from smcbayes.posterior.context import RunContext
-from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample, correct, weighted_quantile
+from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample, weighted_quantile
 from smcbayes.posterior.curve_aim import targeted
+from smcbayes.posterior.curve_sample import (
+    EMULATOR_BATCH,
+    EXPECTED_LOSS,
+    ROUND_ESS,
+    START_ROWS,
+    CurveEmulation,
+    FinalPosterior,
+    emulator_sample,
+    final_posterior,
+    sample_chains,
+)
 from smcbayes.posterior.curve_spread import function_posteriors, function_spread
 from smcbayes.posterior.curves import CurveEmulator, CurveFeatures, log_posterior
-from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
 from smcbayes.posterior.spread import SPREAD_MAX
 
 logger = logging.getLogger(__name__)
@@ -60,18 +70,6 @@ BATCH = 40
 
 TEMPER = 0.25
 """Exponent of the exploration's likelihood."""
-
-EXPECTED_LOSS = True
-"""The emulated likelihood (of the rounds, the reported posterior, the rounds' errors and the
-emulator check) is that of the expected loss: the mean curves' loss plus the emulator's
-(calibrated) variance of the squared error
-(:meth:`~smcbayes.posterior.curves.CurveEmulator.loss`).  The loss is convex in the curves,
-so the mean curves' loss is the lower one wherever the emulator is unsure: on the accuracy
-benchmark's two cases the mean curves' posterior put too much mass where tau* is large (a
-flat arm: a yield stress above every flow stress), and posteriors called reliable missed
-tau*'s 95 % quantile by up to 0.13 of its range.  Before the variances were calibrated,
-the expected loss lowered the likelihood too much where the emulator has few points
-(after 140-380 runs its posterior was further from the exact one than the mean curves')."""
 
 VALIDATED_ROUNDS = 3
 """Rounds in a row whose out-of-sample error is within the tolerance and whose posterior
@@ -86,77 +84,10 @@ the unit cube) that a validated round allows."""
 ROUND_STEPS = 1000
 """Most emcee steps of a round's tempered sampling."""
 
-CHAIN_STEPS = 3000
-"""Most emcee steps of the final chains, which only start the importance sampling (of the
-emulator, or the forward model's correction): the reported posterior is the weighted one."""
-
 ROUND_DRAWS = 20000
 """Most proposal draws of a round's importance sample of the emulated posterior (it stops
 at the correction's ESS and k-hat targets)."""
 
-ROUND_ESS = 200
-"""Least importance ESS of a round's sample whose quantile shift can validate the round:
-with a few heavy draws both weightings of :func:`quantile_shift` sit on the same points
-and the posterior would look still however it moved."""
-
-EMULATOR_DRAWS = 160000
-"""Most proposal draws of the importance sampling of the reported emulated posterior
-(emulator evaluations, no forward run); as many once more, from what it found, if its
-weights have not settled at the correction's targets."""
-
-FINAL_ESS = 8000.0
-"""Importance ESS the sample of the reported emulated posterior aims at (it counts as
-settled at the correction's lower target).  At the correction's 2,000 the adaptive
-proposals still under-cover a flat arm, and the weights do not show it: on one emulator of
-the accuracy benchmark's second case, eight seeds put tau*'s 95 % quantile at 0.55-0.68
-(the exact posterior's is 0.70) with k-hat 0.15-0.32; at 8,000 six seeds put it at
-0.65-0.68."""
-
-FINAL_ITERATION = 6000
-"""Proposal draws per iteration of the reported emulated posterior's sample: fewer, larger
-iterations than the rounds' samples, as each iteration evaluates its new proposal at every
-draw so far (for draws of a given size, the time grows with the square of the iterations)."""
-
-START_ROWS = 4000
-"""Most draws the first proposal of an importance sampling of the emulator is fitted to."""
-
-EMULATOR_BATCH = 4000
-"""Emulator evaluations per call of the importance sampling."""
-
-EMULATOR_ITERATION = 2000
-"""Proposal draws per iteration of the importance sampling of the emulator: each
-iteration refits the mixture proposal and evaluates it at every draw so far, which costs
-more than the emulator at the correction's 500 draws an iteration."""
-
-
-@dataclass
-class CurveEmulation:
-    """The sampled curve emulator, as the stage's outputs read an emulator.
-
-    Attributes:
-        emulator: the fitted curve emulator.
-        n_eff: effective points of the likelihood.
-    """
-
-    emulator: CurveEmulator
-    n_eff: float
-    functions: int = 0
-    components: int = 1
-
-    def log_loss(self, u: Array) -> Array:
-        """Emulated log loss ``(P,)`` at unit-cube points ``(P, d)`` (the expected loss, as sampled)."""
-        return np.log(np.maximum(self.emulator.loss(np.atleast_2d(u), variance=EXPECTED_LOSS), 1e-300))
-
-
-def sample_chains(emulator: CurveEmulator, n_eff: float, rng: np.random.Generator, centre: Array,
-                  temper: float = 1.0, steps: int = ROUND_STEPS, walkers: int = 32,
-                  variance: bool = EXPECTED_LOSS, label: str = "", optimistic: bool = False) -> Chains:
-    """emcee chains (differential evolution, from ``centre`` ``(d,)``) of the emulated
-    posterior, tempered by ``temper``, of the loss ``variance`` and ``optimistic`` ask for
-    (:meth:`~smcbayes.posterior.curves.CurveEmulator.loss`)."""
-    settings = SamplerSettings(walkers=walkers, max_steps=steps, min_steps=min(500, steps), moves="de")
-    return run_ensemble(log_posterior(emulator, n_eff, temper, variance, optimistic), emulator.x.shape[1],
-                        settings, rng, centre, label)
 
 
 @dataclass
@@ -207,11 +138,11 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     # in seven dimensions
     count = min(len(wide), max(START_ROWS // 4, START_ROWS - len(start)))
     share = wide[rng.choice(len(wide), count, replace=False)]
-    sample = _emulator_sample(emulator, n_eff, np.vstack([start, share]), spec, ROUND_DRAWS, rng)
+    sample = emulator_sample(emulator, n_eff, np.vstack([start, share]), spec, ROUND_DRAWS, rng)
     if sample.ess < ROUND_ESS:
         # too few to measure the round's move by: once more, twice as long, from what it found
         found = sample.resample(START_ROWS // 2, rng)
-        sample = _emulator_sample(emulator, n_eff, np.vstack([found, share]), spec, 2 * ROUND_DRAWS, rng)
+        sample = emulator_sample(emulator, n_eff, np.vstack([found, share]), spec, 2 * ROUND_DRAWS, rng)
     # the posterior half from the pooled posterior, which the stage reports, leaning to
     # where its sample functions disagree: there the next runs settle it
     posteriors = function_posteriors(emulator, n_eff, sample, rng)
@@ -249,11 +180,71 @@ def quantile_shift(sample: ImportanceSample, before: Callable[[Array], Array]) -
                      for j in range(u.shape[1])))
 
 
+@dataclass
+class Learned:
+    """What the active learning leaves.
+
+    Attributes:
+        emulator: the last emulator.
+        x, y: its data: unit-cube rows ``(N, d)`` and features ``(N, F)``.
+        record: the record of the active learning (see :func:`learn`).
+        final: the last emulator's reported posterior, when a confirmation drew it
+            (``None`` otherwise).
+    """
+
+    emulator: CurveEmulator
+    x: Array
+    y: Array
+    record: dict[str, Any]
+    final: FinalPosterior | None
+
+
+@dataclass
+class _Progress:
+    """The active learning so far: the data, each round's measures (one entry per round)
+    and where the next round's importance sampling starts.
+
+    Attributes:
+        since: the first round that counts towards a validation (the one after the last
+            failed confirmation).
+        before: the log posterior of the emulator the last round sampled.
+    """
+
+    x: Array
+    y: Array
+    start: Array
+    spent: int = 0
+    rounds: int = 0
+    since: int = 0
+    errors: list[float] = field(default_factory=list)
+    shifts: list[float | None] = field(default_factory=list)
+    spreads: list[float] = field(default_factory=list)
+    recent: list[Array] = field(default_factory=list)
+    confirmations: list[dict[str, Any]] = field(default_factory=list)
+    before: Callable[[Array], Array] | None = None
+
+    def validated(self, tolerance_nats: float) -> bool:
+        """The rounds since the last failed confirmation validate the emulator (:func:`_validated`)."""
+        k = self.since
+        return _validated(self.errors[k:], self.shifts[k:], tolerance_nats, self.spreads[k:])
+
+    def record(self, converged: bool) -> dict[str, Any]:
+        """The active learning's record (see :func:`learn`)."""
+        last = [_finite(e) for e in self.errors[-VALIDATED_ROUNDS:]]
+        return {"evaluations": self.spent, "converged": converged, "rounds": self.rounds,
+                "error_nats": None if not last or None in last else max(last),
+                "quantile_shift": self.shifts[-1] if self.shifts else None,
+                "last_errors_nats": last, "last_quantile_shifts": self.shifts[-VALIDATED_ROUNDS:],
+                "last_spreads": [_finite(v) for v in self.spreads[-VALIDATED_ROUNDS:]],
+                "confirmations": self.confirmations}
+
+
 def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features: CurveFeatures,
           x: Array, y: Array, n_eff: float, budget: int, tolerance_nats: float, rng: np.random.Generator,
           log: Callable[[dict[str, Any]], None] | None = None, walkers: int = 32,
-          spec: CorrectionSettings | None = None) -> tuple[CurveEmulator, Array, Array, dict[str, Any]]:
-    """Active learning until validated or ``budget`` further runs are spent.
+          spec: CorrectionSettings | None = None,
+          confirm: Callable[[CurveEmulator], FinalPosterior] | None = None) -> Learned:
+    """Active learning until validated (and confirmed) or ``budget`` further runs are spent.
 
     The emulator is validated when, in each of the last :data:`VALIDATED_ROUNDS` rounds,
     its mean absolute error at the round's fresh posterior draws (weighted back to the
@@ -261,7 +252,13 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     join its data) is at most ``tolerance_nats`` and the quantiles of the emulated
     posterior moved by at most :data:`QUANTILE_SHIFT`, and the same rounds' sample functions
     moved them by at most :data:`~smcbayes.posterior.spread.SPREAD_MAX` on average (one
-    round's, on one support of a thin sample, is too noisy to stop at).
+    round's, on one support of a thin sample, is too noisy to stop at).  With ``confirm``,
+    a validated emulator's reported posterior is drawn and the learning stops only if its own
+    spread (several supports of a larger sample) is at most ``SPREAD_MAX`` too: the rounds'
+    spread and the reported one differ by 0.01-0.07 either way on the measured thesis trials,
+    and a stop on the rounds' alone ended learnings whose reported posterior was then called
+    unreliable.  After a failed confirmation the next rounds start from its sample, and
+    :data:`VALIDATED_ROUNDS` new rounds must validate before the next.
 
     Args:
         simulate: unit-cube rows ``(P, d)`` -> features ``(P, F)`` and success ``(P,)``.
@@ -272,62 +269,81 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         tolerance_nats: the out-of-sample error that validates a round.
         log: receives one record per round.
         spec: settings of the rounds' importance sampling (the correction's by default).
+        confirm: draws an emulator's reported posterior (no forward run).
 
     Returns:
-        The last emulator, its data and the record of the active learning (``evaluations``,
-        ``converged``, ``rounds``, ``error_nats`` (the worst of the last rounds' errors),
-        ``quantile_shift`` (the last round's), ``last_errors_nats`` and
-        ``last_quantile_shifts`` (those of the last :data:`VALIDATED_ROUNDS` rounds; ``None``
-        for a round with nothing to compare, or a sample too thin to tell) and
-        ``last_spreads`` (those of the last :data:`VALIDATED_ROUNDS` rounds) and
+        The last emulator, its data, its reported posterior if a confirmation drew it, and
+        the record of the active learning (``evaluations``, ``converged``, ``rounds``,
+        ``error_nats`` (the worst of the last rounds' errors), ``quantile_shift`` (the last
+        round's), ``last_errors_nats`` and ``last_quantile_shifts`` (those of the last
+        :data:`VALIDATED_ROUNDS` rounds; ``None`` for a round with nothing to compare, or a
+        sample too thin to tell), ``last_spreads`` (those of the last
+        :data:`VALIDATED_ROUNDS` rounds), ``confirmations`` (after how many ``rounds`` and
+        ``forward_runs`` each was drawn, its ``spread`` and whether it ``passed``) and
         ``variance_factor`` (the last emulator's calibration of its output variances,
         :meth:`~smcbayes.posterior.curves.CurveEmulator.calibrate`: rows used and range;
-        ``None`` when nothing calibrated them)).  The first
-        round has no earlier emulator to compare with, so the emulator can be validated
-        after ``VALIDATED_ROUNDS + 1`` rounds at the earliest.
+        ``None`` when nothing calibrated them)).  The first round has no earlier emulator to
+        compare with, so the emulator can be validated after ``VALIDATED_ROUNDS + 1`` rounds
+        at the earliest.
     """
     spec = spec or CorrectionSettings()
-    spent, rounds = 0, 0
-    errors: list[float] = []
-    shifts: list[float | None] = []
-    spreads: list[float] = []
-    recent: list[Array] = []
-    before: Callable[[Array], Array] | None = None
-    start = x[np.argsort(features.loss(y))[:walkers]]
+    progress = _Progress(x, y, x[np.argsort(features.loss(y))[:walkers]])
     emulator = None
     while True:
         t0 = time.perf_counter()
-        emulator = _fit(features, x, y, emulator, recent)
-        converged = _validated(errors, shifts, tolerance_nats, spreads)
-        if converged or spent >= budget:
+        emulator = _fit(features, progress.x, progress.y, emulator, progress.recent)
+        final = None
+        converged = progress.validated(tolerance_nats)
+        if converged and confirm is not None:
+            final = confirm(emulator)
+            converged = _confirmed(progress, final, rng)
+        if converged or progress.spent >= budget:
             break
-        step = _round(emulator, n_eff, min(BATCH, budget - spent), start, spec, rng, walkers)
-        unclear = before is None or step.sample.ess < ROUND_ESS
-        shifts.append(None if unclear else quantile_shift(step.sample, before))
-        spreads.append(step.spread)
-        before = log_posterior(emulator, n_eff, variance=EXPECTED_LOSS)
-        start = step.sample.resample(3 * START_ROWS // 4, rng)
-        t1 = time.perf_counter()
-        y_new, ok = simulate(step.new)
-        spent, rounds = spent + len(step.new), rounds + 1
-        errors.append(_fresh_error(emulator, n_eff, step, y_new, ok))
-        recent.append(step.new[ok])
-        x, y = np.vstack([x, step.new[ok]]), np.vstack([y, y_new[ok]])
-        record = {"round": rounds, "training_points": len(np.unique(x, axis=0)), "forward_runs": spent,
-                  "error_nats": _finite(errors[-1]), "quantile_shift": shifts[-1],
-                  **_round_record(emulator, step), "seconds_fit_and_sampling": t1 - t0,
-                  "seconds_forward": time.perf_counter() - t1}
+        step = _round(emulator, n_eff, min(BATCH, budget - progress.spent), progress.start, spec, rng, walkers)
+        record = _take(progress, step, emulator, n_eff, simulate, rng, t0)
         logger.info("curve emulator round %d: %d points, error %.2f nats at fresh posterior draws",
-                    rounds, record["training_points"], errors[-1])
+                    progress.rounds, record["training_points"], progress.errors[-1])
         if log is not None:
             log(record)
-    last = [_finite(e) for e in errors[-VALIDATED_ROUNDS:]]
-    worst = None if not last or None in last else max(last)
-    return emulator, x, y, {"evaluations": spent, "converged": converged, "rounds": rounds,
-                            "error_nats": worst, "quantile_shift": shifts[-1] if shifts else None,
-                            "last_errors_nats": last, "last_quantile_shifts": shifts[-VALIDATED_ROUNDS:],
-                            "last_spreads": [_finite(v) for v in spreads[-VALIDATED_ROUNDS:]],
-                            "variance_factor": _factor_range(emulator)}
+    return Learned(emulator, progress.x, progress.y,
+                   {**progress.record(converged), "variance_factor": _factor_range(emulator)}, final)
+
+
+def _take(progress: _Progress, step: _Round, emulator: CurveEmulator, n_eff: float,
+          simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], rng: np.random.Generator,
+          t0: float) -> dict[str, Any]:
+    """Record the round ``step`` drawn from ``emulator``, simulate its rows, add them to the
+    data and return its record for ``refine.jsonl`` (the round's fit began at ``t0``)."""
+    unclear = progress.before is None or step.sample.ess < ROUND_ESS
+    progress.shifts.append(None if unclear else quantile_shift(step.sample, progress.before))
+    progress.spreads.append(step.spread)
+    progress.before = log_posterior(emulator, n_eff, variance=EXPECTED_LOSS)
+    progress.start = step.sample.resample(3 * START_ROWS // 4, rng)
+    t1 = time.perf_counter()
+    y_new, ok = simulate(step.new)
+    progress.spent, progress.rounds = progress.spent + len(step.new), progress.rounds + 1
+    progress.errors.append(_fresh_error(emulator, n_eff, step, y_new, ok))
+    progress.recent.append(step.new[ok])
+    progress.x, progress.y = np.vstack([progress.x, step.new[ok]]), np.vstack([progress.y, y_new[ok]])
+    return {"round": progress.rounds, "training_points": len(np.unique(progress.x, axis=0)),
+            "forward_runs": progress.spent, "error_nats": _finite(progress.errors[-1]),
+            "quantile_shift": progress.shifts[-1], **_round_record(emulator, step),
+            "seconds_fit_and_sampling": t1 - t0, "seconds_forward": time.perf_counter() - t1}
+
+
+def _confirmed(progress: _Progress, final: FinalPosterior, rng: np.random.Generator) -> bool:
+    """Whether the reported posterior ``final`` of a validated emulator has a spread of at
+    most :data:`~smcbayes.posterior.spread.SPREAD_MAX`; records it and, when it has not,
+    restarts the validation and the next round's sampling from its sample."""
+    passed = bool(final.max_shift <= SPREAD_MAX)
+    progress.confirmations.append({"rounds": progress.rounds, "forward_runs": progress.spent,
+                                   "spread": _finite(final.max_shift), "passed": passed})
+    logger.info("curve emulator validated after %d rounds; the reported posterior's spread %.3f %s",
+                progress.rounds, final.max_shift, "confirms it" if passed else f"> {SPREAD_MAX}: learning on")
+    if not passed:
+        progress.since = progress.rounds
+        progress.start = final.sample.resample(3 * START_ROWS // 4, rng)
+    return passed
 
 
 def _fit(features: CurveFeatures, x: Array, y: Array, earlier: CurveEmulator | None,
@@ -393,14 +409,18 @@ def _validated(errors: list[float], shifts: list[float | None], tolerance_nats: 
 
 def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: PosteriorSpec,
                     rng: np.random.Generator, out_dir: Path
-                    ) -> tuple[CurveEmulation, dict[str, Any], tuple[Array, Array]]:
+                    ) -> tuple[CurveEmulation, dict[str, Any], tuple[Array, Array], FinalPosterior | None]:
     """The curve emulator's active learning from the calibration GP's points ``start``
-    ``(N, d)`` (unit cube).
+    ``(N, d)`` (unit cube) and, when the stage reports the emulated posterior (no
+    correction), that posterior (:func:`~smcbayes.posterior.curve_sample.final_posterior`),
+    which confirms a validated active learning before it stops (:func:`learn`).
 
     Returns:
         The emulator, the active learning's record (``enabled``, ``kind``, ``evaluations``
         (the starting points' runs included), ``start_runs``, ``converged``,
-        ``error_nats``, ``rounds``) and the emulator's data ``(x_unit (N, d), log_loss (N,))``.
+        ``error_nats``, ``rounds``, ``confirmations``), the emulator's data
+        ``(x_unit (N, d), log_loss (N,))`` and the reported posterior (``None`` with the
+        correction).
 
     Raises:
         SurrogateError: fewer starting points simulated successfully than the emulator's
@@ -426,75 +446,19 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
         with log_path.open("a", encoding="utf-8") as fh:
             fh.write(json.dumps(record) + "\n")
 
-    emulator, x, y, record = learn(simulate, features, start[ok], y0[ok], n_eff, int(settings.refine),
-                                   settings.refine_tolerance_nats, rng, log, settings.walkers,
-                                   settings.correction)
-    active = {"enabled": True, "kind": "curves", **record, "start_runs": int(start.shape[0]),
+    reported = settings.correct_draws == 0
+
+    def final(emulator: CurveEmulator) -> FinalPosterior:
+        return final_posterior(CurveEmulation(emulator, n_eff), settings, space.free_names, rng,
+                               spread=not ctx.noise_free)
+
+    learned = learn(simulate, features, start[ok], y0[ok], n_eff, int(settings.refine),
+                    settings.refine_tolerance_nats, rng, log, settings.walkers, settings.correction,
+                    final if reported else None)
+    emulation = CurveEmulation(learned.emulator, n_eff)
+    active = {"enabled": True, "kind": "curves", **learned.record, "start_runs": int(start.shape[0]),
               "tolerance_nats": float(settings.refine_tolerance_nats),
-              "evaluations": record["evaluations"] + int(start.shape[0]), "components": emulator.components}
-    return CurveEmulation(emulator, n_eff), active, (x, np.log(features.loss(y)))
-
-
-def curve_chains(emulation: CurveEmulation, settings: PosteriorSpec,
-                 rng: np.random.Generator) -> list[Chains]:
-    """The emcee chains (one ensemble, at most :data:`CHAIN_STEPS` steps) of the emulated
-    posterior, from the best training point."""
-    emulator = emulation.emulator
-    centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
-    if settings.steps > CHAIN_STEPS:
-        logger.info("curve emulator: %d emcee steps, not %d: the chains only start the importance sampling",
-                    CHAIN_STEPS, settings.steps)
-    return [sample_chains(emulator, emulation.n_eff, rng, centre, 1.0, min(settings.steps, CHAIN_STEPS),
-                          settings.walkers, variance=EXPECTED_LOSS, label=" (curve emulator)")]
-
-
-def _emulator_sample(emulator: CurveEmulator, n_eff: float, start: Array, spec: CorrectionSettings,
-                     draws: int, rng: np.random.Generator, aim: float = 0.0,
-                     per_iteration: int = EMULATOR_ITERATION) -> ImportanceSample:
-    """The emulated posterior (of the expected loss) by adaptive importance sampling from the
-    draws ``start`` ``(S, d)``: the correction's algorithm with the emulator as its target,
-    at most ``draws`` emulator evaluations in iterations of ``per_iteration`` and no forward
-    run.  It is settled at the correction's k-hat target and an ESS of at least the
-    correction's target and ``2 * ROUND_ESS``, and once settled draws on to an ESS of ``aim``."""
-    run = spec.model_copy(update={"draws": draws, "batch": EMULATOR_BATCH, "per_iteration": per_iteration,
-                                  "ess_target": max(spec.ess_target, 2 * ROUND_ESS)})
-    if len(start) > START_ROWS:  # the first proposal's mixture fit needs no more
-        start = start[rng.choice(len(start), START_ROWS, replace=False)]
-    with warnings.catch_warnings():
-        # the correction's own warnings name its forward-model options; the stage's
-        # reliability reasons say what an unsettled sample of the emulator means
-        warnings.simplefilter("ignore", SmcBayesWarning)
-        sample = correct(log_posterior(emulator, n_eff, variance=EXPECTED_LOSS), start, run, rng,
-                         label="importance sampling of the emulator", runs="emulator evaluations", aim=aim)
-    return dataclasses.replace(sample, target="emulator", warnings=[])
-
-
-def sample_emulator(emulator: CurveEmulator, n_eff: float, start: Array, spec: CorrectionSettings,
-                    rng: np.random.Generator) -> ImportanceSample:
-    """The emulated posterior (of the expected loss) by adaptive importance sampling from
-    the draws ``start`` ``(S, d)``, aiming at an ESS of :data:`FINAL_ESS`: at most
-    :data:`EMULATOR_DRAWS` emulator evaluations, as many once more when the weights have not
-    settled at the correction's targets; no forward run."""
-    def draw(rows: Array) -> ImportanceSample:
-        return _emulator_sample(emulator, n_eff, rows, spec, EMULATOR_DRAWS, rng, FINAL_ESS, FINAL_ITERATION)
-
-    sample = draw(start)
-    if not sample.settled:
-        logger.info("the emulator's importance sample has not settled (ESS %.0f, k-hat %.2f): "
-                    "drawing %d more", sample.ess, sample.k_hat, EMULATOR_DRAWS)
-        sample = draw(np.vstack([start, sample.resample(len(start), rng)]))
-    return sample
-
-
-def importance_sample(emulation: CurveEmulation, chains: list[Chains], settings: PosteriorSpec,
-                      rng: np.random.Generator) -> ImportanceSample:
-    """The reported emulated posterior: :func:`sample_emulator` from the emcee draws.
-
-    The emcee chains, started at the best point, under-sample a flat arm of the posterior:
-    on the accuracy benchmark's first case they put 1.2 % of the mass where the emulated
-    posterior, sampled by importance, puts 9-10 % and the exact one 6.5 %; the importance
-    sampler's proposals, fitted to the tempered posterior, spread into it.
-    """
-    d = emulation.emulator.x.shape[1]
-    start = np.concatenate([c.samples.reshape(-1, d) for c in chains])
-    return sample_emulator(emulation.emulator, emulation.n_eff, start, settings.correction, rng)
+              "evaluations": learned.record["evaluations"] + int(start.shape[0]),
+              "components": learned.emulator.components}
+    posterior = learned.final or (final(learned.emulator) if reported else None)
+    return emulation, active, (learned.x, np.log(features.loss(learned.y))), posterior

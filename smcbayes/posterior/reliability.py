@@ -163,11 +163,16 @@ def _curve_budget_reason(active: dict[str, Any]) -> str:
     spreads = active.get("last_spreads") or []
     spread_words = ("" if not spreads else f"; their sample functions moving a quantile by "
                     f"{words(spreads, '')}, their mean to be at most {SPREAD_MAX}")
+    failed = [c for c in active.get("confirmations") or [] if not c.get("passed")]
+    # rounds that validated but whose reported posterior did not confirm them
+    confirm_words = ("" if not failed else f"; when its rounds last passed, after {failed[-1]['forward_runs']} "
+                     f"forward runs, the reported posterior's sample functions moved a quantile by "
+                     f"{words([failed[-1]['spread']], '')} (> {SPREAD_MAX})")
     return (f"the active learning spent its {active.get('evaluations')} forward runs before the emulator was "
             f"validated where the posterior lies (its last rounds' errors at fresh posterior draws "
             f"{words(errors, ' nats')}, each to be within {active.get('tolerance_nats', math.nan):.2g}; "
             f"their quantile moves {words(shifts, '')}, each to be at most {QUANTILE_SHIFT} of the range"
-            f"{spread_words}); raise --refine")
+            f"{spread_words}{confirm_words}); raise --refine")
 
 
 def assess(info: Mapping[str, Any], space: ParameterSpace, best_loss_kN2: float | None,

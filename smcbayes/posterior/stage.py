@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import time
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,8 +42,9 @@ from smcbayes.posterior.context import (
 )
 from smcbayes.posterior.correct import ImportanceSample, correct
 from smcbayes.posterior.crossfit import LocalFit
-from smcbayes.posterior.curve_spread import CURVE_FUNCTIONS, SPREAD_SUPPORTS, curve_spread
-from smcbayes.posterior.curve_stage import CurveEmulation, curve_chains, curve_posterior, importance_sample
+from smcbayes.posterior.curve_sample import FinalPosterior, curve_chains
+from smcbayes.posterior.curve_spread import CURVE_FUNCTIONS, SPREAD_SUPPORTS
+from smcbayes.posterior.curve_stage import curve_posterior
 from smcbayes.posterior.curves import CurveFeatures
 from smcbayes.posterior.likelihood import effective_points, sandwich_points
 from smcbayes.posterior.reliability import assess
@@ -195,33 +197,50 @@ def _spread_and_pool(ctx: RunContext, surrogate: Any, n_eff: float, settings: Po
     return spread, pooled
 
 
-def _curve_spread_and_pool(ctx: RunContext, emulation: CurveEmulation, settings: PosteriorSettings,
-                           sample: ImportanceSample, rng: np.random.Generator
-                           ) -> tuple[dict[str, Any], ImportanceSample, bool]:
-    """The curve emulator's spread around its importance ``sample``, the sample to report
-    (pooled with the sample functions' posteriors with ``pool_functions``, else the mean's
-    alone) and whether it is pooled."""
-    spread, pooled = curve_spread(emulation.emulator, emulation.n_eff, sample, ctx.space.free_names, rng)
-    return spread, pooled if settings.pool_functions else sample, settings.pool_functions
+@dataclass
+class _Emulated:
+    """The emulator's active learning and the sampling of its posterior.
+
+    Attributes:
+        emulator: the sampled emulator.
+        chains: its emcee chains.
+        active: the active learning's record.
+        data: the emulator's data ``(x_unit (N, d), log_loss (N,))``.
+        start_points: what the emulator started from.
+        surrogate: the log-loss GP (``None`` for the curve emulator).
+        ended: the seed of the measurement that ended the log-loss GP's active learning.
+        final: the curve emulator's reported posterior (``None`` for the log-loss GP or
+            with the correction).
+        seconds: wall time of the active learning and of the sampling.
+    """
+
+    emulator: Any
+    chains: list[Chains]
+    active: dict[str, Any]
+    data: tuple[Array, Array]
+    start_points: dict[str, int]
+    surrogate: Any
+    ended: int | None
+    final: FinalPosterior | None
+    seconds: dict[str, float]
 
 
 def _emulate(ctx: RunContext, calibration_gp: Any, n_eff: float, settings: PosteriorSettings,
-             rng: np.random.Generator, out_dir: Path) -> tuple[Any, list[Chains], dict[str, Any],
-                                                               tuple[Array, Array], dict[str, int], Any,
-                                                               int | None, float]:
-    """The emulator's active learning and the sampling of its posterior.
-
-    Returns:
-        The sampled emulator, its chains, the active learning's record, the emulator's data
-        ``(x_unit (N, d), log_loss (N,))``, what it started from, the log-loss GP and the
-        seed of the measurement that ended its active learning (``None`` for the curve
-        emulator) and the time the sampling began.
-    """
+             rng: np.random.Generator, out_dir: Path) -> _Emulated:
+    """The emulator's active learning and the sampling of its posterior (for the curve
+    emulator without the correction, its reported posterior with the spread)."""
+    t0 = time.perf_counter()
     if settings.emulator == "curves":
-        emul, active, data = curve_posterior(ctx, calibration_gp.x_unit, n_eff, settings, rng, out_dir)
+        emul, active, data, final = curve_posterior(ctx, calibration_gp.x_unit, n_eff, settings, rng, out_dir)
         start_points = {"calibration_gp": active["start_runs"], "local_search": 0}
+        if final is not None:
+            learning = time.perf_counter() - t0 - final.seconds["sampling"] - final.seconds["spread"]
+            return _Emulated(emul, final.chains, active, data, start_points, None, None, final,
+                             {"learning": learning, "sampling": final.seconds["sampling"]})
         t_sample = time.perf_counter()
-        return emul, curve_chains(emul, settings, rng), active, data, start_points, None, None, t_sample
+        chains = curve_chains(emul, settings, rng)
+        return _Emulated(emul, chains, active, data, start_points, None, None, None,
+                         {"learning": t_sample - t0, "sampling": time.perf_counter() - t_sample})
     data = emulator_start(ctx, calibration_gp.x_unit, calibration_gp.log_loss)
     start_points = {"calibration_gp": int(calibration_gp.log_loss.size),
                     "local_search": int(data[1].size - calibration_gp.log_loss.size)}
@@ -229,7 +248,27 @@ def _emulate(ctx: RunContext, calibration_gp: Any, n_eff: float, settings: Poste
     surrogate, data, active, ended = refine_stage(ctx, data, surrogate, n_eff, settings, rng, out_dir)
     t_sample = time.perf_counter()
     emul, chains = sample(ctx, surrogate, n_eff, settings, rng)
-    return emul, chains, active, data, start_points, surrogate, ended, t_sample
+    return _Emulated(emul, chains, active, data, start_points, surrogate, ended, None,
+                     {"learning": t_sample - t0, "sampling": time.perf_counter() - t_sample})
+
+
+def _reported(ctx: RunContext, emulated: _Emulated, corrected: ImportanceSample | None, n_eff: float,
+              settings: PosteriorSettings, rng: np.random.Generator
+              ) -> tuple[ImportanceSample | None, dict[str, Any] | None, list[Chains], bool]:
+    """The importance sample to report (the correction's, the curve emulator's, pooled with
+    its sample functions' posteriors with ``pool_functions``, or none), the emulator's
+    spread, the log-loss GP's sample functions' chains to pool and whether the result is
+    pooled."""
+    final = emulated.final
+    if final is not None:
+        pooling = settings.pool_functions and final.pooled is not None
+        return final.pooled if pooling else final.sample, final.spread, [], pooling
+    # the correction's weights judge a corrected posterior and a noise-free one is degenerate
+    if corrected is not None or ctx.noise_free or emulated.surrogate is None:
+        return corrected, None, [], False
+    spread, pooled = _spread_and_pool(ctx, emulated.surrogate, n_eff, settings, rng, emulated.chains,
+                                      emulated.ended)
+    return corrected, spread, pooled, bool(pooled)
 
 
 def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = None,
@@ -253,32 +292,27 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
         fit = local_fit(ctx)
         budget = residual_budget(ctx, fit)
         n_eff = budget["n_eff_total"]
-        emul, chains, active, data, start_points, surrogate, ended, t_sample = _emulate(
-            ctx, calibration_gp, n_eff, settings, rng, out_dir)
+        t_emulate = time.perf_counter()
+        emulated = _emulate(ctx, calibration_gp, n_eff, settings, rng, out_dir)
         t_correct = time.perf_counter()
-        # the curve emulator's posterior is sampled by importance too, on the emulator alone
-        corrected = (correct_posterior(ctx, chains, n_eff, settings, rng, data) if settings.correct_draws > 0
-                     else importance_sample(emul, chains, settings, rng) if settings.emulator == "curves" else None)
+        corrected = (correct_posterior(ctx, emulated.chains, n_eff, settings, rng, emulated.data)
+                     if settings.correct_draws > 0 else None)
         t_spread = time.perf_counter()
-        # the correction's weights judge a corrected posterior and a noise-free one is degenerate
-        spread, pooled = (None, []) if corrected is not None or ctx.noise_free or surrogate is None else \
-            _spread_and_pool(ctx, surrogate, n_eff, settings, rng, chains, ended)
-        pooling = bool(pooled)
-        if corrected is not None and corrected.target == "emulator" and not ctx.noise_free:
-            spread, corrected, pooling = _curve_spread_and_pool(ctx, emul, settings, corrected, rng)
+        corrected, spread, pooled, pooling = _reported(ctx, emulated, corrected, n_eff, settings, rng)
         t_outputs = time.perf_counter()
-        info = write_outputs(ctx, emul, chains + pooled, budget, settings, rng, out_dir, corrected, fit)
+        info = write_outputs(ctx, emulated.emulator, emulated.chains + pooled, budget, settings, rng, out_dir,
+                             corrected, fit)
         if spread is not None:
             info["emulator_spread"] = {**spread, "pooled": pooling}
     cache.close()
-    sampling_s, correction_s = t_correct - t_sample, t_spread - t_correct
-    if corrected is not None and corrected.target == "emulator":  # importance sampling of the emulator
-        sampling_s, correction_s = sampling_s + correction_s, 0.0
-    info["stage_seconds"] = {"setup_and_refine": t_sample - start, "emulator_sampling": sampling_s,
-                             "correction": correction_s, "emulator_spread": t_outputs - t_spread,
+    final = emulated.final
+    info["stage_seconds"] = {"setup_and_refine": t_emulate - start + emulated.seconds["learning"],
+                             "emulator_sampling": emulated.seconds["sampling"],
+                             "correction": t_spread - t_correct,
+                             "emulator_spread": final.seconds["spread"] if final else t_outputs - t_spread,
                              "outputs": time.perf_counter() - t_outputs}
-    info["active_learning"] = {**active, "start_points": start_points}
-    _count_runs(info["forward_evaluations"], active["evaluations"], 2 * ctx.space.dim + 1)
+    info["active_learning"] = {**emulated.active, "start_points": emulated.start_points}
+    _count_runs(info["forward_evaluations"], emulated.active["evaluations"], 2 * ctx.space.dim + 1)
     info["reliability"] = assess(info, ctx.space, ctx.summary.get("best_loss_kN2"), ctx.noise_free)
     info["reliable"] = info["reliability"]["reliable"]
     if not info["reliable"]:

@@ -11,11 +11,14 @@ from scipy.stats import norm
 
 from smcbayes.posterior.correct import ImportanceSample
 from smcbayes.posterior.curve_aim import TARGETED, draws, lift, targeted
+from smcbayes.posterior.curve_sample import START_ROWS, FinalPosterior
 from smcbayes.posterior.curve_spread import FunctionPosteriors, function_spread
 from smcbayes.posterior.curve_stage import (
     QUANTILE_SHIFT,
     VALIDATED_ROUNDS,
+    _confirmed,
     _fresh_error,
+    _Progress,
     _Round,
     _validated,
     quantile_shift,
@@ -147,6 +150,47 @@ def test_rounds_validate_only_when_stable_and_accurate_together() -> None:
     assert not _validated(small, stable, 1.0, [1.1 * SPREAD_MAX] * VALIDATED_ROUNDS)
     assert _validated(small, stable, 1.0, [*narrow[:-1], 1.5 * SPREAD_MAX])
     assert _validated(small, stable, 1.0, [3 * SPREAD_MAX, *narrow])
+
+
+def _final(spread: float | None) -> FinalPosterior:
+    """A reported posterior whose sample functions move a quantile by ``spread`` (``None``: not measured)."""
+    measured = None if spread is None else {"max_quantile_shift": spread}
+    return FinalPosterior([], _sample(0.7), measured, None, {"sampling": 0.0, "spread": 0.0})
+
+
+def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its_sample() -> None:
+    """The reported posterior's own spread confirms a validation; when it does not, the
+    rounds that validated no longer count, the next round starts from the reported sample,
+    and both confirmations are recorded."""
+    progress = _Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
+
+    def good_round() -> None:
+        progress.rounds += 1
+        progress.spent += 40
+        progress.errors.append(0.5)
+        progress.shifts.append(QUANTILE_SHIFT / 2)
+        progress.spreads.append(SPREAD_MAX / 2)
+
+    for _ in range(VALIDATED_ROUNDS):
+        good_round()
+    assert progress.validated(1.0)
+    rng = np.random.default_rng(0)
+    assert not _confirmed(progress, _final(1.5 * SPREAD_MAX), rng)
+    assert not progress.validated(1.0) and progress.since == VALIDATED_ROUNDS
+    # the next round's importance sampling starts from the reported sample (centred at 0.7)
+    assert progress.start.shape == (3 * START_ROWS // 4, 1) and abs(np.median(progress.start) - 0.7) < 0.05
+    for _ in range(VALIDATED_ROUNDS - 1):
+        good_round()
+        assert not progress.validated(1.0)
+    good_round()
+    assert progress.validated(1.0)
+    assert _confirmed(progress, _final(SPREAD_MAX / 2), rng)
+    assert not _confirmed(progress, _final(None), rng)  # an unmeasured spread confirms nothing
+    record = progress.record(True)
+    assert [c["passed"] for c in record["confirmations"]] == [False, True, False]
+    assert [c["rounds"] for c in record["confirmations"]] == [3, 6, 6]
+    assert record["confirmations"][0]["spread"] == 1.5 * SPREAD_MAX
+    assert record["confirmations"][1]["forward_runs"] == 240 and record["confirmations"][2]["spread"] is None
 
 
 def test_the_correlation_by_matrix_product_is_the_matern_of_the_distances() -> None:

@@ -136,7 +136,12 @@ def test_a_curve_emulator_out_of_budget_names_its_last_rounds_and_spread() -> No
     assert "640 forward runs" in reason and "0.7 nats, not measured, 0.9 nats" in reason
     assert "0.02, 0.03, not measured" in reason
     assert "moving a quantile by 0.08, 0.23, not measured, their mean" in reason
-    assert reason.endswith("raise --refine")
+    assert reason.endswith("raise --refine") and "rounds last passed" not in reason
+    # rounds that passed but whose reported posterior did not confirm them: the last such reading
+    active["confirmations"] = [{"rounds": 9, "forward_runs": 360, "spread": 0.16, "passed": False},
+                               {"rounds": 13, "forward_runs": 520, "spread": 0.12, "passed": False}]
+    reason = assess(info, space, 10.0)["reasons"][0]
+    assert "after 520 forward runs, the reported posterior's sample functions moved a quantile by 0.12" in reason
 
 
 def test_a_sample_function_resting_on_few_points_leaves_the_spread_unmeasured() -> None:

@@ -600,39 +600,73 @@ def test_the_reported_emulator_sample_aims_past_the_target_it_is_settled_at(
     """The emulated posterior's importance sample draws on to the higher ESS it aims at,
     and counts as settled at the correction's own targets even where the draws run out
     before that aim; the stage's reported sample is that sample at the module's aim."""
-    import smcbayes.posterior.curve_stage as curve_stage
+    import smcbayes.posterior.curve_sample as curve_sample
 
     features, u, y, _ = _rows(run_dir, 25, 5)
     emulator = CurveEmulator(features, u, y)
-    spec = CorrectionSettings(ess_target=2 * curve_stage.ROUND_ESS)
+    spec = CorrectionSettings(ess_target=2 * curve_sample.ROUND_ESS)
     start = np.random.default_rng(0).random((400, u.shape[1]))
 
     def draw(draws: int, aim: float) -> ImportanceSample:
-        return curve_stage._emulator_sample(emulator, 4.0, start, spec, draws, np.random.default_rng(1),
-                                            aim=aim, per_iteration=2000)
+        return curve_sample.emulator_sample(emulator, 4.0, start, spec, draws, np.random.default_rng(1),
+                                           aim=aim, per_iteration=2000)
 
     plain, aimed, short = draw(30000, 0.0), draw(30000, 2500.0), draw(4000, 1e6)
     assert plain.settled and aimed.settled and plain.ess_target == aimed.ess_target == spec.ess_target
     assert 2500 <= aimed.ess and len(aimed.unit) > len(plain.unit) and aimed.ess_aim == 2500.0
     assert short.ess < 1e6 and short.settled and short.draws_needed is None
-    monkeypatch.setattr(curve_stage, "FINAL_ESS", 2500.0)
-    monkeypatch.setattr(curve_stage, "FINAL_ITERATION", 2000)
-    monkeypatch.setattr(curve_stage, "EMULATOR_DRAWS", 30000)
-    reported = curve_stage.sample_emulator(emulator, 4.0, start, spec, np.random.default_rng(1))
+    monkeypatch.setattr(curve_sample, "FINAL_ESS", 2500.0)
+    monkeypatch.setattr(curve_sample, "FINAL_ITERATION", 2000)
+    monkeypatch.setattr(curve_sample, "EMULATOR_DRAWS", 30000)
+    reported = curve_sample.sample_emulator(emulator, 4.0, start, spec, np.random.default_rng(1))
     np.testing.assert_array_equal(reported.unit, aimed.unit)
+
+
+def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
+        run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With a confirmation, a validated emulator's reported posterior is drawn before the
+    learning stops: while its spread is too large the learning goes on (one more round
+    here, the validation itself stubbed), and the posterior that confirms is the one kept."""
+    import smcbayes.posterior.curve_stage as curve_stage
+    from smcbayes.posterior.curve_sample import FinalPosterior
+
+    monkeypatch.setattr(curve_stage, "ROUND_DRAWS", 4000)
+    monkeypatch.setattr(curve_stage, "_validated", lambda *args: True)
+    ctx = load_run(run_dir)
+    features, u, y, _ = _rows(run_dir, 25, 5)
+    rng = np.random.default_rng(3)
+    points = rng.random((500, u.shape[1]))
+    flat = ImportanceSample(points, np.zeros(500), np.full(500, -np.log(500.0)), np.zeros(500, dtype=int),
+                            0.0, 500.0, 0, target="emulator")
+    readings, seen = iter([1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX]), []
+
+    def confirm(emulator: CurveEmulator) -> FinalPosterior:
+        seen.append(len(emulator.x))
+        return FinalPosterior([], flat, {"max_quantile_shift": next(readings)}, None, {"sampling": 0, "spread": 0})
+
+    def simulate(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return features.of(ctx.runner.simulate(ctx.space.from_unit(rows), features.ids))
+
+    learned = curve_stage.learn(simulate, features, u, y, 4.0, 200, 1.0, rng, walkers=16, confirm=confirm)
+    record = learned.record
+    assert record["converged"] and record["rounds"] == 1 and record["evaluations"] == curve_stage.BATCH
+    assert seen == [25, 25 + curve_stage.BATCH] and len(learned.x) == seen[-1]
+    assert [c["passed"] for c in record["confirmations"]] == [False, True]
+    assert learned.final is not None and learned.final.max_shift == 0.5 * SPREAD_MAX
 
 
 def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """``emulator = "curves"``: the truth inside the 90 % intervals, the slip pair's
     correlation sign right, the runs counted and logged, and a rerun with the same settings
     simulating nothing (every curve batch is seeded and kept in the stage's cache)."""
+    import smcbayes.posterior.curve_sample as curve_sample
     import smcbayes.posterior.curve_spread as curve_spread
     import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.stage import PosteriorSettings, run_posterior
 
     # a small budget: the importance sampling's algorithm has its own tests
-    monkeypatch.setattr(curve_stage, "EMULATOR_DRAWS", 8000)
-    monkeypatch.setattr(curve_stage, "FINAL_ITERATION", 2000)
+    monkeypatch.setattr(curve_sample, "EMULATOR_DRAWS", 8000)
+    monkeypatch.setattr(curve_sample, "FINAL_ITERATION", 2000)
     monkeypatch.setattr(curve_stage, "ROUND_DRAWS", 4000)
     settings = PosteriorSettings(emulator="curves", walkers=16, steps=1500, refine=120, draws=20,
                                  correct_draws=0, seed=1)

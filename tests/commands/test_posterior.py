@@ -1,0 +1,30 @@
+"""The posterior command's printed summary."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+from smcbayes.commands.posterior import print_summary
+
+
+def _info(confirmations: list[dict[str, Any]], converged: bool) -> dict[str, Any]:
+    """A minimal curve-emulator summary."""
+    return {"parameters": [], "correlation": {"strongest": []}, "bands": {},
+            "emulator_check": {"points": 20, "mean_abs_error": 0.4, "max_abs_error": 1.2},
+            "active_learning": {"kind": "curves", "error_nats": 0.5, "converged": converged,
+                                "evaluations": 700, "start_runs": 60, "components": 6,
+                                "confirmations": confirmations},
+            "reliability": {"reliable": converged, "reasons": [] if converged else ["budget spent"]}}
+
+
+def test_the_curve_emulator_line_counts_the_validations_its_reported_posterior_did_not_confirm(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    print_summary(_info([{"passed": True}], True))
+    line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("curve emulator:"))
+    assert line.endswith("validated") and "700 forward runs (60 at the calibration's points)" in line
+    print_summary(_info([{"passed": False}, {"passed": False}], False))
+    line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("curve emulator:"))
+    assert line.endswith("not validated (budget spent), 2 validation(s) not confirmed by the reported "
+                         "posterior's spread")
