@@ -376,8 +376,8 @@ def rerun_posterior(run_dir: Path, args: argparse.Namespace, seed: int,
     cal = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))
     out = {"raw": compare(names, ref, samples["emulator"], np.zeros(len(names))),
            "correction": {k2: v for k2, v in info["correction"].items() if k2 != "history"},
-           "reliable": info["reliable"], "active_learning": info.get("active_learning"),
-           "inference_total": int(cal["evaluations"]) + info["forward_evaluations"]["inference"]}
+           "reliable": info["reliable"], "reliability": info["reliability"],
+           "active_learning": info.get("active_learning"), "inference_total": int(cal["evaluations"]) + info["forward_evaluations"]["inference"]}
     if samples["weighted"] is not None:
         unit, weights = samples["weighted"]
         out["corrected"] = compare(names, ref, unit, np.zeros(len(names)), weights)
@@ -388,7 +388,11 @@ def seed_row(seed: int, r: dict[str, Any]) -> dict[str, Any]:
     """Largest differences and verdicts of one posterior seed."""
     row: dict[str, Any] = {"seed": int(seed), "correction_evaluations": r["correction"].get("evaluations"),
                            "k_hat": r["correction"].get("k_hat"), "reliable": r.get("reliable"),
-                           "forward_evaluations_in_all": r.get("inference_total")}
+                           "forward_evaluations_in_all": r.get("inference_total"),
+                           "reasons": (r.get("reliability") or {}).get("reasons")}
+    active = r.get("active_learning") or {}
+    if active.get("enabled"):
+        row["active_learning"] = {k: active.get(k) for k in ("evaluations", "converged", "confirmations")}
     for key in ("raw", "corrected"):
         if key in r:
             row[key] = {m: r[key][m] for m in ("max_quantile_diff", "max_correlation_diff", "mmtv", "gskl")}
