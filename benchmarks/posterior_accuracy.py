@@ -377,7 +377,8 @@ def rerun_posterior(run_dir: Path, args: argparse.Namespace, seed: int,
     out = {"raw": compare(names, ref, samples["emulator"], np.zeros(len(names))),
            "correction": {k2: v for k2, v in info["correction"].items() if k2 != "history"},
            "reliable": info["reliable"], "reliability": info["reliability"],
-           "active_learning": info.get("active_learning"), "inference_total": int(cal["evaluations"]) + info["forward_evaluations"]["inference"]}
+           "active_learning": info.get("active_learning"),
+           "inference_total": int(cal["evaluations"]) + info["forward_evaluations"]["inference"]}
     if samples["weighted"] is not None:
         unit, weights = samples["weighted"]
         out["corrected"] = compare(names, ref, unit, np.zeros(len(names)), weights)

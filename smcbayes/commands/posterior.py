@@ -92,7 +92,8 @@ def print_summary(info: dict[str, Any]) -> None:
     if active.get("kind") == "curves":
         error = active["error_nats"] if active["error_nats"] is not None else float("nan")
         failed = sum(1 for c in active.get("confirmations") or [] if not c.get("passed"))
-        unconfirmed = f", {failed} validation(s) not confirmed by the reported posterior's spread" if failed else ""
+        unconfirmed = (f", {failed} validation(s) not confirmed by the reported posterior's spread"
+                       if failed else "")
         verdict = ("validated" if active.get("converged") else "not validated (budget spent)") + unconfirmed
         print(f"curve emulator: {active['evaluations']} forward runs ({active['start_runs']} at the "
               f"calibration's points), {active['components']} principal components, worst "

@@ -165,8 +165,8 @@ def _curve_budget_reason(active: dict[str, Any]) -> str:
                     f"{words(spreads, '')}, their mean to be at most {SPREAD_MAX}")
     failed = [c for c in active.get("confirmations") or [] if not c.get("passed")]
     # rounds that validated but whose reported posterior did not confirm them
-    confirm_words = ("" if not failed else f"; when its rounds last passed, after {failed[-1]['forward_runs']} "
-                     f"forward runs, the reported posterior's sample functions moved a quantile by "
+    confirm_words = ("" if not failed else f"; when its rounds last passed, after "
+                     f"{failed[-1]['forward_runs']} forward runs, the reported posterior's sample functions moved a quantile by "
                      f"{words([failed[-1]['spread']], '')} (> {SPREAD_MAX})")
     return (f"the active learning spent its {active.get('evaluations')} forward runs before the emulator was "
             f"validated where the posterior lies (its last rounds' errors at fresh posterior draws "

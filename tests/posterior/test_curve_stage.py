@@ -175,7 +175,7 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
         good_round()
     assert progress.validated(1.0)
     rng = np.random.default_rng(0)
-    assert not _confirmed(progress, _final(1.5 * SPREAD_MAX), rng)
+    assert not _confirmed(progress, _final(1.5 * SPREAD_MAX), rng, True)
     assert not progress.validated(1.0) and progress.since == VALIDATED_ROUNDS
     # the next round's importance sampling starts from the reported sample (centred at 0.7)
     assert progress.start.shape == (3 * START_ROWS // 4, 1) and abs(np.median(progress.start) - 0.7) < 0.05
@@ -184,13 +184,17 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
         assert not progress.validated(1.0)
     good_round()
     assert progress.validated(1.0)
-    assert _confirmed(progress, _final(SPREAD_MAX / 2), rng)
-    assert not _confirmed(progress, _final(None), rng)  # an unmeasured spread confirms nothing
+    assert _confirmed(progress, _final(SPREAD_MAX / 2), rng, True)
+    # with the budget spent, a failed confirmation is recorded and nothing restarts
+    start = progress.start.copy()
+    assert not _confirmed(progress, _final(None), rng, False)  # an unmeasured spread confirms nothing
+    assert progress.since == VALIDATED_ROUNDS and np.array_equal(progress.start, start)
     record = progress.record(True)
     assert [c["passed"] for c in record["confirmations"]] == [False, True, False]
     assert [c["rounds"] for c in record["confirmations"]] == [3, 6, 6]
     assert record["confirmations"][0]["spread"] == 1.5 * SPREAD_MAX
     assert record["confirmations"][1]["forward_runs"] == 240 and record["confirmations"][2]["spread"] is None
+    assert all(c["seconds"] == 0.0 for c in record["confirmations"])
 
 
 def test_the_correlation_by_matrix_product_is_the_matern_of_the_distances() -> None:

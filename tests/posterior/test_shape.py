@@ -141,7 +141,8 @@ def test_a_curve_emulator_out_of_budget_names_its_last_rounds_and_spread() -> No
     active["confirmations"] = [{"rounds": 9, "forward_runs": 360, "spread": 0.16, "passed": False},
                                {"rounds": 13, "forward_runs": 520, "spread": 0.12, "passed": False}]
     reason = assess(info, space, 10.0)["reasons"][0]
-    assert "after 520 forward runs, the reported posterior's sample functions moved a quantile by 0.12" in reason
+    assert ("after 520 forward runs, the reported posterior's sample functions moved a quantile by 0.12"
+            in reason)
 
 
 def test_a_sample_function_resting_on_few_points_leaves_the_spread_unmeasured() -> None:

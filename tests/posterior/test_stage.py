@@ -549,6 +549,23 @@ def _emulator_sample(emulator: CurveEmulator, n_eff: float, count: int, seed: in
                             target="emulator")
 
 
+def test_a_spread_confirmed_after_a_failed_one_is_measured_again(run_dir: Path) -> None:
+    """After more than one confirmation the reported spread and pool are drawn again on
+    fresh supports of the same sample, the confirming reading kept beside them."""
+    from smcbayes.posterior.curve_sample import CurveEmulation, FinalPosterior
+    from smcbayes.posterior.curve_stage import _measured_again
+
+    features, u, y, _ = _rows(run_dir, 25, 5)
+    emulator = CurveEmulator(features, u, y)
+    sample = _emulator_sample(emulator, 4.0, 6000, 6)
+    final = FinalPosterior([], sample, {"max_quantile_shift": 0.01}, None, {"sampling": 1.0, "spread": 0.0})
+    again = _measured_again(final, CurveEmulation(emulator, 4.0), ["a", "b"], np.random.default_rng(2))
+    assert again.sample is sample and again.spread["confirmed_shift"] == 0.01
+    assert again.max_shift != 0.01 and again.spread["supports"] >= 1 and again.pooled is not None
+    np.testing.assert_array_equal(again.pooled.unit, sample.unit)
+    assert again.seconds["sampling"] == 1.0 and again.seconds["spread"] > 0.0
+
+
 def test_the_curve_emulator_spread_and_its_pooled_posterior(run_dir: Path) -> None:
     """Sample functions of an emulator of few points move its posterior; the pooled sample
     keeps the mean's points, each with the mean's share of its weight plus the functions';
@@ -642,7 +659,8 @@ def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
 
     def confirm(emulator: CurveEmulator) -> FinalPosterior:
         seen.append(len(emulator.x))
-        return FinalPosterior([], flat, {"max_quantile_shift": next(readings)}, None, {"sampling": 0, "spread": 0})
+        return FinalPosterior([], flat, {"max_quantile_shift": next(readings)}, None,
+                              {"sampling": 0.0, "spread": 0.0})
 
     def simulate(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return features.of(ctx.runner.simulate(ctx.space.from_unit(rows), features.ids))
@@ -653,6 +671,43 @@ def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
     assert seen == [25, 25 + curve_stage.BATCH] and len(learned.x) == seen[-1]
     assert [c["passed"] for c in record["confirmations"]] == [False, True]
     assert learned.final is not None and learned.final.max_shift == 0.5 * SPREAD_MAX
+
+
+def test_a_confirmation_that_passes_is_the_posterior_drawn_after_the_learning(
+        run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The confirmation draws in the order the stage draws its reported posterior after the
+    learning, so a learning that stops at its first confirmation reports what it reported
+    without one (the validation stubbed, every spread confirming)."""
+    import smcbayes.posterior.curve_sample as curve_sample
+    import smcbayes.posterior.curve_stage as curve_stage
+    from smcbayes.posterior.stage import PosteriorSettings
+
+    monkeypatch.setattr(curve_sample, "EMULATOR_DRAWS", 8000)
+    monkeypatch.setattr(curve_sample, "FINAL_ITERATION", 2000)
+    monkeypatch.setattr(curve_stage, "_validated", lambda *args: True)
+    monkeypatch.setattr(curve_stage, "SPREAD_MAX", 1.0)
+    ctx = load_run(run_dir)
+    features, u, y, _ = _rows(run_dir, 25, 5)
+    settings = PosteriorSettings(emulator="curves", walkers=16, steps=600, correct_draws=0)
+    names = ctx.space.free_names
+
+    def simulate(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return features.of(ctx.runner.simulate(ctx.space.from_unit(rows), features.ids))
+
+    def final(emulator: CurveEmulator, rng: np.random.Generator) -> curve_sample.FinalPosterior:
+        return curve_sample.final_posterior(curve_sample.CurveEmulation(emulator, 4.0), settings, names, rng)
+
+    rng = np.random.default_rng(7)
+    plain = curve_stage.learn(simulate, features, u, y, 4.0, 40, 1.0, rng, walkers=16)
+    after = final(plain.emulator, rng)
+    rng = np.random.default_rng(7)
+    confirmed = curve_stage.learn(simulate, features, u, y, 4.0, 40, 1.0, rng, walkers=16,
+                                  confirm=lambda emulator: final(emulator, rng))
+    assert plain.final is None and confirmed.final is not None
+    assert plain.record["rounds"] == confirmed.record["rounds"] == 0 and confirmed.record["converged"]
+    np.testing.assert_array_equal(confirmed.final.sample.unit, after.sample.unit)
+    np.testing.assert_array_equal(confirmed.final.pooled.log_weight, after.pooled.log_weight)
+    assert confirmed.final.spread == after.spread
 
 
 def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
