@@ -127,8 +127,7 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     the chains hold; on the first round, whose ``start`` holds only the best training
     points, nearly all tempered; twice as many draws once more when its ESS is below
     :data:`~smcbayes.posterior.curve_sample.ROUND_ESS`) and pooled with the posteriors of GP
-    sample functions on a support
-    of its points, leaning to where they disagree
+    sample functions on a support of its points, leaning to where they disagree
     (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest from the tempered posterior
     of the optimistic loss (emcee)."""
     d = emulator.x.shape[1]
@@ -282,7 +281,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         :data:`VALIDATED_ROUNDS` rounds; ``None`` for a round with nothing to compare, or a
         sample too thin to tell), ``last_spreads`` (those of the last
         :data:`VALIDATED_ROUNDS` rounds), ``confirmations`` (after how many ``rounds`` and
-        ``forward_runs`` each was drawn, its ``spread`` and whether it ``passed``) and
+        ``forward_runs`` each was drawn, its ``spread``, whether it ``passed`` and its
+        ``seconds``) and
         ``variance_factor`` (the last emulator's calibration of its output variances,
         :meth:`~smcbayes.posterior.curves.CurveEmulator.calibrate`: rows used and range;
         ``None`` when nothing calibrated them)).  The first round has no earlier emulator to
