@@ -166,8 +166,8 @@ def _curve_budget_reason(active: dict[str, Any]) -> str:
     failed = [c for c in active.get("confirmations") or [] if not c.get("passed")]
     # rounds that validated but whose reported posterior did not confirm them
     confirm_words = ("" if not failed else f"; when its rounds last passed, after "
-                     f"{failed[-1]['forward_runs']} forward runs, the reported posterior's sample functions moved a quantile by "
-                     f"{words([failed[-1]['spread']], '')} (> {SPREAD_MAX})")
+                     f"{failed[-1]['forward_runs']} forward runs, the reported posterior's sample "
+                     f"functions moved a quantile by {words([failed[-1]['spread']], '')} (> {SPREAD_MAX})")
     return (f"the active learning spent its {active.get('evaluations')} forward runs before the emulator was "
             f"validated where the posterior lies (its last rounds' errors at fresh posterior draws "
             f"{words(errors, ' nats')}, each to be within {active.get('tolerance_nats', math.nan):.2g}; "
