@@ -1,7 +1,8 @@
 """Sampling the curve emulator's posterior, without a forward run: the emcee chains that
 start it, the adaptive importance sampling of the emulated posterior (the correction's
 algorithm with the emulator as its target) and the reported posterior, which pools the mean's
-sample with the posteriors of GP sample functions (:mod:`smcbayes.posterior.curve_spread`).
+sample with the posteriors of GP sample functions (:mod:`smcbayes.posterior.curve_spread`);
+and how far the emulated posterior moved between two emulators (:func:`quantile_shift`).
 
 The emulated likelihood is that of the expected loss (:data:`EXPECTED_LOSS`).  The emcee
 chains, started at the best point, under-sample a flat arm of the posterior: on the accuracy
@@ -16,7 +17,7 @@ import dataclasses
 import logging
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -25,7 +26,7 @@ from numpy.typing import NDArray
 
 from smcbayes.config import PosteriorSpec
 from smcbayes.errors import SmcBayesWarning
-from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample, correct
+from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample, correct, weighted_quantile
 from smcbayes.posterior.curve_spread import curve_spread
 from smcbayes.posterior.curves import CurveEmulator, log_posterior
 from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
@@ -215,3 +216,25 @@ def final_posterior(emulation: CurveEmulation, settings: PosteriorSpec, names: S
                         else (None, None))
     return FinalPosterior(chains, sample, measured, pooled,
                           {"sampling": t1 - t0, "spread": time.perf_counter() - t1})
+
+
+def quantile_shift(sample: ImportanceSample, before: Callable[[Array], Array]) -> float:
+    """How far the emulated posterior moved since the last round: the largest difference
+    (share of the unit cube) between a 5/50/95 % quantile of ``sample`` and the same
+    quantile under the earlier emulator's log posterior ``before``, both weighted over the
+    same draws (the earlier posterior by the ratio of the two densities), so that the
+    sampling noise of the draws cancels and what remains is the emulator's change."""
+    w = sample.weights
+    keep = w > 0
+    u, w = sample.unit[keep], w[keep]
+    # in batches: each call builds (rows, points) correlations and (rows, features) curves
+    old = np.concatenate([before(u[i:i + EMULATOR_BATCH]) for i in range(0, len(u), EMULATOR_BATCH)])
+    log_ratio = old - sample.log_target[keep]
+    finite = np.isfinite(log_ratio)
+    if not np.any(finite):
+        return float("inf")
+    w_before = w * np.exp(np.where(finite, log_ratio - np.max(log_ratio[finite]), -np.inf))
+    q = [0.05, 0.5, 0.95]
+    return float(max(np.max(np.abs(weighted_quantile(u[:, j], w, q)
+                                   - weighted_quantile(u[:, j], w_before / w_before.sum(), q)))
+                     for j in range(u.shape[1])))

@@ -18,13 +18,14 @@ and a stopping rule judged on them stopped early and called a posterior reliable
 measured before they join its data (mean absolute, nats of log-likelihood, each draw
 weighted back to the posterior's share; at most
 ``refine_tolerance_nats``), and how far the emulated posterior's quantiles moved
-(:func:`quantile_shift`, on common draws, so that the sampling noise cancels; at most
-:data:`QUANTILE_SHIFT`); the same rounds' sample functions must also move it by at most
+(:func:`~smcbayes.posterior.curve_sample.quantile_shift`, on common draws, so that the
+sampling noise cancels; at most :data:`QUANTILE_SHIFT`); the same rounds' sample functions must also move it by at most
 :data:`~smcbayes.posterior.spread.SPREAD_MAX` on average.  A validated emulator's reported
 posterior (that of the expected loss, :data:`~smcbayes.posterior.curve_sample.EXPECTED_LOSS`,
 sampled by importance on the emulator and pooled with its sample functions' posteriors,
 :mod:`smcbayes.posterior.curve_sample`) is then drawn, and the learning stops only if its own
-spread is within the bound too.  A stage whose budget runs out first is reported unreliable.
+spread is within the bound too (:data:`CONFIRMATIONS` times at most).  A stage whose budget
+runs out first is reported unreliable.
 ``refine.jsonl`` logs each round.
 """
 
@@ -45,10 +46,9 @@ from numpy.typing import NDArray
 from smcbayes.config import PosteriorSpec
 from smcbayes.errors import SurrogateError
 from smcbayes.posterior.context import RunContext
-from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample, weighted_quantile
+from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample
 from smcbayes.posterior.curve_aim import targeted
 from smcbayes.posterior.curve_sample import (
-    EMULATOR_BATCH,
     EXPECTED_LOSS,
     ROUND_ESS,
     START_ROWS,
@@ -56,6 +56,7 @@ from smcbayes.posterior.curve_sample import (
     FinalPosterior,
     emulator_sample,
     final_posterior,
+    quantile_shift,
     sample_chains,
 )
 from smcbayes.posterior.curve_spread import curve_spread, function_posteriors, function_spread
@@ -81,6 +82,12 @@ nats, its last round 1.3, with a quantile 0.12 of the prior width off."""
 QUANTILE_SHIFT = 0.05
 """Largest move of a 5/50/95 % quantile of the emulated posterior between rounds (share of
 the unit cube) that a validated round allows."""
+
+CONFIRMATIONS = 3
+"""Most confirmations that may fail: then the learning asks for no more and runs to its
+budget.  Each draws the reported posterior, 130-210 s on the measured thesis trials beside
+other work (three to five rounds' fit and sampling); a learning whose validations the
+reported posterior keeps failing would spend that every three rounds until its budget ends."""
 
 ROUND_STEPS = 1000
 """Most emcee steps of a round's tempered sampling."""
@@ -160,28 +167,6 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     return _Round(new, half, sample, spread["max_quantile_shift"], error_weight, aim)
 
 
-def quantile_shift(sample: ImportanceSample, before: Callable[[Array], Array]) -> float:
-    """How far the emulated posterior moved since the last round: the largest difference
-    (share of the unit cube) between a 5/50/95 % quantile of ``sample`` and the same
-    quantile under the earlier emulator's log posterior ``before``, both weighted over the
-    same draws (the earlier posterior by the ratio of the two densities), so that the
-    sampling noise of the draws cancels and what remains is the emulator's change."""
-    w = sample.weights
-    keep = w > 0
-    u, w = sample.unit[keep], w[keep]
-    # in batches: each call builds (rows, points) correlations and (rows, features) curves
-    old = np.concatenate([before(u[i:i + EMULATOR_BATCH]) for i in range(0, len(u), EMULATOR_BATCH)])
-    log_ratio = old - sample.log_target[keep]
-    finite = np.isfinite(log_ratio)
-    if not np.any(finite):
-        return float("inf")
-    w_before = w * np.exp(np.where(finite, log_ratio - np.max(log_ratio[finite]), -np.inf))
-    q = [0.05, 0.5, 0.95]
-    return float(max(np.max(np.abs(weighted_quantile(u[:, j], w, q)
-                                   - weighted_quantile(u[:, j], w_before / w_before.sum(), q)))
-                     for j in range(u.shape[1])))
-
-
 @dataclass
 class Learned:
     """What the active learning leaves.
@@ -230,6 +215,10 @@ class _Progress:
         k = self.since
         return _validated(self.errors[k:], self.shifts[k:], tolerance_nats, self.spreads[k:])
 
+    def failed(self) -> int:
+        """How many confirmations failed."""
+        return sum(1 for c in self.confirmations if not c["passed"])
+
     def record(self, converged: bool) -> dict[str, Any]:
         """The active learning's record (see :func:`learn`)."""
         last = [_finite(e) for e in self.errors[-VALIDATED_ROUNDS:]]
@@ -260,7 +249,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     spread and the reported one differ by 0.01-0.07 either way on the measured thesis trials,
     and a stop on the rounds' alone ended learnings whose reported posterior was then called
     unreliable.  After a failed confirmation the next rounds start from its sample, and
-    :data:`VALIDATED_ROUNDS` new rounds must validate before the next.
+    :data:`VALIDATED_ROUNDS` new rounds must validate before the next; after
+    :data:`CONFIRMATIONS` failed ones the learning runs to its budget.
 
     Args:
         simulate: unit-cube rows ``(P, d)`` -> features ``(P, F)`` and success ``(P,)``.
@@ -296,7 +286,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         t0 = time.perf_counter()
         emulator = _fit(features, progress.x, progress.y, emulator, progress.recent)
         final = None
-        converged = progress.validated(tolerance_nats)
+        # after CONFIRMATIONS failed ones a validation no longer stops the learning
+        converged = progress.validated(tolerance_nats) and (confirm is None or progress.failed() < CONFIRMATIONS)
         if converged and confirm is not None:
             t_confirm = time.perf_counter()
             final = confirm(emulator)
@@ -352,6 +343,9 @@ def _confirmed(progress: _Progress, final: FinalPosterior, rng: np.random.Genera
     if not passed and going_on:
         progress.since = progress.rounds
         progress.start = final.sample.resample(3 * START_ROWS // 4, rng)
+        if progress.failed() >= CONFIRMATIONS:
+            logger.info("curve emulator: %d confirmations failed; no more, the learning runs to its budget",
+                        CONFIRMATIONS)
     return passed
 
 

@@ -11,7 +11,7 @@ from scipy.stats import norm
 
 from smcbayes.posterior.correct import ImportanceSample
 from smcbayes.posterior.curve_aim import TARGETED, draws, lift, targeted
-from smcbayes.posterior.curve_sample import START_ROWS, FinalPosterior
+from smcbayes.posterior.curve_sample import START_ROWS, FinalPosterior, quantile_shift
 from smcbayes.posterior.curve_spread import FunctionPosteriors, function_spread
 from smcbayes.posterior.curve_stage import (
     QUANTILE_SHIFT,
@@ -21,7 +21,6 @@ from smcbayes.posterior.curve_stage import (
     _Progress,
     _Round,
     _validated,
-    quantile_shift,
 )
 from smcbayes.posterior.spread import SPREAD_MAX
 

@@ -673,6 +673,39 @@ def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
     assert learned.final is not None and learned.final.max_shift == 0.5 * SPREAD_MAX
 
 
+def test_after_its_last_failed_confirmation_the_learning_runs_to_its_budget(
+        run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Once :data:`CONFIRMATIONS` confirmations failed, a validation (stubbed here) neither
+    draws the reported posterior again nor stops the learning: it spends its budget."""
+    import smcbayes.posterior.curve_stage as curve_stage
+    from smcbayes.posterior.curve_sample import FinalPosterior
+
+    monkeypatch.setattr(curve_stage, "ROUND_DRAWS", 4000)
+    monkeypatch.setattr(curve_stage, "CONFIRMATIONS", 1)
+    monkeypatch.setattr(curve_stage, "_validated", lambda *args: True)
+    ctx = load_run(run_dir)
+    features, u, y, _ = _rows(run_dir, 25, 5)
+    rng = np.random.default_rng(3)
+    flat = ImportanceSample(rng.random((500, u.shape[1])), np.zeros(500), np.full(500, -np.log(500.0)),
+                            np.zeros(500, dtype=int), 0.0, 500.0, 0, target="emulator")
+    seen: list[int] = []
+
+    def confirm(emulator: CurveEmulator) -> FinalPosterior:
+        seen.append(len(emulator.x))
+        return FinalPosterior([], flat, {"max_quantile_shift": 1.5 * SPREAD_MAX}, None,
+                              {"sampling": 0.0, "spread": 0.0})
+
+    def simulate(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return features.of(ctx.runner.simulate(ctx.space.from_unit(rows), features.ids))
+
+    learned = curve_stage.learn(simulate, features, u, y, 4.0, 2 * curve_stage.BATCH, 1.0, rng, walkers=16,
+                                confirm=confirm)
+    record = learned.record
+    assert seen == [25] and [c["passed"] for c in record["confirmations"]] == [False]
+    assert not record["converged"] and record["rounds"] == 2 and record["evaluations"] == 2 * curve_stage.BATCH
+    assert learned.final is None  # the stage draws the reported posterior after the learning
+
+
 def test_a_confirmation_that_passes_is_the_posterior_drawn_after_the_learning(
         run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The confirmation draws in the order the stage draws its reported posterior after the
