@@ -12,14 +12,15 @@ from typing import Any
 
 import pytest
 
-# One BLAS thread per test process, set before numpy loads its BLAS and inherited by the
-# pytest-xdist workers (one per core) and by the processes the tests start: two workers
-# each running two BLAS threads on two cores contend, and the suite takes a fifth longer.
-for _threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_threads, "1")
+# One BLAS thread in each pytest-xdist worker (one per core), set before numpy loads its
+# BLAS and inherited by the processes the tests start: two workers each running two BLAS
+# threads on two cores contend, and the suite takes a fifth longer.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    for _threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(_threads, "1")
 
-from smcbayes import progress  # noqa: E402
-from smcbayes.config import ProjectConfig, build_project  # noqa: E402
+from smcbayes import progress
+from smcbayes.config import ProjectConfig, build_project
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -19,13 +19,14 @@ measured before they join its data (mean absolute, nats of log-likelihood, each 
 weighted back to the posterior's share; at most
 ``refine_tolerance_nats``), and how far the emulated posterior's quantiles moved
 (:func:`~smcbayes.posterior.curve_sample.quantile_shift`, on common draws, so that the
-sampling noise cancels; at most :data:`QUANTILE_SHIFT`); the same rounds' sample functions must also move it by at most
-:data:`~smcbayes.posterior.spread.SPREAD_MAX` on average.  A validated emulator's reported
-posterior (that of the expected loss, :data:`~smcbayes.posterior.curve_sample.EXPECTED_LOSS`,
-sampled by importance on the emulator and pooled with its sample functions' posteriors,
-:mod:`smcbayes.posterior.curve_sample`) is then drawn, and the learning stops only if its own
-spread is within the bound too (:data:`CONFIRMATIONS` times at most).  A stage whose budget
-runs out first is reported unreliable.
+sampling noise cancels; at most :data:`QUANTILE_SHIFT`); the same rounds' sample functions
+must also move it by at most :data:`~smcbayes.posterior.spread.SPREAD_MAX` on average.
+A validated emulator's reported posterior (that of the expected loss,
+:data:`~smcbayes.posterior.curve_sample.EXPECTED_LOSS`, sampled by importance on the
+emulator and pooled with its sample functions' posteriors,
+:mod:`smcbayes.posterior.curve_sample`) is then drawn, and the learning stops only if its
+own spread is within the bound too; after :data:`CONFIRMATIONS` failed confirmations it asks for
+no more before its budget's end.  A stage whose budget runs out first is reported unreliable.
 ``refine.jsonl`` logs each round.
 """
 
@@ -84,7 +85,7 @@ QUANTILE_SHIFT = 0.05
 the unit cube) that a validated round allows."""
 
 CONFIRMATIONS = 3
-"""Most confirmations that may fail: then the learning asks for no more and runs to its
+"""Most confirmations that may fail: then the learning asks for no more until the end of its
 budget.  Each draws the reported posterior, 130-210 s on the measured thesis trials beside
 other work (three to five rounds' fit and sampling); a learning whose validations the
 reported posterior keeps failing would spend that every three rounds until its budget ends."""
@@ -250,7 +251,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     and a stop on the rounds' alone ended learnings whose reported posterior was then called
     unreliable.  After a failed confirmation the next rounds start from its sample, and
     :data:`VALIDATED_ROUNDS` new rounds must validate before the next; after
-    :data:`CONFIRMATIONS` failed ones the learning runs to its budget.
+    :data:`CONFIRMATIONS` failed ones the learning runs to its budget, where a validation
+    is confirmed once more.
 
     Args:
         simulate: unit-cube rows ``(P, d)`` -> features ``(P, F)`` and success ``(P,)``.
@@ -286,8 +288,10 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         t0 = time.perf_counter()
         emulator = _fit(features, progress.x, progress.y, emulator, progress.recent)
         final = None
-        # after CONFIRMATIONS failed ones a validation no longer stops the learning
-        converged = progress.validated(tolerance_nats) and (confirm is None or progress.failed() < CONFIRMATIONS)
+        # a reported posterior that keeps failing would cost a draw every few rounds; at the
+        # budget's end the stage draws it anyway, so there it still confirms
+        asks = confirm is None or progress.failed() < CONFIRMATIONS or progress.spent >= budget
+        converged = progress.validated(tolerance_nats) and asks
         if converged and confirm is not None:
             t_confirm = time.perf_counter()
             final = confirm(emulator)

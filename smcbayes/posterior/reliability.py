@@ -26,7 +26,7 @@ import numpy as np
 from smcbayes.forward.parameters import ParameterSpace
 from smcbayes.posterior.correct import K_HAT_WARN, draws_advice
 from smcbayes.posterior.curve_spread import SPREAD_MIN_ESS
-from smcbayes.posterior.curve_stage import QUANTILE_SHIFT
+from smcbayes.posterior.curve_stage import CONFIRMATIONS, QUANTILE_SHIFT
 from smcbayes.posterior.spread import SPREAD_MAX, share_words
 
 R_HAT_MAX = 1.05
@@ -168,6 +168,8 @@ def _curve_budget_reason(active: dict[str, Any]) -> str:
     confirm_words = ("" if not failed else f"; when its rounds last passed, after "
                      f"{failed[-1]['forward_runs']} forward runs, the reported posterior's sample "
                      f"functions moved a quantile by {words([failed[-1]['spread']], '')} (> {SPREAD_MAX})")
+    if len(failed) >= CONFIRMATIONS:
+        confirm_words += f"; after {CONFIRMATIONS} failed confirmations it asked for none until its budget's end"
     return (f"the active learning spent its {active.get('evaluations')} forward runs before the emulator was "
             f"validated where the posterior lies (its last rounds' errors at fresh posterior draws "
             f"{words(errors, ' nats')}, each to be within {active.get('tolerance_nats', math.nan):.2g}; "

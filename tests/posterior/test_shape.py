@@ -142,7 +142,11 @@ def test_a_curve_emulator_out_of_budget_names_its_last_rounds_and_spread() -> No
                                {"rounds": 13, "forward_runs": 520, "spread": 0.12, "passed": False}]
     reason = assess(info, space, 10.0)["reasons"][0]
     assert ("after 520 forward runs, the reported posterior's sample functions moved a quantile by 0.12"
-            in reason)
+            in reason) and "asked for none" not in reason
+    # the third failure: no more were asked until the budget's end
+    active["confirmations"].append({"rounds": 16, "forward_runs": 640, "spread": 0.11, "passed": False})
+    reason = assess(info, space, 10.0)["reasons"][0]
+    assert "after 3 failed confirmations it asked for none until its budget's end" in reason
 
 
 def test_a_sample_function_resting_on_few_points_leaves_the_spread_unmeasured() -> None:

@@ -676,7 +676,8 @@ def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
 def test_after_its_last_failed_confirmation_the_learning_runs_to_its_budget(
         run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Once :data:`CONFIRMATIONS` confirmations failed, a validation (stubbed here) neither
-    draws the reported posterior again nor stops the learning: it spends its budget."""
+    draws the reported posterior again nor stops the learning before its budget's end;
+    there, where the stage draws that posterior anyway, it is confirmed once more."""
     import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.curve_sample import FinalPosterior
 
@@ -688,22 +689,23 @@ def test_after_its_last_failed_confirmation_the_learning_runs_to_its_budget(
     rng = np.random.default_rng(3)
     flat = ImportanceSample(rng.random((500, u.shape[1])), np.zeros(500), np.full(500, -np.log(500.0)),
                             np.zeros(500, dtype=int), 0.0, 500.0, 0, target="emulator")
-    seen: list[int] = []
+    readings, seen = iter([1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX]), []
 
     def confirm(emulator: CurveEmulator) -> FinalPosterior:
         seen.append(len(emulator.x))
-        return FinalPosterior([], flat, {"max_quantile_shift": 1.5 * SPREAD_MAX}, None,
+        return FinalPosterior([], flat, {"max_quantile_shift": next(readings)}, None,
                               {"sampling": 0.0, "spread": 0.0})
 
     def simulate(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return features.of(ctx.runner.simulate(ctx.space.from_unit(rows), features.ids))
 
-    learned = curve_stage.learn(simulate, features, u, y, 4.0, 2 * curve_stage.BATCH, 1.0, rng, walkers=16,
-                                confirm=confirm)
+    budget = 2 * curve_stage.BATCH
+    learned = curve_stage.learn(simulate, features, u, y, 4.0, budget, 1.0, rng, walkers=16, confirm=confirm)
     record = learned.record
-    assert seen == [25] and [c["passed"] for c in record["confirmations"]] == [False]
-    assert not record["converged"] and record["rounds"] == 2 and record["evaluations"] == 2 * curve_stage.BATCH
-    assert learned.final is None  # the stage draws the reported posterior after the learning
+    # none after the first round: the one failure allowed was spent
+    assert seen == [25, 25 + budget] and [c["passed"] for c in record["confirmations"]] == [False, True]
+    assert record["converged"] and record["rounds"] == 2 and record["evaluations"] == budget
+    assert learned.final is not None and learned.final.max_shift == 0.5 * SPREAD_MAX
 
 
 def test_a_confirmation_that_passes_is_the_posterior_drawn_after_the_learning(
