@@ -17,6 +17,7 @@ from smcbayes.config.specs import LossSpec
 from smcbayes.posterior.active import STABLE_ROUNDS
 from smcbayes.posterior.context import load_run
 from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample
+from smcbayes.posterior.curve_stage import Learned
 from smcbayes.posterior.curves import FORCE_FLOOR_KN, CurveEmulator, CurveFeatures, CurveLossUnsupported
 from smcbayes.posterior.spread import SPREAD_MAX
 from smcbayes.surrogate.gp import load_surrogate
@@ -639,11 +640,11 @@ def test_the_reported_emulator_sample_aims_past_the_target_it_is_settled_at(
     np.testing.assert_array_equal(reported.unit, aimed.unit)
 
 
-def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
-        run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """With a confirmation, a validated emulator's reported posterior is drawn before the
-    learning stops: while its spread is too large the learning goes on (one more round
-    here, the validation itself stubbed), and the posterior that confirms is the one kept."""
+def _scripted_learning(run_dir: Path, monkeypatch: pytest.MonkeyPatch, budget: int,
+                       readings: list[float]) -> tuple[Learned, list[int]]:
+    """The curve emulator's active learning from 25 points with every round validated (the
+    validation stubbed) and confirmations that read the spreads ``readings`` in turn: what
+    it learned and the training points each confirmation saw."""
     import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.curve_sample import FinalPosterior
 
@@ -655,17 +656,28 @@ def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
     points = rng.random((500, u.shape[1]))
     flat = ImportanceSample(points, np.zeros(500), np.full(500, -np.log(500.0)), np.zeros(500, dtype=int),
                             0.0, 500.0, 0, target="emulator")
-    readings, seen = iter([1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX]), []
+    spreads, seen = iter(readings), []
 
     def confirm(emulator: CurveEmulator) -> FinalPosterior:
         seen.append(len(emulator.x))
-        return FinalPosterior([], flat, {"max_quantile_shift": next(readings)}, None,
+        return FinalPosterior([], flat, {"max_quantile_shift": next(spreads)}, None,
                               {"sampling": 0.0, "spread": 0.0})
 
     def simulate(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return features.of(ctx.runner.simulate(ctx.space.from_unit(rows), features.ids))
 
-    learned = curve_stage.learn(simulate, features, u, y, 4.0, 200, 1.0, rng, walkers=16, confirm=confirm)
+    learned = curve_stage.learn(simulate, features, u, y, 4.0, budget, 1.0, rng, walkers=16, confirm=confirm)
+    return learned, seen
+
+
+def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
+        run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With a confirmation, a validated emulator's reported posterior is drawn before the
+    learning stops: while its spread is too large the learning goes on (one more round
+    here, the validation itself stubbed), and the posterior that confirms is the one kept."""
+    import smcbayes.posterior.curve_stage as curve_stage
+
+    learned, seen = _scripted_learning(run_dir, monkeypatch, 200, [1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX])
     record = learned.record
     assert record["converged"] and record["rounds"] == 1 and record["evaluations"] == curve_stage.BATCH
     assert seen == [25, 25 + curve_stage.BATCH] and len(learned.x) == seen[-1]
@@ -679,28 +691,10 @@ def test_after_its_last_failed_confirmation_the_learning_runs_to_its_budget(
     draws the reported posterior again nor stops the learning before its budget's end;
     there, where the stage draws that posterior anyway, it is confirmed once more."""
     import smcbayes.posterior.curve_stage as curve_stage
-    from smcbayes.posterior.curve_sample import FinalPosterior
 
-    monkeypatch.setattr(curve_stage, "ROUND_DRAWS", 4000)
     monkeypatch.setattr(curve_stage, "CONFIRMATIONS", 1)
-    monkeypatch.setattr(curve_stage, "_validated", lambda *args: True)
-    ctx = load_run(run_dir)
-    features, u, y, _ = _rows(run_dir, 25, 5)
-    rng = np.random.default_rng(3)
-    flat = ImportanceSample(rng.random((500, u.shape[1])), np.zeros(500), np.full(500, -np.log(500.0)),
-                            np.zeros(500, dtype=int), 0.0, 500.0, 0, target="emulator")
-    readings, seen = iter([1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX]), []
-
-    def confirm(emulator: CurveEmulator) -> FinalPosterior:
-        seen.append(len(emulator.x))
-        return FinalPosterior([], flat, {"max_quantile_shift": next(readings)}, None,
-                              {"sampling": 0.0, "spread": 0.0})
-
-    def simulate(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return features.of(ctx.runner.simulate(ctx.space.from_unit(rows), features.ids))
-
     budget = 2 * curve_stage.BATCH
-    learned = curve_stage.learn(simulate, features, u, y, 4.0, budget, 1.0, rng, walkers=16, confirm=confirm)
+    learned, seen = _scripted_learning(run_dir, monkeypatch, budget, [1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX])
     record = learned.record
     # none after the first round: the one failure allowed was spent
     assert seen == [25, 25 + budget] and [c["passed"] for c in record["confirmations"]] == [False, True]
