@@ -287,7 +287,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     ctx.runner.cache = cache = ctx.run.forward_cache("posterior")
     rng = np.random.default_rng(settings.seed)
     calibration_gp, _ = load_surrogate(ctx.run.gp_path)
-    # torch on one thread: on a loaded machine two threads made the GP fits three times slower
+    # torch and BLAS on one thread: two made the GP fits and the emulators slower (gp_session)
     with ctx.runner, gp_session():
         fit = local_fit(ctx)
         budget = residual_budget(ctx, fit)
