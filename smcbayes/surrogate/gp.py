@@ -53,7 +53,7 @@ def gp_session(threads: int = 1) -> Iterator[None]:
     GPs of a few hundred points are fastest on one thread, and on a loaded machine torch's
     spinning thread pool makes them up to ten times slower.  The emulators' predictions
     are small products too (the emcee samplers ask for 16 rows at a time): with two BLAS
-    threads the variance of 16 rows of an 800-point curve emulator took 3.5 times as long
+    threads the variance of 16 rows of a 735-point curve emulator took 3.5 times as long
     as with one.  One thread also makes the results independent of the machine's cores.
     A small fixed noise is deliberate (deterministic simulator); gpytorch's floor of 1e-6
     in standardised units applies and its warning about it would flood the terminal.

@@ -11,7 +11,8 @@ from threadpoolctl import threadpool_limits
 from smcbayes.surrogate import gp
 
 
-def test_the_gp_session_limits_torch_and_blas_threads_and_restores_torch(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_gp_session_limits_torch_and_blas_threads_and_restores_torch(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     asked: list[dict[str, Any]] = []
 
     def recording(**kwargs: Any) -> threadpool_limits:
