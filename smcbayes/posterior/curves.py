@@ -199,15 +199,16 @@ def _matern52_slope(x: Array, lengthscales: Array) -> tuple[Array, Array, Array]
 
 
 def _concentrated_nll(params: Array, x: Array, z: Array) -> tuple[float, Array]:
-    """Negative log likelihood of outputs ``z (N, J)`` under one correlation, each output's
-    scale profiled out, and its gradient ``(d + 1,)`` by the log lengthscales and the log
-    nugget ``params``.
+    """Negative log likelihood (up to a constant) of outputs ``z (N, J)`` at the points
+    ``x (N, d)`` under one correlation, each output's scale profiled out, and its gradient
+    ``(d + 1,)`` by ``params``: the d log lengthscales, then the log nugget.  A correlation
+    that cannot be factorised gives ``(1e12, 0)``, which the line search backs away from.
 
-    With ``q_j = z_j' R^-1 z_j`` and ``A = R^-1 Z`` the likelihood is
+    With ``q_j = z_j' R^-1 z_j`` and ``A = R^-1 Z`` it is
     ``N/2 sum_j log(q_j / N) + J/2 log|R|`` and its derivative ``sum_ab W_ab dR_ab`` with
     ``W = J/2 R^-1 - N/2 A diag(1/q) A'`` (Rasmussen & Williams 2006, "Gaussian Processes
-    for Machine Learning", eq. 5.9, with the scales profiled out): one factorisation and one
-    inverse a gradient, where finite differences took d + 2 factorisations."""
+    for Machine Learning", eq. 5.9, with the scales profiled out): one factorisation and the
+    inverse from it per gradient, where finite differences took d + 2 factorisations."""
     n, width = z.shape
     nugget = float(np.exp(params[-1]))
     r, slope, sx = _matern52_slope(x, np.exp(params[:-1]))
@@ -223,6 +224,7 @@ def _concentrated_nll(params: Array, x: Array, z: Array) -> tuple[float, Array]:
     inverse, info = dpotri(c[0], lower=1)
     if info != 0:
         return 1e12, np.zeros_like(params)
+    # LAPACK fills the lower triangle only; the upper still holds the correlation
     inverse = np.tril(inverse) + np.tril(inverse, -1).T
     w = 0.5 * width * inverse - 0.5 * n * ((a / q) @ a.T)
     m = w * slope

@@ -41,6 +41,16 @@ NOISE_FREE_REASON = ("the training curves are noise-free simulator output: the l
                      "noisy synthetic curves (smcbayes synth --noise-kN 5)")
 
 
+def _past(value: float | None, bound: float) -> str:
+    """``value`` in two significant digits, in four decimals where two would print it as the
+    ``bound`` it is compared with (a spread of 0.1002 read "0.1 (> 0.1)"); "not measured"
+    for ``None``."""
+    if value is None:
+        return "not measured"
+    short = f"{value:.2g}"
+    return f"{value:.4f}" if float(short) == float(f"{bound:.2g}") and value != bound else short
+
+
 def _interval_share(space: ParameterSpace, row: Mapping[str, Any]) -> float:
     """Width of the 90 % interval as a share of the search range (log10 where searched so)."""
     p = next(q for q in space.free if q.name == row["name"])
@@ -105,9 +115,9 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
         which = ("a GP sample function" if spread.get("shift_level", 1.0) >= 1.0
                  else share_words(spread, "GP sample function "))
         out.append(f"the emulator's own uncertainty moves the posterior: with {which} instead of its mean "
-                   f"a 5/50/95 % quantile of {worst} moves by {spread['max_quantile_shift']:.2f} of its "
-                   f"range or more (> {SPREAD_MAX}), so a tail or an arm of the posterior is not pinned "
-                   f"down yet; {remedy}")
+                   f"a 5/50/95 % quantile of {worst} moves by "
+                   f"{_past(spread['max_quantile_shift'], SPREAD_MAX)} of its range or more "
+                   f"(> {SPREAD_MAX}), so a tail or an arm of the posterior is not pinned down yet; {remedy}")
     thin = _thin_functions(spread or {})
     if thin:
         remedy = ("lower refine_tolerance_nats in the project's [posterior] table" if active.get("converged")
@@ -140,7 +150,8 @@ def _budget_reason(active: dict[str, Any]) -> str:
     spread = active.get("spread")
     if spread is not None and spread > SPREAD_MAX:
         return (f"the active learning spent its {runs} forward runs while GP sample functions still moved "
-                f"a quantile of the posterior by {spread:.2g} of its range (> {SPREAD_MAX}) after "
+                f"a quantile of the posterior by {_past(spread, SPREAD_MAX)} of its range (> {SPREAD_MAX}) "
+                f"after "
                 f"{active.get('spread_checks')} measurement(s); raise --refine")
     if active.get("kind") == "curves":
         return _curve_budget_reason(active)
@@ -167,7 +178,8 @@ def _curve_budget_reason(active: dict[str, Any]) -> str:
     # rounds that validated but whose reported posterior did not confirm them
     confirm_words = ("" if not failed else f"; when its rounds last passed, after "
                      f"{failed[-1]['forward_runs']} forward runs, the reported posterior's sample "
-                     f"functions moved a quantile by {words([failed[-1]['spread']], '')} (> {SPREAD_MAX})")
+                     f"functions moved a quantile by {_past(failed[-1]['spread'], SPREAD_MAX)} "
+                     f"(> {SPREAD_MAX})")
     if len(failed) >= CONFIRMATIONS:
         confirm_words += f"; after {CONFIRMATIONS} failed confirmations it asked for none until its budget's end"
     return (f"the active learning spent its {active.get('evaluations')} forward runs before the emulator was "

@@ -147,6 +147,10 @@ def test_a_curve_emulator_out_of_budget_names_its_last_rounds_and_spread() -> No
     active["confirmations"].append({"rounds": 16, "forward_runs": 640, "spread": 0.11, "passed": False})
     reason = assess(info, space, 10.0)["reasons"][0]
     assert "after 3 failed confirmations it asked for none until its budget's end" in reason
+    # a reading just above the bound prints apart from it
+    active["confirmations"][-1]["spread"] = 0.10018
+    reason = assess(info, space, 10.0)["reasons"][0]
+    assert "moved a quantile by 0.1002 (> 0.1)" in reason
 
 
 def test_a_sample_function_resting_on_few_points_leaves_the_spread_unmeasured() -> None:
