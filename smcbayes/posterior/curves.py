@@ -172,12 +172,16 @@ class CurveFeatures:
 
 def matern52(a: Array, b: Array, lengthscales: Array) -> Array:
     """Matern-5/2 correlation ``(N, M)`` of points ``a (N, d)`` and ``b (M, d)``, lengthscales ``(d,)``."""
+    s = _scaled_distance(a / lengthscales, b / lengthscales)
+    return (1.0 + s + s * s / 3.0) * np.exp(-s)
+
+
+def _scaled_distance(sa: Array, sb: Array) -> Array:
+    """sqrt(5) times the distances ``(N, M)`` of the scaled points ``sa (N, d)`` and ``sb (M, d)``."""
     # squared distances by one matrix product: the (N, M, d) differences cost several
     # times more in the samplers' calls
-    sa, sb = a / lengthscales, b / lengthscales
     r2 = np.sum(sa * sa, axis=1)[:, None] + np.sum(sb * sb, axis=1)[None, :] - 2.0 * (sa @ sb.T)
-    s = np.sqrt(5.0 * np.maximum(r2, 0.0))
-    return (1.0 + s + s * s / 3.0) * np.exp(-s)
+    return np.sqrt(5.0 * np.maximum(r2, 0.0))
 
 
 @dataclass
@@ -192,8 +196,7 @@ def _matern52_slope(x: Array, lengthscales: Array) -> tuple[Array, Array, Array]
     ``g = (5/3) (1 + s) exp(-s)`` ``(N, N)`` of its derivative by each log lengthscale
     (dR_ab / d log l_i = g_ab ((x_ai - x_bi) / l_i)^2) and the scaled points ``x / l``."""
     sx = x / lengthscales
-    sq = np.sum(sx * sx, axis=1)
-    s = np.sqrt(5.0 * np.maximum(sq[:, None] + sq[None, :] - 2.0 * (sx @ sx.T), 0.0))
+    s = _scaled_distance(sx, sx)
     decay = np.exp(-s)
     return (1.0 + s + s * s / 3.0) * decay, (5.0 / 3.0) * (1.0 + s) * decay, sx
 

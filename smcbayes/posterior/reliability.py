@@ -151,8 +151,7 @@ def _budget_reason(active: dict[str, Any]) -> str:
     if spread is not None and spread > SPREAD_MAX:
         return (f"the active learning spent its {runs} forward runs while GP sample functions still moved "
                 f"a quantile of the posterior by {_past(spread, SPREAD_MAX)} of its range (> {SPREAD_MAX}) "
-                f"after "
-                f"{active.get('spread_checks')} measurement(s); raise --refine")
+                f"after {active.get('spread_checks')} measurement(s); raise --refine")
     if active.get("kind") == "curves":
         return _curve_budget_reason(active)
     err, shift = active.get("error_nats"), active.get("quantile_shift")
