@@ -48,7 +48,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
-from scipy.linalg.lapack import dpotri
 from scipy.optimize import minimize
 
 from smcbayes.errors import ConfigError
@@ -172,16 +171,12 @@ class CurveFeatures:
 
 def matern52(a: Array, b: Array, lengthscales: Array) -> Array:
     """Matern-5/2 correlation ``(N, M)`` of points ``a (N, d)`` and ``b (M, d)``, lengthscales ``(d,)``."""
-    s = _scaled_distance(a / lengthscales, b / lengthscales)
-    return (1.0 + s + s * s / 3.0) * np.exp(-s)
-
-
-def _scaled_distance(sa: Array, sb: Array) -> Array:
-    """sqrt(5) times the distances ``(N, M)`` of the scaled points ``sa (N, d)`` and ``sb (M, d)``."""
     # squared distances by one matrix product: the (N, M, d) differences cost several
     # times more in the samplers' calls
+    sa, sb = a / lengthscales, b / lengthscales
     r2 = np.sum(sa * sa, axis=1)[:, None] + np.sum(sb * sb, axis=1)[None, :] - 2.0 * (sa @ sb.T)
-    return np.sqrt(5.0 * np.maximum(r2, 0.0))
+    s = np.sqrt(5.0 * np.maximum(r2, 0.0))
+    return (1.0 + s + s * s / 3.0) * np.exp(-s)
 
 
 @dataclass
@@ -191,49 +186,17 @@ class _Correlation:
     chol: Array
 
 
-def _matern52_slope(x: Array, lengthscales: Array) -> tuple[Array, Array, Array]:
-    """Matern-5/2 correlation ``(N, N)`` of the points ``x (N, d)`` with itself, the factor
-    ``g = (5/3) (1 + s) exp(-s)`` ``(N, N)`` of its derivative by each log lengthscale
-    (dR_ab / d log l_i = g_ab ((x_ai - x_bi) / l_i)^2) and the scaled points ``x / l``."""
-    sx = x / lengthscales
-    s = _scaled_distance(sx, sx)
-    decay = np.exp(-s)
-    return (1.0 + s + s * s / 3.0) * decay, (5.0 / 3.0) * (1.0 + s) * decay, sx
-
-
-def _concentrated_nll(params: Array, x: Array, z: Array) -> tuple[float, Array]:
-    """Negative log likelihood (up to a constant) of outputs ``z (N, J)`` at the points
-    ``x (N, d)`` under one correlation, each output's scale profiled out, and its gradient
-    ``(d + 1,)`` by ``params``: the d log lengthscales, then the log nugget.  A correlation
-    that cannot be factorised gives ``(1e12, 0)``, which the line search backs away from.
-
-    With ``q_j = z_j' R^-1 z_j`` and ``A = R^-1 Z`` it is
-    ``N/2 sum_j log(q_j / N) + J/2 log|R|`` and its derivative ``sum_ab W_ab dR_ab`` with
-    ``W = J/2 R^-1 - N/2 A diag(1/q) A'`` (Rasmussen & Williams 2006, "Gaussian Processes
-    for Machine Learning", eq. 5.9, with the scales profiled out): one factorisation and the
-    inverse from it per gradient, where finite differences took d + 2 factorisations."""
-    n, width = z.shape
-    nugget = float(np.exp(params[-1]))
-    r, slope, sx = _matern52_slope(x, np.exp(params[:-1]))
-    r[np.diag_indices(n)] += nugget + 1e-8
+def _concentrated_nll(params: Array, x: Array, z: Array) -> float:
+    """Negative log likelihood of outputs ``z (N, J)`` under one correlation, each output's
+    scale profiled out."""
+    r = matern52(x, x, np.exp(params[:-1])) + (np.exp(params[-1]) + 1e-8) * np.eye(len(x))
     try:
         c = cho_factor(r, lower=True)
     except np.linalg.LinAlgError:
-        return 1e12, np.zeros_like(params)
-    a = cho_solve(c, z)
-    q = np.einsum("ij,ij->j", z, a)
+        return 1e12
+    q = np.einsum("ij,ij->j", z, cho_solve(c, z))
     logdet = 2.0 * np.sum(np.log(np.diag(c[0])))
-    value = float(0.5 * n * np.sum(np.log(q / n)) + 0.5 * width * logdet)
-    inverse, info = dpotri(c[0], lower=1)
-    if info != 0:
-        return 1e12, np.zeros_like(params)
-    # LAPACK fills the lower triangle only; the upper still holds the correlation
-    inverse = np.tril(inverse) + np.tril(inverse, -1).T
-    w = 0.5 * width * inverse - 0.5 * n * ((a / q) @ a.T)
-    m = w * slope
-    # sum_ab m_ab (sx_ai - sx_bi)^2 for a symmetric m, by products instead of (N, N, d) differences
-    grad = 2.0 * (np.sum(sx * sx * np.sum(m, axis=1)[:, None], axis=0) - np.einsum("ai,ai->i", sx, m @ sx))
-    return value, np.r_[grad, nugget * np.trace(w)]
+    return float(0.5 * len(x) * np.sum(np.log(q / len(x))) + 0.5 * z.shape[1] * logdet)
 
 
 def fit_correlation(x: Array, z: Array, start: _Correlation | None = None) -> _Correlation:
@@ -250,7 +213,7 @@ def fit_correlation(x: Array, z: Array, start: _Correlation | None = None) -> _C
               [np.array([np.log(ls)] * d + [np.log(nug)]) for ls, nug in ((0.3, 1e-4), (1.0, 1e-6))])
     for x0 in starts:
         res = minimize(_concentrated_nll, np.clip(x0, *np.array(bounds).T), args=(x, z), method="L-BFGS-B",
-                       jac=True, bounds=bounds)
+                       bounds=bounds)
         best = res if best is None or res.fun < best.fun else best
     ls, nug = np.exp(best.x[:-1]), float(np.exp(best.x[-1]))
     chol = np.linalg.cholesky(matern52(x, x, ls) + (nug + 1e-8) * np.eye(len(x)))

@@ -7,7 +7,6 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
 from scipy.stats import norm
 
 from smcbayes.posterior.correct import ImportanceSample
@@ -206,23 +205,6 @@ def test_the_correlation_by_matrix_product_is_the_matern_of_the_distances() -> N
     s = np.sqrt(5.0) * r
     np.testing.assert_allclose(matern52(a, b, ls), (1 + s + s * s / 3) * np.exp(-s), rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(np.diag(matern52(a, a, ls)), 1.0, rtol=1e-12)
-
-
-def test_the_correlations_likelihood_gradient_is_its_finite_difference_slope() -> None:
-    from scipy.optimize import approx_fprime
-
-    from smcbayes.posterior.curves import _concentrated_nll, matern52
-
-    rng = np.random.default_rng(1)
-    x, z = rng.random((40, 3)), rng.standard_normal((40, 4))
-    for params in (np.log([0.3, 0.5, 1.2, 1e-4]), np.log([0.05, 2.0, 0.4, 1e-2])):
-        value, grad = _concentrated_nll(params, x, z)
-        r = matern52(x, x, np.exp(params[:-1])) + (np.exp(params[-1]) + 1e-8) * np.eye(40)
-        q = np.einsum("ij,ij->j", z, np.linalg.solve(r, z))
-        expected = 0.5 * 40 * np.sum(np.log(q / 40)) + 0.5 * 4 * np.linalg.slogdet(r)[1]
-        assert value == pytest.approx(expected, rel=1e-10)
-        slope = approx_fprime(params, lambda p: _concentrated_nll(p, x, z)[0], 1e-6)
-        np.testing.assert_allclose(grad, slope, rtol=1e-4, atol=1e-3)
 
 
 def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> None:
