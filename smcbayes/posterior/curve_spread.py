@@ -83,7 +83,7 @@ def joint_outputs(emulator: CurveEmulator, x: Array, count: int, rng: np.random.
     r = matern52(x, emulator.x, corr.lengthscales)
     mean = r @ emulator.alpha + emulator._h(x) @ emulator.trend
     v = solve_triangular(corr.chol, r.T, lower=True)
-    cov = matern52(x, x, corr.lengthscales) - v.T @ v
+    cov = matern52(x, None, corr.lengthscales) - v.T @ v
     try:
         factor = np.linalg.cholesky(cov + JITTER * np.eye(len(x)))
     except np.linalg.LinAlgError:  # rounding left the correlation indefinite: clip its spectrum

@@ -342,7 +342,7 @@ def _confirmed(progress: _Progress, final: FinalPosterior, rng: np.random.Genera
     progress.confirmations.append({"rounds": progress.rounds, "forward_runs": progress.spent,
                                    "spread": _finite(final.max_shift), "passed": passed,
                                    "seconds": float(sum(final.seconds.values()))})
-    logger.info("curve emulator validated after %d rounds; the reported posterior's spread %.3f %s",
+    logger.info("curve emulator validated after %d rounds; the reported posterior's spread %.4f %s",
                 progress.rounds, final.max_shift, "confirms it" if passed else f"does not (> {SPREAD_MAX})")
     if not passed and going_on:
         progress.since = progress.rounds

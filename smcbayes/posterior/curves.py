@@ -169,14 +169,20 @@ class CurveFeatures:
         return self.spec.w_force * out / k_count
 
 
-def matern52(a: Array, b: Array, lengthscales: Array) -> Array:
-    """Matern-5/2 correlation ``(N, M)`` of points ``a (N, d)`` and ``b (M, d)``, lengthscales ``(d,)``."""
-    # squared distances by one matrix product: the (N, M, d) differences cost several
-    # times more in the samplers' calls
-    sa, sb = a / lengthscales, b / lengthscales
-    r2 = np.sum(sa * sa, axis=1)[:, None] + np.sum(sb * sb, axis=1)[None, :] - 2.0 * (sa @ sb.T)
-    s = np.sqrt(5.0 * np.maximum(r2, 0.0))
-    return (1.0 + s + s * s / 3.0) * np.exp(-s)
+def matern52(a: Array, b: Array | None, lengthscales: Array) -> Array:
+    """Matern-5/2 correlation ``(N, M)`` of points ``a (N, d)`` and ``b (M, d)``,
+    lengthscales ``(d,)``; with ``b`` None, of ``a`` with itself ``(N, N)``, exactly
+    symmetric (:mod:`._matern_kernel`)."""
+    from smcbayes.posterior._matern_kernel import matern52_rows, matern52_self  # numba loads on first use
+
+    sa = np.ascontiguousarray(np.asarray(a, dtype=float) / lengthscales)
+    if b is None:
+        out = np.empty((len(sa), len(sa)))
+        matern52_self(sa, np.ascontiguousarray(sa.T), out)
+        return out
+    out = np.empty((len(sa), len(b)))
+    matern52_rows(sa, np.ascontiguousarray((np.asarray(b, dtype=float) / lengthscales).T), out)
+    return out
 
 
 @dataclass
@@ -189,9 +195,11 @@ class _Correlation:
 def _concentrated_nll(params: Array, x: Array, z: Array) -> float:
     """Negative log likelihood of outputs ``z (N, J)`` under one correlation, each output's
     scale profiled out."""
-    r = matern52(x, x, np.exp(params[:-1])) + (np.exp(params[-1]) + 1e-8) * np.eye(len(x))
+    r = matern52(x, None, np.exp(params[:-1]))
+    r[np.diag_indices_from(r)] += np.exp(params[-1]) + 1e-8
     try:
-        c = cho_factor(r, lower=True)
+        # the matrix is this call's own and finite: no copy, no scan of its N^2 entries
+        c = cho_factor(r, lower=True, overwrite_a=True, check_finite=False)
     except np.linalg.LinAlgError:
         return 1e12
     q = np.einsum("ij,ij->j", z, cho_solve(c, z))
@@ -216,7 +224,9 @@ def fit_correlation(x: Array, z: Array, start: _Correlation | None = None) -> _C
                        bounds=bounds)
         best = res if best is None or res.fun < best.fun else best
     ls, nug = np.exp(best.x[:-1]), float(np.exp(best.x[-1]))
-    chol = np.linalg.cholesky(matern52(x, x, ls) + (nug + 1e-8) * np.eye(len(x)))
+    r = matern52(x, None, ls)
+    r[np.diag_indices_from(r)] += nug + 1e-8
+    chol = np.linalg.cholesky(r)
     return _Correlation(ls, nug, chol)
 
 

@@ -196,15 +196,30 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
     assert all(c["seconds"] == 0.0 for c in record["confirmations"])
 
 
-def test_the_correlation_by_matrix_product_is_the_matern_of_the_distances() -> None:
+def test_the_correlation_kernels_are_the_matern_of_the_distances() -> None:
     from smcbayes.posterior.curves import matern52
 
     rng = np.random.default_rng(0)
     a, b, ls = rng.random((7, 3)), rng.random((5, 3)), np.array([0.1, 0.5, 2.0])
-    r = np.sqrt(np.sum(((a[:, None, :] - b[None, :, :]) / ls) ** 2, axis=-1))
-    s = np.sqrt(5.0) * r
-    np.testing.assert_allclose(matern52(a, b, ls), (1 + s + s * s / 3) * np.exp(-s), rtol=1e-12, atol=1e-14)
-    np.testing.assert_allclose(np.diag(matern52(a, a, ls)), 1.0, rtol=1e-12)
+
+    def closed_form(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        s = np.sqrt(5.0) * np.sqrt(np.sum(((p[:, None, :] - q[None, :, :]) / ls) ** 2, axis=-1))
+        return (1 + s + s * s / 3) * np.exp(-s)
+
+    np.testing.assert_allclose(matern52(a, b, ls), closed_form(a, b), rtol=1e-12, atol=1e-14)
+    own = matern52(a, None, ls)
+    np.testing.assert_array_equal(own, own.T)
+    np.testing.assert_allclose(own, closed_form(a, a), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(own, matern52(a, a, ls), rtol=1e-14, atol=0.0)
+    np.testing.assert_array_equal(np.diag(own), 1.0)
+    # points 1e-9 apart at a short lengthscale: the matrix-product form of the squared
+    # distance cancels to rounding there (errors ~1e-13 of a scaled norm near 80), the
+    # differences do not (1 - r ~ 5/6 of the scaled squared distance)
+    close = np.array([[0.9, 0.9, 0.9], [0.9 + 1e-9, 0.9, 0.9]])
+    tiny = np.array([0.02, 0.02, 0.02])
+    gap = 1.0 - matern52(close, close.copy(), tiny)
+    np.testing.assert_array_equal(np.diag(gap), 0.0)
+    np.testing.assert_allclose(gap[0, 1], 5.0 / 6.0 * (1e-9 / 0.02) ** 2, rtol=0.0, atol=1e-15)
 
 
 def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> None:

@@ -1,0 +1,64 @@
+"""numba kernels of :func:`smcbayes.posterior.curves.matern52` (imported on first use).
+
+The curve emulator evaluates its correlation at every point its samplers visit (rows
+against the training points) and, in each likelihood evaluation of its fit, between all
+training points.  In numpy the squared distances come from one matrix product, but the
+square root, the exponential and the polynomial each pass over an ``(N, M)`` temporary.
+Here each row's squared distances are summed over the coordinates with the points on the
+innermost, contiguous axis (so the compiler vectorises over them) and turned into the
+correlation in one pass; the correlation of a set of points with itself is computed on one
+triangle and mirrored.  The distances are summed from the coordinate differences, which
+is also exact where the matrix-product form cancels: at two near-identical points it
+leaves a rounding error of order the squared scaled norm.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+# numpy's error model; no fast-math: the same result on every machine
+_jit = njit(cache=True, error_model="numpy")
+
+@_jit
+def matern52_rows(sa: NDArray[np.float64], sbt: NDArray[np.float64], out: NDArray[np.float64]) -> None:
+    """Write to ``out`` ``(N, M)`` the Matern-5/2 correlation of the scaled points ``sa``
+    ``(N, d)`` with the scaled points given transposed, ``sbt`` ``(d, M)`` (coordinates
+    divided by the lengthscales)."""
+    n, d = sa.shape
+    m = sbt.shape[1]
+    r2 = np.empty(m)
+    for i in range(n):
+        r2[:] = 0.0
+        for k in range(d):
+            a = sa[i, k]
+            for j in range(m):
+                t = a - sbt[k, j]
+                r2[j] += t * t
+        for j in range(m):
+            s = math.sqrt(5.0 * r2[j])
+            out[i, j] = (1.0 + s + s * s / 3.0) * math.exp(-s)
+
+
+@_jit
+def matern52_self(sa: NDArray[np.float64], sat: NDArray[np.float64], out: NDArray[np.float64]) -> None:
+    """Write to ``out`` ``(N, N)`` the Matern-5/2 correlation of the scaled points ``sa``
+    ``(N, d)`` with themselves (``sat`` the same points transposed, ``(d, N)``): the lower
+    triangle computed, the upper one mirrored, so that ``out`` is exactly symmetric."""
+    n, d = sa.shape
+    r2 = np.empty(n)
+    for i in range(n):
+        r2[:i + 1] = 0.0
+        for k in range(d):
+            a = sa[i, k]
+            for j in range(i + 1):
+                t = a - sat[k, j]
+                r2[j] += t * t
+        for j in range(i + 1):
+            s = math.sqrt(5.0 * r2[j])
+            value = (1.0 + s + s * s / 3.0) * math.exp(-s)
+            out[i, j] = value
+            out[j, i] = value
