@@ -768,6 +768,8 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5
     log = [json.loads(line) for line in (folder / "posterior" / "refine.jsonl").read_text().splitlines()]
     assert len(log) == active["rounds"] and log[-1]["forward_runs"] == spent
+    # a quarter of each round's 40 runs explore, the rest are draws of the emulated posterior
+    assert [rec["posterior_points"] for rec in log] == [30] * active["rounds"]
     # three rounds: the first has no earlier emulator to compare with, so the three rounds
     # a validation needs cannot all be compared, and the stage says so
     assert active["rounds"] == 3 and not active["converged"] and log[0]["quantile_shift"] is None
