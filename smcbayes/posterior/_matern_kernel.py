@@ -8,8 +8,8 @@ Here each row's squared distances are summed over the coordinates with the point
 innermost, contiguous axis (so the compiler vectorises over them) and turned into the
 correlation in one pass; the correlation of a set of points with itself is computed on one
 triangle and mirrored.  The distances are summed from the coordinate differences, which
-is also exact where the matrix-product form cancels: at two near-identical points it
-leaves a rounding error of order the squared scaled norm.
+stay accurate where the matrix-product form cancels: at two near-identical points that
+form leaves a rounding error of order machine epsilon times the squared scaled norm.
 """
 
 from __future__ import annotations
@@ -20,8 +20,10 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-# numpy's error model; no fast-math: the same result on every machine
+# numpy's error model; no fast-math, so that the compiler keeps the order of the
+# arithmetic (the exponential is still the platform's)
 _jit = njit(cache=True, error_model="numpy")
+
 
 @_jit
 def matern52_rows(sa: NDArray[np.float64], sbt: NDArray[np.float64], out: NDArray[np.float64]) -> None:

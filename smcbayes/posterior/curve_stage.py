@@ -35,6 +35,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -167,7 +168,7 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     # final one; an ESS of a few hundred on the measured thesis trials) still count: there
     # some did in every round, and the rounds could never validate; the stage's own check asks it
     spread = function_spread([posteriors], sample, [str(k) for k in range(d)])
-    rows, error_weight, aim = targeted(posteriors, max(1, size - int(EXPLORATION * size)), rng)
+    rows, error_weight, aim = targeted(posteriors, max(1, size - math.ceil(EXPLORATION * size)), rng)
     # fewer distinct posterior points (a posterior on few support points): more exploration
     drawn = len(rows)
     new = np.vstack([sample.unit[posteriors.rows[rows]],

@@ -176,6 +176,9 @@ def matern52(a: Array, b: Array | None, lengthscales: Array) -> Array:
     from smcbayes.posterior._matern_kernel import matern52_rows, matern52_self  # numba loads on first use
 
     sa = np.ascontiguousarray(np.asarray(a, dtype=float) / lengthscales)
+    if b is not None and np.shape(b)[1] != sa.shape[1]:
+        # the kernel would read past the shorter rows
+        raise ValueError(f"matern52: points of {sa.shape[1]} and {np.shape(b)[1]} coordinates")
     if b is None:
         out = np.empty((len(sa), len(sa)))
         matern52_self(sa, np.ascontiguousarray(sa.T), out)
@@ -198,11 +201,13 @@ def _concentrated_nll(params: Array, x: Array, z: Array) -> float:
     r = matern52(x, None, np.exp(params[:-1]))
     r[np.diag_indices_from(r)] += np.exp(params[-1]) + 1e-8
     try:
-        # the matrix is this call's own and finite: no copy, no scan of its N^2 entries
-        c = cho_factor(r, lower=True, overwrite_a=True, check_finite=False)
+        # the matrix is this call's own, finite and exactly symmetric: its transpose is the
+        # Fortran-ordered array LAPACK factorises in place, without a copy or a scan of its
+        # N^2 entries (the factor's scan in the solve neither)
+        c = cho_factor(r.T, lower=True, overwrite_a=True, check_finite=False)
     except np.linalg.LinAlgError:
         return 1e12
-    q = np.einsum("ij,ij->j", z, cho_solve(c, z))
+    q = np.einsum("ij,ij->j", z, cho_solve(c, z, check_finite=False))
     logdet = 2.0 * np.sum(np.log(np.diag(c[0])))
     return float(0.5 * len(x) * np.sum(np.log(q / len(x))) + 0.5 * z.shape[1] * logdet)
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 from scipy.stats import norm
 
 from smcbayes.posterior.correct import ImportanceSample
@@ -213,13 +214,15 @@ def test_the_correlation_kernels_are_the_matern_of_the_distances() -> None:
     np.testing.assert_allclose(own, matern52(a, a, ls), rtol=1e-14, atol=0.0)
     np.testing.assert_array_equal(np.diag(own), 1.0)
     # points 1e-9 apart at a short lengthscale: the matrix-product form of the squared
-    # distance cancels to rounding there (errors ~1e-13 of a scaled norm near 80), the
-    # differences do not (1 - r ~ 5/6 of the scaled squared distance)
+    # distance cancels to rounding there (errors ~1e-12 at a scaled squared norm near
+    # 6,000), the differences do not (1 - r ~ 5/6 of the scaled squared distance)
     close = np.array([[0.9, 0.9, 0.9], [0.9 + 1e-9, 0.9, 0.9]])
     tiny = np.array([0.02, 0.02, 0.02])
-    gap = 1.0 - matern52(close, close.copy(), tiny)
+    gap = 1.0 - matern52(close, close, tiny)
     np.testing.assert_array_equal(np.diag(gap), 0.0)
     np.testing.assert_allclose(gap[0, 1], 5.0 / 6.0 * (1e-9 / 0.02) ** 2, rtol=0.0, atol=1e-15)
+    with pytest.raises(ValueError, match="coordinates"):
+        matern52(a, b[:, :2], ls)
 
 
 def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> None:
