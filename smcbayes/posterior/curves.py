@@ -203,7 +203,7 @@ def _concentrated_nll(params: Array, x: Array, z: Array) -> float:
     try:
         # the matrix is this call's own, finite and exactly symmetric: its transpose is the
         # Fortran-ordered array LAPACK factorises in place, without a copy or a scan of its
-        # N^2 entries (the factor's scan in the solve neither)
+        # N^2 entries, and the solve skips the same scan of the factor
         c = cho_factor(r.T, lower=True, overwrite_a=True, check_finite=False)
     except np.linalg.LinAlgError:
         return 1e12
