@@ -10,6 +10,9 @@ correlation in one pass; the correlation of a set of points with itself is compu
 triangle and mirrored.  The distances are summed from the coordinate differences, which
 stay accurate where the matrix-product form cancels: at two near-identical points that
 form leaves a rounding error of order machine epsilon times the squared scaled norm.
+Many rows at once (:data:`PARALLEL_ROWS`) are shared out in blocks over numba's threads
+(:func:`matern52_rows_parallel`); each row's arithmetic is the same, so the result does not
+depend on the number of threads.
 """
 
 from __future__ import annotations
@@ -17,12 +20,36 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from numpy.typing import NDArray
 
 # numpy's error model; no fast-math, so that the compiler keeps the order of the
 # arithmetic (the exponential is still the platform's)
 _jit = njit(cache=True, error_model="numpy")
+_parallel = njit(cache=True, error_model="numpy", parallel=True)
+
+PARALLEL_ROWS = 256
+"""Rows from which :func:`matern52_rows_parallel` pays: the samplers' small calls (16 rows
+an emcee step) would spend longer waking the threads than computing."""
+
+BLOCK = 64
+"""Rows per block of :func:`matern52_rows_parallel`."""
+
+
+@_jit
+def _row(sa: NDArray[np.float64], i: int, sbt: NDArray[np.float64], r2: NDArray[np.float64],
+         out: NDArray[np.float64]) -> None:
+    """Row ``i`` of :func:`matern52_rows` (``r2`` ``(M,)`` scratch)."""
+    d, m = sbt.shape
+    r2[:] = 0.0
+    for k in range(d):
+        a = sa[i, k]
+        for j in range(m):
+            t = a - sbt[k, j]
+            r2[j] += t * t
+    for j in range(m):
+        s = math.sqrt(5.0 * r2[j])
+        out[i, j] = (1.0 + s + s * s / 3.0) * math.exp(-s)
 
 
 @_jit
@@ -30,19 +57,19 @@ def matern52_rows(sa: NDArray[np.float64], sbt: NDArray[np.float64], out: NDArra
     """Write to ``out`` ``(N, M)`` the Matern-5/2 correlation of the scaled points ``sa``
     ``(N, d)`` with the scaled points given transposed, ``sbt`` ``(d, M)`` (coordinates
     divided by the lengthscales)."""
-    n, d = sa.shape
-    m = sbt.shape[1]
-    r2 = np.empty(m)
-    for i in range(n):
-        r2[:] = 0.0
-        for k in range(d):
-            a = sa[i, k]
-            for j in range(m):
-                t = a - sbt[k, j]
-                r2[j] += t * t
-        for j in range(m):
-            s = math.sqrt(5.0 * r2[j])
-            out[i, j] = (1.0 + s + s * s / 3.0) * math.exp(-s)
+    r2 = np.empty(sbt.shape[1])
+    for i in range(sa.shape[0]):
+        _row(sa, i, sbt, r2, out)
+
+
+@_parallel
+def matern52_rows_parallel(sa: NDArray[np.float64], sbt: NDArray[np.float64], out: NDArray[np.float64]) -> None:
+    """:func:`matern52_rows` in blocks of :data:`BLOCK` rows over numba's threads."""
+    n = sa.shape[0]
+    for b in prange((n + BLOCK - 1) // BLOCK):
+        r2 = np.empty(sbt.shape[1])
+        for i in range(b * BLOCK, min(n, (b + 1) * BLOCK)):
+            _row(sa, i, sbt, r2, out)
 
 
 @_jit

@@ -7,7 +7,9 @@ target.  In numpy each chunk of points builds an ``(M, n, d)`` array of whitened
 Here each point is whitened against all kernels at once with the kernels on the innermost,
 contiguous axis (so the compiler vectorises over them), using the lower-triangular
 inverse Cholesky factors (half the products of a full matrix), and the kernels' densities
-are summed by a log-sum-exp over that axis.
+are summed by a log-sum-exp over that axis.  Many points are shared out in blocks over
+numba's threads; each point's arithmetic is the same, so the result does not depend on
+their number.
 """
 
 from __future__ import annotations
@@ -15,12 +17,48 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from numpy.typing import NDArray
 
 # numpy's error model, as in the numpy code it replaces; no fast-math: the same result
 # on every machine
 _jit = njit(cache=True, error_model="numpy")
+_parallel = njit(cache=True, error_model="numpy", parallel=True)
+
+PARALLEL_POINTS = 256
+"""Points from which :func:`t_mixture_logpdf_parallel` pays for waking numba's threads."""
+
+BLOCK = 64
+"""Points per block of :func:`t_mixture_logpdf_parallel`."""
+
+
+@_jit
+def _point(u: NDArray[np.float64], i: int, shift: NDArray[np.float64], inv: NDArray[np.float64],
+           const: NDArray[np.float64], nu: float, z: NDArray[np.float64], log_k: NDArray[np.float64]) -> float:
+    """The value of :func:`t_mixture_logpdf` at point ``i`` (``z``, ``log_k`` ``(M,)`` scratch)."""
+    d = u.shape[1]
+    m_kernels = shift.shape[1]
+    power = -0.5 * (nu + d)
+    log_k[:] = 0.0  # the squared Mahalanobis distances first
+    for a in range(d):
+        for m in range(m_kernels):
+            z[m] = -shift[a, m]
+        for b in range(a + 1):
+            ub = u[i, b]
+            for m in range(m_kernels):
+                z[m] += inv[a, b, m] * ub
+        for m in range(m_kernels):
+            log_k[m] += z[m] * z[m]
+    top = -math.inf
+    for m in range(m_kernels):
+        log_k[m] = const[m] + power * math.log1p(log_k[m] / nu)
+        top = max(top, log_k[m])
+    if not math.isfinite(top):  # every kernel zero (or NaN): nothing to normalise by
+        return top
+    total = 0.0
+    for m in range(m_kernels):
+        total += math.exp(log_k[m] - top)
+    return top + math.log(total)
 
 
 @_jit
@@ -35,30 +73,19 @@ def t_mixture_logpdf(u: NDArray[np.float64], shift: NDArray[np.float64], inv: ND
     ``shift`` ``(d, M)``; ``const`` ``(M,)`` holds each kernel's log normalising constant
     and log weight.
     """
-    n_points, d = u.shape
-    m_kernels = shift.shape[1]
-    power = -0.5 * (nu + d)
-    z = np.empty(m_kernels)
-    log_k = np.empty(m_kernels)
-    for i in range(n_points):
-        log_k[:] = 0.0  # the squared Mahalanobis distances first
-        for a in range(d):
-            for m in range(m_kernels):
-                z[m] = -shift[a, m]
-            for b in range(a + 1):
-                ub = u[i, b]
-                for m in range(m_kernels):
-                    z[m] += inv[a, b, m] * ub
-            for m in range(m_kernels):
-                log_k[m] += z[m] * z[m]
-        top = -math.inf
-        for m in range(m_kernels):
-            log_k[m] = const[m] + power * math.log1p(log_k[m] / nu)
-            top = max(top, log_k[m])
-        if not math.isfinite(top):  # every kernel zero (or NaN): nothing to normalise by
-            out[i] = top
-            continue
-        total = 0.0
-        for m in range(m_kernels):
-            total += math.exp(log_k[m] - top)
-        out[i] = top + math.log(total)
+    z = np.empty(shift.shape[1])
+    log_k = np.empty(shift.shape[1])
+    for i in range(u.shape[0]):
+        out[i] = _point(u, i, shift, inv, const, nu, z, log_k)
+
+
+@_parallel
+def t_mixture_logpdf_parallel(u: NDArray[np.float64], shift: NDArray[np.float64], inv: NDArray[np.float64],
+                              const: NDArray[np.float64], nu: float, out: NDArray[np.float64]) -> None:
+    """:func:`t_mixture_logpdf` in blocks of :data:`BLOCK` points over numba's threads."""
+    n = u.shape[0]
+    for b in prange((n + BLOCK - 1) // BLOCK):
+        z = np.empty(shift.shape[1])
+        log_k = np.empty(shift.shape[1])
+        for i in range(b * BLOCK, min(n, (b + 1) * BLOCK)):
+            out[i] = _point(u, i, shift, inv, const, nu, z, log_k)

@@ -154,18 +154,23 @@ class CurveFeatures:
         """The global loss ``(P,)`` (kN^2) of features ``(P, size)``, as
         :func:`smcbayes.data.loss.evaluate_loss` computes it from the simulations (both
         curves linearly interpolated onto the window's grid; :mod:`._curve_kernel`)."""
-        from smcbayes.posterior._curve_kernel import force_mse_kernel  # numba loads on first use
+        from smcbayes.posterior._curve_kernel import (  # numba loads on first use
+            PARALLEL_ROWS,
+            force_mse_kernel,
+            force_mse_kernel_parallel,
+        )
 
         k_count, n = len(self.ids), self.nodes
         out = np.zeros(features.shape[0])
+        kernel = force_mse_kernel_parallel if len(out) >= PARALLEL_ROWS else force_mse_kernel
         for k, m in enumerate(self.measured):
             ts = np.maximum(features[:, k_count * n + k], 1e-9)
             delay = self._delays(features, k)
             flow_stop = self.spec.clip == "flow_stop"
             common = m.flow_stop_s if flow_stop else m.force.time_s[-1]
             end = np.full(ts.shape, common) if flow_stop else np.maximum(ts + delay, common)
-            force_mse_kernel(np.ascontiguousarray(features[:, k * n:(k + 1) * n]), ts, delay, end, self.grid,
-                             m.force.time_s, m.force.values, out, float(common))
+            kernel(np.ascontiguousarray(features[:, k * n:(k + 1) * n]), ts, delay, end, self.grid,
+                   m.force.time_s, m.force.values, out, float(common))
         return self.spec.w_force * out / k_count
 
 
@@ -173,7 +178,12 @@ def matern52(a: Array, b: Array | None, lengthscales: Array) -> Array:
     """Matern-5/2 correlation ``(N, M)`` of points ``a (N, d)`` and ``b (M, d)``,
     lengthscales ``(d,)``; with ``b`` None, of ``a`` with itself ``(N, N)``, exactly
     symmetric (:mod:`._matern_kernel`)."""
-    from smcbayes.posterior._matern_kernel import matern52_rows, matern52_self  # numba loads on first use
+    from smcbayes.posterior._matern_kernel import (  # numba loads on first use
+        PARALLEL_ROWS,
+        matern52_rows,
+        matern52_rows_parallel,
+        matern52_self,
+    )
 
     sa = np.ascontiguousarray(np.asarray(a, dtype=float) / lengthscales)
     if b is not None and np.shape(b)[1] != sa.shape[1]:
@@ -184,7 +194,8 @@ def matern52(a: Array, b: Array | None, lengthscales: Array) -> Array:
         matern52_self(sa, np.ascontiguousarray(sa.T), out)
         return out
     out = np.empty((len(sa), len(b)))
-    matern52_rows(sa, np.ascontiguousarray((np.asarray(b, dtype=float) / lengthscales).T), out)
+    rows = matern52_rows_parallel if len(sa) >= PARALLEL_ROWS else matern52_rows
+    rows(sa, np.ascontiguousarray((np.asarray(b, dtype=float) / lengthscales).T), out)
     return out
 
 

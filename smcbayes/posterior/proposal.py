@@ -75,15 +75,20 @@ class Proposal:
 
     def log_pdf(self, u: Array) -> Array:
         """Log density ``(N,)`` at the points ``u`` ``(N, d)`` (:mod:`._proposal_kernel`)."""
-        from smcbayes.posterior._proposal_kernel import t_mixture_logpdf  # numba loads on first use
+        from smcbayes.posterior._proposal_kernel import (  # numba loads on first use
+            PARALLEL_POINTS,
+            t_mixture_logpdf,
+            t_mixture_logpdf_parallel,
+        )
 
         u = np.ascontiguousarray(np.atleast_2d(u), dtype=float)
         const = _log_t_norm(self.chol, self.nu) - np.log(self.centres.shape[0])
         inv = np.linalg.inv(self.chol)  # (M, d, d): L_m^-1, lower triangular
         shift = np.einsum("mde,me->dm", inv, self.centres)
         out = np.empty(u.shape[0])
-        t_mixture_logpdf(u, np.ascontiguousarray(shift), np.ascontiguousarray(inv.transpose(1, 2, 0)), const,
-                         float(self.nu), out)
+        kernel = t_mixture_logpdf_parallel if len(u) >= PARALLEL_POINTS else t_mixture_logpdf
+        kernel(u, np.ascontiguousarray(shift), np.ascontiguousarray(inv.transpose(1, 2, 0)), const,
+               float(self.nu), out)
         inside = np.all((u >= 0.0) & (u <= 1.0), axis=1)
         log_uniform = np.where(inside, 0.0, -np.inf)
         with np.errstate(divide="ignore"):

@@ -225,11 +225,24 @@ def test_the_correlation_kernels_are_the_matern_of_the_distances() -> None:
         matern52(a, b[:, :2], ls)
 
 
+def test_many_rows_share_the_correlation_out_over_threads_with_the_same_values() -> None:
+    from smcbayes.posterior._matern_kernel import BLOCK, PARALLEL_ROWS, matern52_rows
+    from smcbayes.posterior.curves import matern52
+
+    rng = np.random.default_rng(2)
+    # a last block left part-full
+    a, b, ls = rng.random((PARALLEL_ROWS + BLOCK // 2 + 1, 4)), rng.random((37, 4)), np.array([0.3, 0.5, 1.0, 2.0])
+    serial = np.empty((len(a), len(b)))
+    matern52_rows(np.ascontiguousarray(a / ls), np.ascontiguousarray((b / ls).T), serial)
+    np.testing.assert_array_equal(matern52(a, b, ls), serial)
+
+
 def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> None:
-    from smcbayes.posterior._curve_kernel import force_mse_kernel
+    from smcbayes.posterior._curve_kernel import BLOCK, force_mse_kernel, force_mse_kernel_parallel
 
     rng = np.random.default_rng(1)
-    rows, nodes = 6, 9
+    # over several of the parallel kernel's blocks, the last one part-full
+    rows, nodes = 2 * BLOCK + 7, 9
     force = np.cumsum(rng.random((rows, nodes)), axis=1)
     switch = rng.uniform(0.5, 2.0, rows)
     delay = rng.uniform(-0.3, 0.3, rows)
@@ -251,18 +264,28 @@ def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> N
     out = np.zeros(rows)
     force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, out)
     np.testing.assert_allclose(out, expected(end), rtol=1e-12)
+    # shared out over threads: the same values
+    threaded = np.zeros(rows)
+    force_mse_kernel_parallel(force, switch, delay, end, grid, time_m, force_m, threaded)
+    np.testing.assert_array_equal(threaded, out)
     # rows that share the window's end take the measured curve interpolated once: the same sums
     end[::2] = time_m[-1]
     each, shared = np.zeros(rows), np.zeros(rows)
     force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, each)
     force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, shared, time_m[-1])
     np.testing.assert_array_equal(shared, each)
+    threaded = np.zeros(rows)
+    force_mse_kernel_parallel(force, switch, delay, end, grid, time_m, force_m, threaded, time_m[-1])
+    np.testing.assert_array_equal(threaded, shared)
     np.testing.assert_allclose(shared, expected(end), rtol=1e-12)
     # a row without a switch time has no loss, not an arbitrary one
     switch[2] = np.nan
     out = np.zeros(rows)
     force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, out)
     assert np.isnan(out[2]) and np.all(np.isfinite(np.delete(out, 2)))
+    threaded = np.zeros(rows)
+    force_mse_kernel_parallel(force, switch, delay, end, grid, time_m, force_m, threaded)
+    np.testing.assert_array_equal(threaded, out)
 
 
 def test_the_spread_counts_the_functions_common_lean_away_from_the_mean() -> None:
