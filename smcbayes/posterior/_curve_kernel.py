@@ -28,11 +28,6 @@ from smcbayes.forward._interp_kernel import _bracket
 _jit = njit(cache=True, error_model="numpy")
 _parallel = njit(cache=True, error_model="numpy", parallel=True)
 
-PARALLEL_ROWS = 256
-"""Rows from which :func:`force_mse_kernel_parallel` pays for waking numba's threads."""
-
-BLOCK = 64
-"""Rows per block of :func:`force_mse_kernel_parallel`."""
 
 
 @_jit
@@ -95,21 +90,23 @@ def force_mse_kernel(force: NDArray[np.float64], switch: NDArray[np.float64], de
         measured_on_grid(common_end, grid, time_m, force_m, common)
     own = np.empty(grid.shape[0])
     for p in range(force.shape[0]):
-        out[p] += _row_mse(force, p, switch[p], delay[p], end[p], grid, time_m, force_m, common, common_end, own)
+        out[p] += _row_mse(force, p, switch[p], delay[p], end[p], grid, time_m, force_m, common, common_end,
+                           own)
 
 
 @_parallel
-def force_mse_kernel_parallel(force: NDArray[np.float64], switch: NDArray[np.float64], delay: NDArray[np.float64],
-                              end: NDArray[np.float64], grid: NDArray[np.float64], time_m: NDArray[np.float64],
-                              force_m: NDArray[np.float64], out: NDArray[np.float64],
-                              common_end: float = np.nan) -> None:
-    """:func:`force_mse_kernel` in blocks of :data:`BLOCK` rows over numba's threads."""
+def force_mse_kernel_parallel(force: NDArray[np.float64], switch: NDArray[np.float64],
+                              delay: NDArray[np.float64], end: NDArray[np.float64],
+                              grid: NDArray[np.float64], time_m: NDArray[np.float64],
+                              force_m: NDArray[np.float64], out: NDArray[np.float64], common_end: float,
+                              block: int) -> None:
+    """:func:`force_mse_kernel` in blocks of ``block`` rows over numba's threads."""
     common = np.empty(grid.shape[0] if common_end == common_end else 0)
     if common_end == common_end:
         measured_on_grid(common_end, grid, time_m, force_m, common)
     rows = force.shape[0]
-    for b in prange((rows + BLOCK - 1) // BLOCK):
+    for b in prange((rows + block - 1) // block):
         own = np.empty(grid.shape[0])
-        for p in range(b * BLOCK, min(rows, (b + 1) * BLOCK)):
-            out[p] += _row_mse(force, p, switch[p], delay[p], end[p], grid, time_m, force_m, common, common_end,
-                               own)
+        for p in range(b * block, min(rows, (b + 1) * block)):
+            out[p] += _row_mse(force, p, switch[p], delay[p], end[p], grid, time_m, force_m, common,
+                               common_end, own)

@@ -10,9 +10,9 @@ correlation in one pass; the correlation of a set of points with itself is compu
 triangle and mirrored.  The distances are summed from the coordinate differences, which
 stay accurate where the matrix-product form cancels: at two near-identical points that
 form leaves a rounding error of order machine epsilon times the squared scaled norm.
-Many rows at once (:data:`PARALLEL_ROWS`) are shared out in blocks over numba's threads
-(:func:`matern52_rows_parallel`); each row's arithmetic is the same, so the result does not
-depend on the number of threads.
+Many rows at once (:data:`smcbayes.posterior._blocks.PARALLEL_ROWS`) are shared out in
+blocks over numba's threads (:func:`matern52_rows_parallel`); each row's arithmetic is the
+same, so the result does not depend on the number of threads.
 """
 
 from __future__ import annotations
@@ -28,12 +28,6 @@ from numpy.typing import NDArray
 _jit = njit(cache=True, error_model="numpy")
 _parallel = njit(cache=True, error_model="numpy", parallel=True)
 
-PARALLEL_ROWS = 256
-"""Rows from which :func:`matern52_rows_parallel` pays: the samplers' small calls (16 rows
-an emcee step) would spend longer waking the threads than computing."""
-
-BLOCK = 64
-"""Rows per block of :func:`matern52_rows_parallel`."""
 
 
 @_jit
@@ -63,12 +57,13 @@ def matern52_rows(sa: NDArray[np.float64], sbt: NDArray[np.float64], out: NDArra
 
 
 @_parallel
-def matern52_rows_parallel(sa: NDArray[np.float64], sbt: NDArray[np.float64], out: NDArray[np.float64]) -> None:
-    """:func:`matern52_rows` in blocks of :data:`BLOCK` rows over numba's threads."""
+def matern52_rows_parallel(sa: NDArray[np.float64], sbt: NDArray[np.float64], out: NDArray[np.float64],
+                           block: int) -> None:
+    """:func:`matern52_rows` in blocks of ``block`` rows over numba's threads."""
     n = sa.shape[0]
-    for b in prange((n + BLOCK - 1) // BLOCK):
+    for b in prange((n + block - 1) // block):
         r2 = np.empty(sbt.shape[1])
-        for i in range(b * BLOCK, min(n, (b + 1) * BLOCK)):
+        for i in range(b * block, min(n, (b + 1) * block)):
             _row(sa, i, sbt, r2, out)
 
 

@@ -25,16 +25,12 @@ from numpy.typing import NDArray
 _jit = njit(cache=True, error_model="numpy")
 _parallel = njit(cache=True, error_model="numpy", parallel=True)
 
-PARALLEL_POINTS = 256
-"""Points from which :func:`t_mixture_logpdf_parallel` pays for waking numba's threads."""
-
-BLOCK = 64
-"""Points per block of :func:`t_mixture_logpdf_parallel`."""
 
 
 @_jit
 def _point(u: NDArray[np.float64], i: int, shift: NDArray[np.float64], inv: NDArray[np.float64],
-           const: NDArray[np.float64], nu: float, z: NDArray[np.float64], log_k: NDArray[np.float64]) -> float:
+           const: NDArray[np.float64], nu: float, z: NDArray[np.float64],
+           log_k: NDArray[np.float64]) -> float:
     """The value of :func:`t_mixture_logpdf` at point ``i`` (``z``, ``log_k`` ``(M,)`` scratch)."""
     d = u.shape[1]
     m_kernels = shift.shape[1]
@@ -81,11 +77,12 @@ def t_mixture_logpdf(u: NDArray[np.float64], shift: NDArray[np.float64], inv: ND
 
 @_parallel
 def t_mixture_logpdf_parallel(u: NDArray[np.float64], shift: NDArray[np.float64], inv: NDArray[np.float64],
-                              const: NDArray[np.float64], nu: float, out: NDArray[np.float64]) -> None:
-    """:func:`t_mixture_logpdf` in blocks of :data:`BLOCK` points over numba's threads."""
+                              const: NDArray[np.float64], nu: float, out: NDArray[np.float64],
+                              block: int) -> None:
+    """:func:`t_mixture_logpdf` in blocks of ``block`` points over numba's threads."""
     n = u.shape[0]
-    for b in prange((n + BLOCK - 1) // BLOCK):
+    for b in prange((n + block - 1) // block):
         z = np.empty(shift.shape[1])
         log_k = np.empty(shift.shape[1])
-        for i in range(b * BLOCK, min(n, (b + 1) * BLOCK)):
+        for i in range(b * block, min(n, (b + 1) * block)):
             out[i] = _point(u, i, shift, inv, const, nu, z, log_k)

@@ -53,6 +53,7 @@ from scipy.optimize import minimize
 from smcbayes.errors import ConfigError
 from smcbayes.forward.nodes import interp_rows
 from smcbayes.forward.result import SimulationResult
+from smcbayes.posterior._blocks import BLOCK, PARALLEL_ROWS
 from smcbayes.simulation.problem import Problem
 
 Array = NDArray[np.float64]
@@ -155,22 +156,25 @@ class CurveFeatures:
         :func:`smcbayes.data.loss.evaluate_loss` computes it from the simulations (both
         curves linearly interpolated onto the window's grid; :mod:`._curve_kernel`)."""
         from smcbayes.posterior._curve_kernel import (  # numba loads on first use
-            PARALLEL_ROWS,
             force_mse_kernel,
             force_mse_kernel_parallel,
         )
 
         k_count, n = len(self.ids), self.nodes
         out = np.zeros(features.shape[0])
-        kernel = force_mse_kernel_parallel if len(out) >= PARALLEL_ROWS else force_mse_kernel
+        threaded = len(out) >= PARALLEL_ROWS
         for k, m in enumerate(self.measured):
             ts = np.maximum(features[:, k_count * n + k], 1e-9)
             delay = self._delays(features, k)
             flow_stop = self.spec.clip == "flow_stop"
             common = m.flow_stop_s if flow_stop else m.force.time_s[-1]
             end = np.full(ts.shape, common) if flow_stop else np.maximum(ts + delay, common)
-            kernel(np.ascontiguousarray(features[:, k * n:(k + 1) * n]), ts, delay, end, self.grid,
-                   m.force.time_s, m.force.values, out, float(common))
+            args = (np.ascontiguousarray(features[:, k * n:(k + 1) * n]), ts, delay, end, self.grid,
+                    m.force.time_s, m.force.values, out, float(common))
+            if threaded:
+                force_mse_kernel_parallel(*args, BLOCK)
+            else:
+                force_mse_kernel(*args)
         return self.spec.w_force * out / k_count
 
 
@@ -179,7 +183,6 @@ def matern52(a: Array, b: Array | None, lengthscales: Array) -> Array:
     lengthscales ``(d,)``; with ``b`` None, of ``a`` with itself ``(N, N)``, exactly
     symmetric (:mod:`._matern_kernel`)."""
     from smcbayes.posterior._matern_kernel import (  # numba loads on first use
-        PARALLEL_ROWS,
         matern52_rows,
         matern52_rows_parallel,
         matern52_self,
@@ -194,8 +197,11 @@ def matern52(a: Array, b: Array | None, lengthscales: Array) -> Array:
         matern52_self(sa, np.ascontiguousarray(sa.T), out)
         return out
     out = np.empty((len(sa), len(b)))
-    rows = matern52_rows_parallel if len(sa) >= PARALLEL_ROWS else matern52_rows
-    rows(sa, np.ascontiguousarray((np.asarray(b, dtype=float) / lengthscales).T), out)
+    sbt = np.ascontiguousarray((np.asarray(b, dtype=float) / lengthscales).T)
+    if len(sa) >= PARALLEL_ROWS:
+        matern52_rows_parallel(sa, sbt, out, BLOCK)
+    else:
+        matern52_rows(sa, sbt, out)
     return out
 
 

@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from scipy.special import gammaln, logsumexp
 
 from smcbayes.config import CorrectionSpec
+from smcbayes.posterior._blocks import BLOCK, PARALLEL_ROWS
 from smcbayes.posterior.mixture import fit_mixture
 from smcbayes.posterior.weights import ess_of, temper, weighted_cov
 
@@ -76,7 +77,6 @@ class Proposal:
     def log_pdf(self, u: Array) -> Array:
         """Log density ``(N,)`` at the points ``u`` ``(N, d)`` (:mod:`._proposal_kernel`)."""
         from smcbayes.posterior._proposal_kernel import (  # numba loads on first use
-            PARALLEL_POINTS,
             t_mixture_logpdf,
             t_mixture_logpdf_parallel,
         )
@@ -86,9 +86,12 @@ class Proposal:
         inv = np.linalg.inv(self.chol)  # (M, d, d): L_m^-1, lower triangular
         shift = np.einsum("mde,me->dm", inv, self.centres)
         out = np.empty(u.shape[0])
-        kernel = t_mixture_logpdf_parallel if len(u) >= PARALLEL_POINTS else t_mixture_logpdf
-        kernel(u, np.ascontiguousarray(shift), np.ascontiguousarray(inv.transpose(1, 2, 0)), const,
-               float(self.nu), out)
+        args = (u, np.ascontiguousarray(shift), np.ascontiguousarray(inv.transpose(1, 2, 0)), const,
+                float(self.nu), out)
+        if len(u) >= PARALLEL_ROWS:
+            t_mixture_logpdf_parallel(*args, BLOCK)
+        else:
+            t_mixture_logpdf(*args)
         inside = np.all((u >= 0.0) & (u <= 1.0), axis=1)
         log_uniform = np.where(inside, 0.0, -np.inf)
         with np.errstate(divide="ignore"):

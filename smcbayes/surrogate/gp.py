@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import gpytorch
+import numba
 import numpy as np
 import torch
 from botorch.exceptions import ModelFittingError
@@ -55,9 +56,14 @@ def gp_session(threads: int = 1) -> Iterator[None]:
     are small products too (the emcee samplers ask for 16 rows at a time): with two BLAS
     threads the variance of 16 rows of a 735-point curve emulator took 3.5 times as long
     as with one.  One thread also makes the results independent of the machine's cores.
+    The posterior's numba kernels share large calls out over every core
+    (:mod:`smcbayes.posterior._blocks`), with the same values whatever their number.
     A small fixed noise is deliberate (deterministic simulator); gpytorch's floor of 1e-6
     in standardised units applies and its warning about it would flood the terminal.
     """
+    # numba's threads share torch's OpenMP runtime: started later, by the first threaded
+    # kernel call in the session, they would set torch's threads to every core
+    numba.get_num_threads()
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:

@@ -11,7 +11,7 @@ from scipy.stats import multivariate_t
 
 from smcbayes import progress
 from smcbayes.errors import ConvergenceWarning, SmcBayesWarning, UnreliablePosteriorWarning
-from smcbayes.posterior._proposal_kernel import PARALLEL_POINTS
+from smcbayes.posterior._blocks import PARALLEL_ROWS
 from smcbayes.posterior.centre_chains import CentreChains
 from smcbayes.posterior.correct import (
     K_HAT_WARN,
@@ -106,9 +106,11 @@ def test_proposal_density_is_the_defensive_t_mixture() -> None:
     expected = np.log(0.8 * multivariate_t(centre[0], chol @ chol.T, df=5.0).pdf(u) + 0.2)
     np.testing.assert_allclose(q.log_pdf(u), expected, rtol=1e-10)
     # many points share the kernels out over numba's threads, with the same values
-    many = rng.random((PARALLEL_POINTS + 33, 2))
-    np.testing.assert_array_equal(q.log_pdf(many), np.concatenate([q.log_pdf(many[i:i + 50])
-                                                                   for i in range(0, len(many), 50)]))
+    centres = rng.random((5, 2))
+    several = Proposal(centres, np.repeat(chol[None], 5, axis=0) * rng.uniform(0.5, 2.0, (5, 1, 1)), 5.0, 0.2)
+    many = rng.random((PARALLEL_ROWS + 33, 2))
+    np.testing.assert_array_equal(several.log_pdf(many), np.concatenate([several.log_pdf(many[i:i + 50])
+                                                                         for i in range(0, len(many), 50)]))
     x, kernel = q.sample_indexed(20000, rng)
     inside = np.all((x >= 0) & (x <= 1), axis=1)
     # a fifth of the draws from the uniform density, all of them in the cube ...

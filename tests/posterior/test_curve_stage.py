@@ -226,19 +226,37 @@ def test_the_correlation_kernels_are_the_matern_of_the_distances() -> None:
 
 
 def test_many_rows_share_the_correlation_out_over_threads_with_the_same_values() -> None:
-    from smcbayes.posterior._matern_kernel import BLOCK, PARALLEL_ROWS, matern52_rows
+    import numba
+
+    from smcbayes.posterior._blocks import BLOCK, PARALLEL_ROWS
+    from smcbayes.posterior._matern_kernel import matern52_rows, matern52_rows_parallel
     from smcbayes.posterior.curves import matern52
 
     rng = np.random.default_rng(2)
     # a last block left part-full
-    a, b, ls = rng.random((PARALLEL_ROWS + BLOCK // 2 + 1, 4)), rng.random((37, 4)), np.array([0.3, 0.5, 1.0, 2.0])
+    a, b = rng.random((PARALLEL_ROWS + BLOCK // 2 + 1, 4)), rng.random((37, 4))
+    ls = np.array([0.3, 0.5, 1.0, 2.0])
+    sa, sbt = np.ascontiguousarray(a / ls), np.ascontiguousarray((b / ls).T)
     serial = np.empty((len(a), len(b)))
-    matern52_rows(np.ascontiguousarray(a / ls), np.ascontiguousarray((b / ls).T), serial)
+    matern52_rows(sa, sbt, serial)
     np.testing.assert_array_equal(matern52(a, b, ls), serial)
+    # on one thread the threaded kernel gives the same values too, as it does with fewer rows than a block
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = np.empty_like(serial)
+        matern52_rows_parallel(sa, sbt, one, BLOCK)
+    finally:
+        numba.set_num_threads(threads)
+    np.testing.assert_array_equal(one, serial)
+    few = np.empty((BLOCK // 2, len(b)))
+    matern52_rows_parallel(sa[:BLOCK // 2], sbt, few, BLOCK)
+    np.testing.assert_array_equal(few, serial[:BLOCK // 2])
 
 
 def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> None:
-    from smcbayes.posterior._curve_kernel import BLOCK, force_mse_kernel, force_mse_kernel_parallel
+    from smcbayes.posterior._blocks import BLOCK
+    from smcbayes.posterior._curve_kernel import force_mse_kernel, force_mse_kernel_parallel
 
     rng = np.random.default_rng(1)
     # over several of the parallel kernel's blocks, the last one part-full
@@ -266,7 +284,7 @@ def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> N
     np.testing.assert_allclose(out, expected(end), rtol=1e-12)
     # shared out over threads: the same values
     threaded = np.zeros(rows)
-    force_mse_kernel_parallel(force, switch, delay, end, grid, time_m, force_m, threaded)
+    force_mse_kernel_parallel(force, switch, delay, end, grid, time_m, force_m, threaded, np.nan, BLOCK)
     np.testing.assert_array_equal(threaded, out)
     # rows that share the window's end take the measured curve interpolated once: the same sums
     end[::2] = time_m[-1]
@@ -275,7 +293,7 @@ def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> N
     force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, shared, time_m[-1])
     np.testing.assert_array_equal(shared, each)
     threaded = np.zeros(rows)
-    force_mse_kernel_parallel(force, switch, delay, end, grid, time_m, force_m, threaded, time_m[-1])
+    force_mse_kernel_parallel(force, switch, delay, end, grid, time_m, force_m, threaded, time_m[-1], BLOCK)
     np.testing.assert_array_equal(threaded, shared)
     np.testing.assert_allclose(shared, expected(end), rtol=1e-12)
     # a row without a switch time has no loss, not an arbitrary one
@@ -284,7 +302,7 @@ def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> N
     force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, out)
     assert np.isnan(out[2]) and np.all(np.isfinite(np.delete(out, 2)))
     threaded = np.zeros(rows)
-    force_mse_kernel_parallel(force, switch, delay, end, grid, time_m, force_m, threaded)
+    force_mse_kernel_parallel(force, switch, delay, end, grid, time_m, force_m, threaded, np.nan, BLOCK)
     np.testing.assert_array_equal(threaded, out)
 
 
