@@ -29,7 +29,6 @@ _jit = njit(cache=True, error_model="numpy")
 _parallel = njit(cache=True, error_model="numpy", parallel=True)
 
 
-
 @_jit
 def measured_on_grid(end: float, grid: NDArray[np.float64], time_m: NDArray[np.float64],
                      force_m: NDArray[np.float64], out: NDArray[np.float64]) -> None:

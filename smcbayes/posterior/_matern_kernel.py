@@ -29,7 +29,6 @@ _jit = njit(cache=True, error_model="numpy")
 _parallel = njit(cache=True, error_model="numpy", parallel=True)
 
 
-
 @_jit
 def _row(sa: NDArray[np.float64], i: int, sbt: NDArray[np.float64], r2: NDArray[np.float64],
          out: NDArray[np.float64]) -> None:

@@ -26,7 +26,6 @@ _jit = njit(cache=True, error_model="numpy")
 _parallel = njit(cache=True, error_model="numpy", parallel=True)
 
 
-
 @_jit
 def _point(u: NDArray[np.float64], i: int, shift: NDArray[np.float64], inv: NDArray[np.float64],
            const: NDArray[np.float64], nu: float, z: NDArray[np.float64],

@@ -56,8 +56,8 @@ def gp_session(threads: int = 1) -> Iterator[None]:
     are small products too (the emcee samplers ask for 16 rows at a time): with two BLAS
     threads the variance of 16 rows of a 735-point curve emulator took 3.5 times as long
     as with one.  One thread also makes the results independent of the machine's cores.
-    The posterior's numba kernels share large calls out over every core
-    (:mod:`smcbayes.posterior._blocks`), with the same values whatever their number.
+    numba's compiled kernels may share large calls out over every core, with the same
+    values whatever their number.
     A small fixed noise is deliberate (deterministic simulator); gpytorch's floor of 1e-6
     in standardised units applies and its warning about it would flood the terminal.
     """
