@@ -291,8 +291,8 @@ def run_case(k: int, truth: dict[str, float], args: argparse.Namespace, tmp: Pat
         calibrate_run(toml, run_dir, budget=60, init=20, seed=k)
     cal = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))
     t_cal = timer()
-    info = run_posterior(run_dir, PosteriorSettings(refine=args.refine, seed=k, steps=args.emulator_steps,
-                                                    functions=args.functions,
+    info = run_posterior(run_dir, PosteriorSettings(refine=args.refine, round_runs=args.round_runs, seed=k,
+                                                    steps=args.emulator_steps, functions=args.functions,
                                                     correct_draws=args.correct_draws, emulator=args.emulator))
     t_post = timer() - t_cal
     n_eff = float(info["effective_points"]["n_eff_total"])
@@ -368,8 +368,8 @@ def peer_rows(run_dir: Path, n_eff: float, names: list[str], ref: tuple[np.ndarr
 def rerun_posterior(run_dir: Path, args: argparse.Namespace, seed: int,
                     ref: tuple[np.ndarray, np.ndarray]) -> dict[str, Any]:
     """The posterior stage again with another seed; its differences from the reference."""
-    info = run_posterior(run_dir, PosteriorSettings(refine=args.refine, seed=seed, steps=args.emulator_steps,
-                                                    functions=args.functions,
+    info = run_posterior(run_dir, PosteriorSettings(refine=args.refine, round_runs=args.round_runs, seed=seed,
+                                                    steps=args.emulator_steps, functions=args.functions,
                                                     correct_draws=args.correct_draws, emulator=args.emulator))
     samples = posterior_samples(run_dir)
     names = [str(j) for j in range(ref[0].shape[1])]
@@ -473,6 +473,8 @@ def main() -> int:
                     help="run this case only (results in posterior_accuracy_case<K>.json)")
     ap.add_argument("--refine", type=int, default=PosteriorSettings().refine,
                     help="most forward evaluations of the emulator's active learning (default: the stage's)")
+    ap.add_argument("--round-runs", type=int, default=None,
+                    help="forward runs per active-learning round (default: the stage's)")
     ap.add_argument("--correct-draws", type=int, default=0,
                     help="most proposal draws of the importance correction (0: the emulator alone, the "
                          "default of an external simulator; the built-in simulator's default corrects "

@@ -31,7 +31,8 @@ fold's calibrated point.
     python benchmarks/real_crossval.py [--fold K] [--jobs N] [--effects a,b] [--workdir DIR] [--reuse]
         [--project FILE] [--name real_crossval]
         [--budget 60 --init 20] [--population 64 --generations 50 --restarts 2]
-        [--walkers 32 --steps 10000 --refine 800 --correct-draws 0 --draws 100] [--emulator curves]
+        [--walkers 32 --steps 10000 --refine 800 --round-runs N --correct-draws 0 --draws 100]
+        [--emulator curves]
 
 The budgets default to the workflow's defaults (``[calibration]``, ``[diagnose]``,
 ``[posterior]`` of settings.py).  Writes ``benchmarks/results/NAME.json`` (``--name``,
@@ -274,7 +275,8 @@ def run_fold(k: int, args: argparse.Namespace) -> dict[str, Any]:
     t = time.perf_counter()
     post = smcbayes.sample_posterior(final_run.run_dir, walkers=args.walkers, steps=args.steps,
                                      correct_draws=args.correct_draws, draws=args.draws, seed=args.seed,
-                                     functions=args.functions, refine=args.refine, emulator=args.emulator)
+                                     functions=args.functions, refine=args.refine, emulator=args.emulator,
+                                     round_runs=args.round_runs)
     times["posterior_s"] = time.perf_counter() - t
     times["workflow_s"] = time.perf_counter() - t0
     best = final_run.best_params
@@ -435,6 +437,8 @@ def parse() -> argparse.Namespace:
     ap.add_argument("--functions", type=int, default=d(PosteriorSpec, "functions"))
     ap.add_argument("--refine", type=int, default=d(PosteriorSpec, "refine"))
     ap.add_argument("--correct-draws", type=int, default=d(PosteriorSpec, "correct_draws"))
+    ap.add_argument("--round-runs", type=int, default=d(PosteriorSpec, "round_runs"),
+                    help="forward runs per active-learning round (smcbayes posterior --round-runs)")
     ap.add_argument("--draws", type=int, default=d(PosteriorSpec, "draws"))
     ap.add_argument("--emulator", choices=choices_of(PosteriorSpec, "emulator"),
                     default=d(PosteriorSpec, "emulator"),

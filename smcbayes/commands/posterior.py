@@ -35,7 +35,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "Settings come from the project's [posterior] table; the options override it.")
     p.add_argument("run_dir", help="directory of a `smcbayes calibrate` run")
     for name, kind, metavar in (("walkers", int, None), ("steps", int, None), ("functions", int, None),
-                                ("refine", int, "N"), ("draws", int, None), ("correct_draws", int, "D"),
+                                ("refine", int, "N"), ("round_runs", int, "N"), ("draws", int, None),
+                                ("correct_draws", int, "D"),
                                 ("seed", int, None)):
         p.add_argument("--" + name.replace("_", "-"), type=kind, default=None, metavar=metavar,
                        help=help_of(PosteriorSpec, name))
@@ -54,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     run_dir = RunDir(args.run_dir)
     run_dir.require()
     project = run_dir.identity().project_config()
-    fields = ("emulator", "walkers", "steps", "functions", "pool_functions", "refine", "draws",
+    fields = ("emulator", "walkers", "steps", "functions", "pool_functions", "refine", "round_runs", "draws",
               "correct_draws", "seed")
     settings = override(project.posterior, {k: getattr(args, k) for k in fields})
     run_dir.record_command("posterior", args.argv)

@@ -184,6 +184,9 @@ forward runs with the calibration's own), on the nine measured thesis trials (7 
 parameters) after 1,050-1,450 and on five of the six cross-validation folds after
 740-1,380, not within 600."""
 
+ROUND_RUNS_CURVES = 40
+"""Default forward runs per active-learning round of the curve emulator."""
+
 
 class PosteriorSpec(Strict):
     """Settings of ``smcbayes posterior``; CLI options override them."""
@@ -213,6 +216,14 @@ class PosteriorSpec(Strict):
                     f"functions no longer move the posterior); default {REFINE_EMULATED}, or "
                     f"{REFINE_CORRECTED} when the importance correction follows (it needs a "
                     f"proposal, not a validated emulator); {REFINE_CURVES} with the curve emulator")
+    round_runs: int | None = Field(
+        None, ge=4, le=1000,
+        description=f"forward runs per active-learning round, one batch through the executor: as many "
+                    f"as the simulator runs at once (--workers, a Dask cluster), so that a round of a "
+                    f"slow simulator costs the wall time of one run; larger rounds mean fewer rounds "
+                    f"but spend the budget in larger steps, as the learning stops only between rounds; "
+                    f"default {ROUND_RUNS_CURVES} with the curve emulator, a quarter of the budget "
+                    f"within 9-30 with the log-loss one")
     draws: int = Field(100, ge=1, le=1_000_000,
                        description="posterior draws through the forward model for bands and checks")
     seed: int = Field(0, ge=0, description="random seed (same seed, same posterior)")
@@ -242,7 +253,16 @@ class PosteriorSpec(Strict):
             (0 if slow else self.correction.draws)
         refine = self.refine if self.refine is not None else REFINE_CURVES if self.emulator == "curves" else \
             (REFINE_CORRECTED if draws > 0 else REFINE_EMULATED)
-        return self.model_copy(update={"correct_draws": draws, "refine": refine})
+        filled = self.model_copy(update={"correct_draws": draws, "refine": refine})
+        return filled.model_copy(update={"round_runs": filled.round_size()})
+
+    def round_size(self) -> int:
+        """Forward runs per active-learning round: ``round_runs``, else
+        :data:`ROUND_RUNS_CURVES` with the curve emulator and a quarter of the budget within
+        9-30 with the log-loss one."""
+        if self.round_runs is not None:
+            return self.round_runs
+        return ROUND_RUNS_CURVES if self.emulator == "curves" else max(9, min(30, (self.refine or 0) // 4))
 
 
 class DiagnoseSpec(Strict):

@@ -46,6 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.config import PosteriorSpec
+from smcbayes.config.settings import ROUND_RUNS_CURVES
 from smcbayes.errors import SurrogateError
 from smcbayes.posterior.context import RunContext
 from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample
@@ -68,9 +69,6 @@ from smcbayes.posterior.spread import SPREAD_MAX
 logger = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
-
-BATCH = 40
-"""Forward runs per round (one batch through the executor)."""
 
 TEMPER = 0.25
 """Exponent of the exploration's likelihood."""
@@ -243,7 +241,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
           x: Array, y: Array, n_eff: float, budget: int, tolerance_nats: float, rng: np.random.Generator,
           log: Callable[[dict[str, Any]], None] | None = None, walkers: int = 32,
           spec: CorrectionSettings | None = None,
-          confirm: Callable[[CurveEmulator], FinalPosterior] | None = None) -> Learned:
+          confirm: Callable[[CurveEmulator], FinalPosterior] | None = None,
+          round_runs: int = ROUND_RUNS_CURVES) -> Learned:
     """Active learning until validated (and confirmed) or ``budget`` further runs are spent.
 
     The emulator is validated when, in each of the last :data:`VALIDATED_ROUNDS` rounds,
@@ -272,6 +271,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         log: receives one record per round.
         spec: settings of the rounds' importance sampling (the correction's by default).
         confirm: draws an emulator's reported posterior (no forward run).
+        round_runs: forward runs per round (one batch through the executor; the last
+            round takes what is left of ``budget``).
 
     Returns:
         The last emulator, its data, its reported posterior if a confirmation drew it, and
@@ -308,7 +309,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
             t0 += time.perf_counter() - t_confirm
         if converged or progress.spent >= budget:
             break
-        size = min(BATCH, budget - progress.spent)
+        size = min(round_runs, budget - progress.spent)
         step = _round(emulator, n_eff, size, progress.start, spec, rng, walkers)
         record = _take(progress, step, emulator, n_eff, simulate, rng, t0)
         logger.info("curve emulator round %d: %d points, error %.2f nats at fresh posterior draws",
@@ -473,7 +474,7 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
     # a noise-free likelihood is degenerate: no spread to confirm (it does not learn either)
     learned = learn(simulate, features, start[ok], y0[ok], n_eff, int(settings.refine),
                     settings.refine_tolerance_nats, rng, log, settings.walkers, settings.correction,
-                    final if reported and not ctx.noise_free else None)
+                    final if reported and not ctx.noise_free else None, settings.round_size())
     runs = int(start.shape[0])
     active = {"enabled": True, "kind": "curves", **learned.record, "start_runs": runs,
               "tolerance_nats": float(settings.refine_tolerance_nats),

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from smcbayes.cli import main
+from smcbayes.config.settings import ROUND_RUNS_CURVES
 from smcbayes.config.specs import LossSpec
 from smcbayes.posterior.active import STABLE_ROUNDS
 from smcbayes.posterior.context import load_run
@@ -37,8 +38,8 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert main(["calibrate", str(base / "data" / "project.toml"), "--out", str(base / "run"),
                  "--budget", "20", "--init", "6", "--seed", "0", "--no-figures"]) == 0
     assert main(["posterior", str(base / "run"), "--walkers", "16", "--steps", "1500",
-                 "--functions", "4", "--refine", "16", "--draws", "30", "--correct-draws", "14000",
-                 "--seed", "1"]) == 0
+                 "--functions", "4", "--refine", "16", "--round-runs", "6", "--draws", "30",
+                 "--correct-draws", "14000", "--seed", "1"]) == 0
     return base / "run"
 
 
@@ -100,6 +101,16 @@ def test_outputs_written(run_dir: Path) -> None:
     assert np.all(np.diff(vals[:, 1:6], axis=1) >= -1e-9) and np.all(np.diff(vals[:, 6:11], axis=1) >= -1e-9)
     # the mean of clipped draws lies in [0, force limit], not always inside its own 5-95 % band
     assert np.all(vals[:, -1] >= 0.0) and np.all(vals[:, -1] <= vals[:, 6:11].max() + 1e-9)
+
+
+def test_the_active_learning_runs_rounds_of_the_size_asked(run_dir: Path) -> None:
+    """``--round-runs 6`` with ``--refine 16``: rounds of 6, 6 and the 4 left of the budget
+    (by default a budget of 16 would run rounds of 9)."""
+    log = [json.loads(line) for line in (run_dir / "posterior" / "refine.jsonl").read_text().splitlines()]
+    per_round = np.bincount([rec["round"] for rec in log])
+    assert per_round[per_round > 0].tolist() == [6, 6, 4]
+    settings = json.loads((run_dir / "posterior" / "summary.json").read_text())["settings"]
+    assert settings["round_runs"] == 6
 
 
 def test_correction_is_reported(run_dir: Path) -> None:
@@ -640,8 +651,8 @@ def test_the_reported_emulator_sample_aims_past_the_target_it_is_settled_at(
     np.testing.assert_array_equal(reported.unit, aimed.unit)
 
 
-def _scripted_learning(run_dir: Path, monkeypatch: pytest.MonkeyPatch, budget: int,
-                       readings: list[float]) -> tuple[Learned, list[int]]:
+def _scripted_learning(run_dir: Path, monkeypatch: pytest.MonkeyPatch, budget: int, readings: list[float],
+                       round_runs: int = ROUND_RUNS_CURVES) -> tuple[Learned, list[int]]:
     """The curve emulator's active learning from 25 points with every round validated (the
     validation stubbed) and confirmations that read the spreads ``readings`` in turn: what
     it learned and the training points each confirmation saw."""
@@ -666,7 +677,8 @@ def _scripted_learning(run_dir: Path, monkeypatch: pytest.MonkeyPatch, budget: i
     def simulate(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return features.of(ctx.runner.simulate(ctx.space.from_unit(rows), features.ids))
 
-    learned = curve_stage.learn(simulate, features, u, y, 4.0, budget, 1.0, rng, walkers=16, confirm=confirm)
+    learned = curve_stage.learn(simulate, features, u, y, 4.0, budget, 1.0, rng, walkers=16, confirm=confirm,
+                                round_runs=round_runs)
     return learned, seen
 
 
@@ -675,14 +687,20 @@ def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
     """With a confirmation, a validated emulator's reported posterior is drawn before the
     learning stops: while its spread is too large the learning goes on (one more round
     here, the validation itself stubbed), and the posterior that confirms is the one kept."""
-    import smcbayes.posterior.curve_stage as curve_stage
 
     learned, seen = _scripted_learning(run_dir, monkeypatch, 200, [1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX])
     record = learned.record
-    assert record["converged"] and record["rounds"] == 1 and record["evaluations"] == curve_stage.BATCH
-    assert seen == [25, 25 + curve_stage.BATCH] and len(learned.x) == seen[-1]
+    assert record["converged"] and record["rounds"] == 1 and record["evaluations"] == ROUND_RUNS_CURVES
+    assert seen == [25, 25 + ROUND_RUNS_CURVES] and len(learned.x) == seen[-1]
     assert [c["passed"] for c in record["confirmations"]] == [False, True]
     assert learned.final is not None and learned.final.max_shift == 0.5 * SPREAD_MAX
+
+
+def test_the_curve_emulator_learns_in_rounds_of_the_size_asked(run_dir: Path,
+                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """Rounds of 15 runs: the second confirmation sees the first round's 15 more points."""
+    learned, seen = _scripted_learning(run_dir, monkeypatch, 200, [1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX], 15)
+    assert seen == [25, 40] and learned.record["evaluations"] == 15 and learned.record["rounds"] == 1
 
 
 def test_after_its_last_failed_confirmation_the_learning_runs_to_its_budget(
@@ -693,7 +711,7 @@ def test_after_its_last_failed_confirmation_the_learning_runs_to_its_budget(
     import smcbayes.posterior.curve_stage as curve_stage
 
     monkeypatch.setattr(curve_stage, "CONFIRMATIONS", 1)
-    budget = 2 * curve_stage.BATCH
+    budget = 2 * ROUND_RUNS_CURVES
     learned, seen = _scripted_learning(run_dir, monkeypatch, budget, [1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX])
     record = learned.record
     # none after the first round: the one failure allowed was spent
