@@ -1,0 +1,176 @@
+"""The posterior stage on all nine measured training trials of the thesis: time, verdict, check.
+
+The target of the real-data posterior: on the thesis's nine training configurations with
+compressibility (``configs/thesis.toml``: 7 free parameters, the solid density and the bulk
+viscosity fixed by the project), the stage's own diagnostics pass (``reliable: true``) within
+2 minutes on 2 cores, and the emulator's check error at the reported posterior's draws is at
+most 1 nat on average.
+
+One calibration (``smcbayes calibrate configs/thesis.toml --effect compressibility``, the
+project's default budgets) is made once into the work directory and reused while its
+settings are the same.  Each seed's posterior stage then runs on a fresh copy of it, in a
+fresh interpreter, as a user runs it (``python -m smcbayes.cli posterior RUN --emulator
+curves --correct-draws 0 --seed S``), so that start-up, imports and the compiled kernels'
+cache loading count.  Seeds run one after the other: two stages at once on 2 cores would
+time each other.  The load average is printed beside each time, because other processes on
+a shared machine stretch wall time.
+
+Per seed: wall time, the verdict and its reasons, the emulator check (mean absolute error
+at 100 posterior draws, nats), the forward runs that shaped the posterior (``inference``)
+and those for bands and checks, the active learning's rounds and whether it was validated,
+the reported posterior's spread (how far the emulator's sample functions move a 5/50/95 %
+quantile, share of the range) and the stage's own time split.
+
+    python benchmarks/real_posterior.py [--seeds 0,1,2] [--emulator curves] [--correct-draws 0]
+        [--round-runs N] [--workdir DIR] [--data-dir DIR] [--name real_posterior]
+
+Writes ``benchmarks/results/NAME.json``.  Needs ../shared/data/thesis-press next to the
+repository (``--data-dir``); without it, prints why and exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+DATA = ROOT / ".." / "shared" / "data" / "thesis-press"
+PROJECT = ROOT / "configs" / "thesis.toml"
+RESULTS = ROOT / "benchmarks" / "results"
+EFFECTS = ("compressibility",)
+TARGET_S = 120.0
+TARGET_CHECK_NATS = 1.0
+
+
+def calibrated(workdir: Path, project: Path, data_dir: Path, seed: int) -> tuple[Path, float | None]:
+    """The nine-trial calibration in ``workdir/calibration``, made unless one with the same
+    project file, data and seed is there; its wall time when made now (else ``None``)."""
+    import smcbayes
+    from smcbayes.config import load_project
+
+    run = workdir / "calibration"
+    settings = {"project_sha256": hashlib.sha256(project.read_bytes()).hexdigest(),
+                "data_dir": str(data_dir.resolve()), "effects": list(EFFECTS), "seed": seed}
+    record = workdir / "calibration.json"
+    if (run / "summary.json").is_file() and record.is_file() and json.loads(record.read_text()) == settings:
+        return run, None
+    shutil.rmtree(run, ignore_errors=True)
+    workdir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    smcbayes.calibrate(load_project(project, data_dir), run, effects=list(EFFECTS), figures=False, seed=seed)
+    record.write_text(json.dumps(settings, indent=2) + "\n")
+    return run, time.perf_counter() - t0
+
+
+def run_stage(calibration: Path, workdir: Path, seed: int, args: argparse.Namespace) -> dict[str, Any]:
+    """One seed's posterior stage on a fresh copy of ``calibration``, in a fresh interpreter."""
+    run = workdir / f"seed-{seed}"
+    shutil.rmtree(run, ignore_errors=True)
+    shutil.copytree(calibration, run, ignore=shutil.ignore_patterns("posterior"))
+    cmd = [sys.executable, "-m", "smcbayes.cli", "posterior", str(run), "--emulator", args.emulator,
+           "--correct-draws", str(args.correct_draws), "--seed", str(seed)]
+    cmd += [] if args.round_runs is None else ["--round-runs", str(args.round_runs)]
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    load_before = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env, cwd=ROOT)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"posterior stage, seed {seed}, failed ({proc.returncode}):\n{proc.stderr[-4000:]}")
+    summary = json.loads((run / "posterior" / "summary.json").read_text(encoding="utf-8"))
+    return record_of(summary, seed, wall, (load_before, os.getloadavg()[0]))
+
+
+def record_of(summary: dict[str, Any], seed: int, wall_s: float, load: tuple[float, float]) -> dict[str, Any]:
+    """What the benchmark keeps of one stage's ``posterior/summary.json``."""
+    check = summary.get("emulator_check") or {}
+    runs = summary.get("forward_evaluations") or {}
+    learning = summary.get("active_learning") or {}
+    spread = summary.get("emulator_spread") or {}
+    reliability = summary.get("reliability") or {}
+    rec = {"seed": seed, "wall_s": wall_s, "load_average_before_after": list(load),
+           "reliable": bool(summary.get("reliable")), "reasons": reliability.get("reasons", []),
+           "check_mean_abs_error_nats": check.get("mean_abs_error"), "check_points": check.get("points"),
+           "inference_runs": runs.get("inference"), "checks_and_bands_runs": runs.get("checks_and_bands"),
+           "rounds": learning.get("rounds"), "validated": learning.get("converged"),
+           "spread": spread.get("max_quantile_shift"), "stage_seconds": summary.get("stage_seconds")}
+    rec["met"] = {"reliable": rec["reliable"],
+                  "check": rec["check_mean_abs_error_nats"] is not None
+                  and rec["check_mean_abs_error_nats"] <= TARGET_CHECK_NATS,
+                  "time": wall_s <= TARGET_S}
+    return rec
+
+
+def print_record(rec: dict[str, Any]) -> None:
+    """One seed's line and its unmet targets."""
+    def fmt(v: Any, spec: str) -> str:
+        return "-" if v is None else format(v, spec)
+
+    print(f"seed {rec['seed']}: {rec['wall_s']:.0f} s (load {rec['load_average_before_after'][0]:.1f}), "
+          f"{'reliable' if rec['reliable'] else 'unreliable'}, check {fmt(rec['check_mean_abs_error_nats'], '.2f')} "
+          f"nats, spread {fmt(rec['spread'], '.3f')}, {rec['inference_runs']} runs shaped it "
+          f"({rec['rounds']} rounds, {'validated' if rec['validated'] else 'not validated'}), "
+          f"{rec['checks_and_bands_runs']} for checks and bands")
+    missed = [k for k, ok in rec["met"].items() if not ok]
+    if missed:
+        print("  MISSED: " + ", ".join(missed))
+    for reason in rec["reasons"]:
+        print(f"  - {reason}")
+
+
+def parse() -> argparse.Namespace:
+    """The command line."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=lambda s: [int(v) for v in s.split(",") if v], default=[0, 1, 2],
+                    help="posterior seeds, comma-separated (default 0,1,2)")
+    ap.add_argument("--calibration-seed", type=int, default=0)
+    ap.add_argument("--emulator", default="curves", help="the posterior's emulator (--emulator)")
+    ap.add_argument("--correct-draws", type=int, default=0,
+                    help="forward-model correction draws (0: none, as for an expensive simulator)")
+    ap.add_argument("--round-runs", type=int, default=None,
+                    help="forward runs per active-learning round (default: the stage's)")
+    ap.add_argument("--workdir", default=None, help="default: benchmarks/results/NAME/work")
+    ap.add_argument("--data-dir", default=str(DATA))
+    ap.add_argument("--project", default=str(PROJECT))
+    ap.add_argument("--name", default="real_posterior")
+    return ap.parse_args()
+
+
+def main() -> int:
+    """Calibrate once, run each seed's stage, print and write the results."""
+    args = parse()
+    if not Path(args.data_dir).is_dir():
+        print(f"skipped: no measured data at {args.data_dir} (pass --data-dir)")
+        return 0
+    workdir = Path(args.workdir or RESULTS / args.name / "work")
+    calibration, calibration_s = calibrated(workdir, Path(args.project), Path(args.data_dir),
+                                            args.calibration_seed)
+    print(f"calibration: {'reused' if calibration_s is None else f'{calibration_s:.0f} s'} ({calibration})")
+    records = []
+    for seed in args.seeds:
+        records.append(run_stage(calibration, workdir, seed, args))
+        print_record(records[-1])
+    met = {k: sum(r["met"][k] for r in records) for k in ("reliable", "check", "time")}
+    print(f"targets (each seed: reliable, check <= {TARGET_CHECK_NATS:g} nat, <= {TARGET_S:.0f} s): "
+          + ", ".join(f"{k} {v} of {len(records)}" for k, v in met.items()))
+    out = {"settings": vars(args), "cpu_count": os.cpu_count(), "calibration_s": calibration_s,
+           "targets": {"wall_s": TARGET_S, "check_nats": TARGET_CHECK_NATS}, "seeds": records, "met": met}
+    path = RESULTS / f"{args.name}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(out, indent=2, default=float) + "\n", encoding="utf-8")
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
