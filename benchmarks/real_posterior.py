@@ -73,20 +73,28 @@ def calibrated(workdir: Path, project: Path, data_dir: Path, seed: int) -> tuple
 
 
 def run_stage(calibration: Path, workdir: Path, seed: int, args: argparse.Namespace) -> dict[str, Any]:
-    """One seed's posterior stage on a fresh copy of ``calibration``, in a fresh interpreter."""
+    """One seed's posterior stage on a fresh copy of ``calibration``, in a fresh interpreter;
+    its output goes to ``workdir/seed-S.log``.  A failed stage gives a record with its exit
+    code and the end of its log, so that the other seeds' records are still written."""
     run = workdir / f"seed-{seed}"
     shutil.rmtree(run, ignore_errors=True)
-    shutil.copytree(calibration, run, ignore=shutil.ignore_patterns("posterior"))
+    # only the calibration's own earlier posterior is left out, not a folder of that name deeper down
+    shutil.copytree(calibration, run,
+                    ignore=lambda folder, names: ["posterior"] if Path(folder) == calibration else [])
     cmd = [sys.executable, "-m", "smcbayes.cli", "posterior", str(run), "--emulator", args.emulator,
            "--correct-draws", str(args.correct_draws), "--seed", str(seed)]
     cmd += [] if args.round_runs is None else ["--round-runs", str(args.round_runs)]
     env = {**os.environ, "MPLBACKEND": "Agg"}
+    log = workdir / f"seed-{seed}.log"
     load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env, cwd=ROOT)
+    with log.open("w", encoding="utf-8") as fh:
+        proc = subprocess.run(cmd, stdout=fh, stderr=subprocess.STDOUT, check=False, env=env, cwd=ROOT)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
-        raise SystemExit(f"posterior stage, seed {seed}, failed ({proc.returncode}):\n{proc.stderr[-4000:]}")
+        tail = log.read_text(encoding="utf-8").splitlines()[-20:]
+        return {"seed": seed, "wall_s": wall, "returncode": proc.returncode, "log_tail": tail,
+                "met": {"reliable": False, "check": False, "time": False}}
     summary = json.loads((run / "posterior" / "summary.json").read_text(encoding="utf-8"))
     return record_of(summary, seed, wall, (load_before, os.getloadavg()[0]))
 
@@ -101,7 +109,8 @@ def record_of(summary: dict[str, Any], seed: int, wall_s: float, load: tuple[flo
     rec = {"seed": seed, "wall_s": wall_s, "load_average_before_after": list(load),
            "reliable": bool(summary.get("reliable")), "reasons": reliability.get("reasons", []),
            "check_mean_abs_error_nats": check.get("mean_abs_error"), "check_points": check.get("points"),
-           "inference_runs": runs.get("inference"), "checks_and_bands_runs": runs.get("checks_and_bands"),
+           "inference_runs": runs.get("inference"), "active_learning_runs": learning.get("evaluations"),
+           "checks_and_bands_runs": runs.get("checks_and_bands"),
            "rounds": learning.get("rounds"), "validated": learning.get("converged"),
            "spread": spread.get("max_quantile_shift"), "stage_seconds": summary.get("stage_seconds")}
     rec["met"] = {"reliable": rec["reliable"],
@@ -116,11 +125,17 @@ def print_record(rec: dict[str, Any]) -> None:
     def fmt(v: Any, spec: str) -> str:
         return "-" if v is None else format(v, spec)
 
+    if "returncode" in rec:
+        print(f"seed {rec['seed']}: FAILED (exit code {rec['returncode']}) after {rec['wall_s']:.0f} s:")
+        print("\n".join("  " + line for line in rec["log_tail"]))
+        return
+    verdict = "reliable" if rec["reliable"] else "unreliable"
     print(f"seed {rec['seed']}: {rec['wall_s']:.0f} s (load {rec['load_average_before_after'][0]:.1f}), "
-          f"{'reliable' if rec['reliable'] else 'unreliable'}, check {fmt(rec['check_mean_abs_error_nats'], '.2f')} "
-          f"nats, spread {fmt(rec['spread'], '.3f')}, {rec['inference_runs']} runs shaped it "
-          f"({rec['rounds']} rounds, {'validated' if rec['validated'] else 'not validated'}), "
-          f"{rec['checks_and_bands_runs']} for checks and bands")
+          f"{verdict}, check {fmt(rec['check_mean_abs_error_nats'], '.2f')} nats, spread "
+          f"{fmt(rec['spread'], '.3f')}, {rec['inference_runs']} runs shaped it (active learning "
+          f"{rec['active_learning_runs']} in {rec['rounds']} rounds, "
+          f"{'validated' if rec['validated'] else 'not validated'}), {rec['checks_and_bands_runs']} for "
+          "checks and bands")
     missed = [k for k, ok in rec["met"].items() if not ok]
     if missed:
         print("  MISSED: " + ", ".join(missed))
@@ -128,13 +143,27 @@ def print_record(rec: dict[str, Any]) -> None:
         print(f"  - {reason}")
 
 
+def seed_list(text: str) -> list[int]:
+    """Comma-separated seeds, at least one, none negative."""
+    try:
+        seeds = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"seeds must be integers, comma-separated, not {text!r}") from None
+    if not seeds or min(seeds) < 0:
+        raise argparse.ArgumentTypeError(f"give one or more seeds of 0 or more, not {text!r}")
+    return seeds
+
+
 def parse() -> argparse.Namespace:
     """The command line."""
+    from smcbayes.config import PosteriorSpec, choices_of
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=lambda s: [int(v) for v in s.split(",") if v], default=[0, 1, 2],
-                    help="posterior seeds, comma-separated (default 0,1,2)")
+    ap.add_argument("--seeds", type=seed_list, default=[0, 1, 2], help="posterior seeds, comma-separated "
+                    "(default 0,1,2)")
     ap.add_argument("--calibration-seed", type=int, default=0)
-    ap.add_argument("--emulator", default="curves", help="the posterior's emulator (--emulator)")
+    ap.add_argument("--emulator", choices=choices_of(PosteriorSpec, "emulator"), default="curves",
+                    help="the posterior's emulator (--emulator; default curves)")
     ap.add_argument("--correct-draws", type=int, default=0,
                     help="forward-model correction draws (0: none, as for an expensive simulator)")
     ap.add_argument("--round-runs", type=int, default=None,

@@ -87,7 +87,7 @@ def test_posterior_defaults_depend_on_the_simulator() -> None:
     assert native.correct_draws == spec.correction.draws > 0 and native.refine == REFINE_CORRECTED
     assert external.correct_draws == 0 and external.refine == REFINE_EMULATED
     assert REFINE_CORRECTED < REFINE_EMULATED
-    given = PosteriorSpec(refine=50, correct_draws=0, round_runs=7)
+    given = PosteriorSpec(refine=50, correct_draws=0, round_runs=12)
     assert given.resolved(slow=False) == given.resolved(slow=True) == given
     assert PosteriorSpec(correct_draws=3000).resolved(slow=True).refine == REFINE_CORRECTED
 
@@ -103,8 +103,9 @@ def test_the_round_size_defaults_to_the_emulator_s_own() -> None:
     assert PosteriorSpec(refine=60).resolved(slow=True).round_runs == 15
     assert PosteriorSpec(refine=16).resolved(slow=True).round_runs == 9
     assert PosteriorSpec(emulator="curves", round_runs=120).resolved(slow=False).round_runs == 120
-    with pytest.raises(ValueError):
-        PosteriorSpec(round_runs=3)
+    for outside in (8, 401):
+        with pytest.raises(ValueError):
+            PosteriorSpec(round_runs=outside)
 
 
 def test_the_choices_of_a_literal_setting_come_from_its_model() -> None:

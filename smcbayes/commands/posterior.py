@@ -36,8 +36,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("run_dir", help="directory of a `smcbayes calibrate` run")
     for name, kind, metavar in (("walkers", int, None), ("steps", int, None), ("functions", int, None),
                                 ("refine", int, "N"), ("round_runs", int, "N"), ("draws", int, None),
-                                ("correct_draws", int, "D"),
-                                ("seed", int, None)):
+                                ("correct_draws", int, "D"), ("seed", int, None)):
         p.add_argument("--" + name.replace("_", "-"), type=kind, default=None, metavar=metavar,
                        help=help_of(PosteriorSpec, name))
     p.add_argument("--pool-functions", action=argparse.BooleanOptionalAction, default=None,

@@ -185,7 +185,11 @@ parameters) after 1,050-1,450 and on five of the six cross-validation folds afte
 740-1,380, not within 600."""
 
 ROUND_RUNS_CURVES = 40
-"""Default forward runs per active-learning round of the curve emulator."""
+"""Default forward runs per active-learning round of the curve emulator: 30 posterior draws,
+whose errors validate the round, and 10 exploring."""
+ROUND_RUNS_LOSS = (9, 30)
+"""Fewest and most forward runs per active-learning round of the log-loss emulator by
+default: a quarter of its budget within these."""
 
 
 class PosteriorSpec(Strict):
@@ -217,13 +221,14 @@ class PosteriorSpec(Strict):
                     f"{REFINE_CORRECTED} when the importance correction follows (it needs a "
                     f"proposal, not a validated emulator); {REFINE_CURVES} with the curve emulator")
     round_runs: int | None = Field(
-        None, ge=4, le=1000,
-        description=f"forward runs per active-learning round, one batch through the executor: as many "
-                    f"as the simulator runs at once (--workers, a Dask cluster), so that a round of a "
-                    f"slow simulator costs the wall time of one run; larger rounds mean fewer rounds "
-                    f"but spend the budget in larger steps, as the learning stops only between rounds; "
-                    f"default {ROUND_RUNS_CURVES} with the curve emulator, a quarter of the budget "
-                    f"within 9-30 with the log-loss one")
+        None, ge=ROUND_RUNS_LOSS[0], le=400,
+        description=f"forward runs per active-learning round, one batch through the executor (with a "
+                    f"Dask scheduler each run on each training configuration is one task, so a round "
+                    f"is this times the configurations in tasks); the emulator learns between rounds "
+                    f"only, so rounds larger or smaller than the default change how many runs it "
+                    f"needs, either way; default {ROUND_RUNS_CURVES} with the curve emulator, a "
+                    f"quarter of the budget within {ROUND_RUNS_LOSS[0]}-{ROUND_RUNS_LOSS[1]} with "
+                    f"the log-loss one")
     draws: int = Field(100, ge=1, le=1_000_000,
                        description="posterior draws through the forward model for bands and checks")
     seed: int = Field(0, ge=0, description="random seed (same seed, same posterior)")
@@ -242,27 +247,22 @@ class PosteriorSpec(Strict):
                                        "other settings ([posterior.correction])")
 
     def resolved(self, slow: bool) -> PosteriorSpec:
-        """These settings with the defaults that depend on the simulator filled in.
+        """These settings with the defaults that depend on the simulator and the emulator
+        filled in (``correct_draws``, ``refine``, ``round_runs``).
 
         With the built-in 1-D model the stage checks and corrects the emulated posterior by
         the exact one (a forward run costs milliseconds); with a ``slow`` one (an external
         simulator, whose run may take minutes, or the 2-D solver's seconds) it reports the
-        emulator's posterior alone unless asked.
+        emulator's posterior alone unless asked.  The active learning's budget and round
+        size follow from the emulator and the correction.
         """
         draws = self.correct_draws if self.correct_draws is not None else \
             (0 if slow else self.correction.draws)
         refine = self.refine if self.refine is not None else REFINE_CURVES if self.emulator == "curves" else \
             (REFINE_CORRECTED if draws > 0 else REFINE_EMULATED)
-        filled = self.model_copy(update={"correct_draws": draws, "refine": refine})
-        return filled.model_copy(update={"round_runs": filled.round_size()})
-
-    def round_size(self) -> int:
-        """Forward runs per active-learning round: ``round_runs``, else
-        :data:`ROUND_RUNS_CURVES` with the curve emulator and a quarter of the budget within
-        9-30 with the log-loss one."""
-        if self.round_runs is not None:
-            return self.round_runs
-        return ROUND_RUNS_CURVES if self.emulator == "curves" else max(9, min(30, (self.refine or 0) // 4))
+        rounds = self.round_runs if self.round_runs is not None else ROUND_RUNS_CURVES \
+            if self.emulator == "curves" else min(max(refine // 4, ROUND_RUNS_LOSS[0]), ROUND_RUNS_LOSS[1])
+        return self.model_copy(update={"correct_draws": draws, "refine": refine, "round_runs": rounds})
 
 
 class DiagnoseSpec(Strict):

@@ -257,7 +257,7 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
     the returned GP).
     """
     state = _Progress(remaining=settings.refine)
-    per_round = settings.round_size()
+    per_round = int(settings.round_runs)  # resolved settings
     quick = PosteriorSpec(walkers=settings.walkers, steps=min(settings.steps, 1000), functions=0,
                           seed=int(rng.integers(2**31 - 1)))
     status: dict[str, Any] = {"rounds": 0, "converged": False, "error_nats": None, "quantile_shift": None,

@@ -3,7 +3,7 @@ the force-curve emulator of :mod:`smcbayes.posterior.curves`, confirmed by its r
 posterior.
 
 Starts from the calibration GP's points (simulated again for their curves, through the
-stage's forward cache), then runs rounds of ``batch`` forward runs: three quarters draws of
+stage's forward cache), then runs rounds of ``round_runs`` forward runs: three quarters draws of
 the emulated posterior pooled with those of GP sample functions
 (:mod:`smcbayes.posterior.curve_spread`), leaning to where the functions disagree
 (:func:`~smcbayes.posterior.curve_aim.targeted`), a quarter (:data:`EXPLORATION`) of the
@@ -474,7 +474,7 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
     # a noise-free likelihood is degenerate: no spread to confirm (it does not learn either)
     learned = learn(simulate, features, start[ok], y0[ok], n_eff, int(settings.refine),
                     settings.refine_tolerance_nats, rng, log, settings.walkers, settings.correction,
-                    final if reported and not ctx.noise_free else None, settings.round_size())
+                    final if reported and not ctx.noise_free else None, int(settings.round_runs))
     runs = int(start.shape[0])
     active = {"enabled": True, "kind": "curves", **learned.record, "start_runs": runs,
               "tolerance_nats": float(settings.refine_tolerance_nats),

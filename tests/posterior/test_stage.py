@@ -38,7 +38,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert main(["calibrate", str(base / "data" / "project.toml"), "--out", str(base / "run"),
                  "--budget", "20", "--init", "6", "--seed", "0", "--no-figures"]) == 0
     assert main(["posterior", str(base / "run"), "--walkers", "16", "--steps", "1500",
-                 "--functions", "4", "--refine", "16", "--round-runs", "6", "--draws", "30",
+                 "--functions", "4", "--refine", "16", "--round-runs", "10", "--draws", "30",
                  "--correct-draws", "14000", "--seed", "1"]) == 0
     return base / "run"
 
@@ -104,13 +104,13 @@ def test_outputs_written(run_dir: Path) -> None:
 
 
 def test_the_active_learning_runs_rounds_of_the_size_asked(run_dir: Path) -> None:
-    """``--round-runs 6`` with ``--refine 16``: rounds of 6, 6 and the 4 left of the budget
-    (by default a budget of 16 would run rounds of 9)."""
+    """``--round-runs 10`` with ``--refine 16``: a round of 10 and one of the 6 left of the
+    budget (by default a budget of 16 would run rounds of 9 and 7)."""
     log = [json.loads(line) for line in (run_dir / "posterior" / "refine.jsonl").read_text().splitlines()]
     per_round = np.bincount([rec["round"] for rec in log])
-    assert per_round[per_round > 0].tolist() == [6, 6, 4]
+    assert per_round[per_round > 0].tolist() == [10, 6]
     settings = json.loads((run_dir / "posterior" / "summary.json").read_text())["settings"]
-    assert settings["round_runs"] == 6
+    assert settings["round_runs"] == 10
 
 
 def test_correction_is_reported(run_dir: Path) -> None:
@@ -653,9 +653,9 @@ def test_the_reported_emulator_sample_aims_past_the_target_it_is_settled_at(
 
 def _scripted_learning(run_dir: Path, monkeypatch: pytest.MonkeyPatch, budget: int, readings: list[float],
                        round_runs: int = ROUND_RUNS_CURVES) -> tuple[Learned, list[int]]:
-    """The curve emulator's active learning from 25 points with every round validated (the
-    validation stubbed) and confirmations that read the spreads ``readings`` in turn: what
-    it learned and the training points each confirmation saw."""
+    """The curve emulator's active learning from 25 points in rounds of ``round_runs`` with
+    every round validated (the validation stubbed) and confirmations that read the spreads
+    ``readings`` in turn: what it learned and the training points each confirmation saw."""
     import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.curve_sample import FinalPosterior
 
