@@ -3,7 +3,8 @@ their errors are weighted back to the posterior's shares.
 
 The draws come from the pooled posterior (the emulated posterior pooled with those of GP
 sample functions, :mod:`smcbayes.posterior.curve_spread`), leaning to where the functions
-disagree: there the next forward runs settle the posterior.
+disagree and to where their disagreement moves the quantiles the stage's spread judges:
+there the next forward runs settle the posterior.
 """
 
 from __future__ import annotations
@@ -11,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from smcbayes.posterior.curve_spread import FunctionPosteriors
+from smcbayes.posterior.curve_spread import SHIFT_LEVEL, FunctionPosteriors, quantile_moves
+from smcbayes.posterior.spread import QUANTILES
 
 Array = NDArray[np.float64]
 
@@ -19,18 +21,23 @@ TARGETED = 0.5
 """Share of the rounds' posterior draws' proposal that leans to where the sample
 functions disagree (:func:`targeted`)."""
 
+AIMED = 0.5
+"""Share of :data:`TARGETED` aimed at the quantiles the sample functions move (:func:`aimed`);
+the rest leans to their disagreement alone."""
+
 MOST_DRAWS = 100
 """Most draws per wanted distinct point of a round's posterior draws (:func:`draws`): a
 posterior whose weight rests on a few points, the others' weights tiny, gives fewer runs,
 not an endless loop."""
 
 
-def targeted(posteriors: FunctionPosteriors, count: int, rng: np.random.Generator
+def targeted(posteriors: FunctionPosteriors, unit: Array, count: int, rng: np.random.Generator
              ) -> tuple[NDArray[np.int_], Array, dict[str, float]]:
     """Up to ``count`` distinct support points drawn from the pooled posterior p, each
     point's weight raised by its sample functions' disagreement s (sd of the log-likelihood,
-    nats): independent draws (:func:`draws`) from the mixture
-    ``q = (1 - TARGETED) p + TARGETED p s / E_p[s]``.
+    nats) and by how much their disagreement there moves a quantile (:func:`aimed`, a):
+    independent draws (:func:`draws`) from the mixture
+    ``q = (1 - TARGETED) p + TARGETED ((1 - AIMED) p s / E_p[s] + AIMED a)``.
 
     Density times the emulator's uncertainty is the acquisition of Acerbi (2018,
     "Variational Bayesian Monte Carlo", NeurIPS) and of Kandasamy, Schneider & Poczos
@@ -38,34 +45,86 @@ def targeted(posteriors: FunctionPosteriors, count: int, rng: np.random.Generato
     importance sampling: Hesterberg 1995, Technometrics 37, 185), so that the rounds'
     errors still estimate the error at posterior draws with bounded weights.
 
+    Args:
+        posteriors: the sample functions' posteriors on a support of ``P`` points.
+        unit: the support's points ``(P, d)`` (unit cube).
+        count: distinct points wanted.
+        rng: draws the points.
+
     Returns:
         The points' indices into the support ``(points,)``; the weights ``(points,)`` that
         turn the errors at them into the posterior's mean error (how often each was drawn
         times its importance weight ``p / q``, at most ``1 / (1 - TARGETED)``); and what
         ``refine.jsonl`` keeps of the aiming: the points, the draws, the points' ESS under
-        those weights and the functions' mean disagreement under p (nats).
+        those weights, the functions' mean disagreement under p (nats) and the share of the
+        draws' proposal in the quantiles' tails (beyond the mean's 5 and 95 % quantiles
+        of a parameter whose tail quantile the functions move most).
     """
     p = posteriors.pooled()
     s = posteriors.disagreement()
     # a function whose loss is not finite at a point has no spread there to measure
     s = np.where(np.isfinite(s), s, 0.0)
-    up = lift(p, s)
+    aim_at, tail = aimed(posteriors, unit, p * s)
+    up = lift(p, s, aim_at)
     chosen, times = draws(p * up, count, rng)
     weight = times / up[chosen]
     aim = {"posterior_points": len(chosen), "draws": int(times.sum()),
            "error_weight_ess": float(weight.sum() ** 2 / np.sum(weight ** 2)),
-           "mean_disagreement_nats": float(np.sum(p * s))}
+           "mean_disagreement_nats": float(np.sum(p * s)),
+           "tail_share": float(np.sum((p * up)[tail])), "tail_posterior": float(np.sum(p[tail]))}
     return chosen, weight, aim
 
 
-def lift(p: Array, s: Array) -> Array:
+def aimed(posteriors: FunctionPosteriors, unit: Array, lean: Array) -> tuple[Array | None, NDArray[np.bool_]]:
+    """Where the sample functions' disagreement moves the quantiles: weights ``(P,)`` on
+    the support ``unit`` ``(P, d)`` summing to one (``None`` where the functions move none
+    or ``lean`` vanishes), and the tail of the quantile they move most ``(P,)`` (points
+    beyond it, for the record).
+
+    Raising the log-likelihood of point x by ``e`` moves the weight of x by about
+    ``p(x) e`` and the CDF of parameter k at its level-a quantile q by
+    ``sum_x p(x) e(x) (1[x_k <= q] - a)`` (the weights sum to one, so the constant a costs
+    nothing), and so the quantile by that over the density there.  With ``lean`` ``(P,)``
+    the posterior weights times the functions' disagreement (``p s``), the weights are, per
+    quantile, ``lean |1[x_k <= q] - a|`` (for the 95 % quantile the 5 % of the posterior
+    beyond it count as much as the 95 % within it), mixed in proportion to the square of
+    the move that one function in ten makes (the spread's level,
+    :data:`~smcbayes.posterior.curve_spread.SHIFT_LEVEL`): runs there settle the
+    quantiles the stage's spread judges, which in a posterior's long tails the
+    density-weighted disagreement alone rarely reaches.
+    """
+    ref, moves = quantile_moves(unit, posteriors.log_mean, posteriors.log_functions)
+    level = np.quantile(moves, SHIFT_LEVEL, axis=0)  # (3, d)
+    levels = np.asarray(QUANTILES)[:, None, None]
+    below = unit.T[None, :, :] <= ref[:, :, None]  # (3, d, P)
+    per = np.abs(below - levels) * lean
+    total = per.sum(axis=2)
+    a, k = np.unravel_index(np.argmax(np.where(levels[:, :, 0] != 0.5, level, -1.0)), level.shape)
+    tail = ~below[a, k] if QUANTILES[a] > 0.5 else below[a, k]
+    mix = np.where(total > 0.0, level ** 2, 0.0)
+    if not mix.sum() > 0.0:
+        return None, tail
+    mix = mix / mix.sum()
+    return np.einsum("ak,akp->p", mix, per / np.where(total > 0.0, total, 1.0)[:, :, None]), tail
+
+
+def lift(p: Array, s: Array, aim: Array | None = None) -> Array:
     """The ratio ``q / p`` ``(P,)`` of :func:`targeted`'s proposal to the posterior weights
-    ``p`` ``(P,)`` (summing to one), from the disagreement ``s`` ``(P,)``; one everywhere
-    where the functions agree everywhere."""
+    ``p`` ``(P,)`` (summing to one), from the disagreement ``s`` ``(P,)`` and the aimed
+    weights ``aim`` ``(P,)`` (summing to one; ``None`` for none); each of the two takes the
+    whole of :data:`TARGETED` where the other is missing (functions that agree everywhere),
+    and the ratio is one everywhere where both are."""
     mean = float(np.sum(p * s))
-    if not (mean > 0.0 and np.isfinite(mean)):
+    lean = s / mean if mean > 0.0 and np.isfinite(mean) else None
+    # the aimed weights carry the factor p, so they vanish where it does
+    toward = None if aim is None else np.divide(aim, p, out=np.zeros_like(p), where=p > 0.0)
+    if lean is None and toward is None:
         return np.ones_like(p)
-    return (1.0 - TARGETED) + TARGETED * s / mean
+    if toward is None:
+        return (1.0 - TARGETED) + TARGETED * lean
+    if lean is None:
+        return (1.0 - TARGETED) + TARGETED * toward
+    return (1.0 - TARGETED) + TARGETED * ((1.0 - AIMED) * lean + AIMED * toward)
 
 
 def draws(weights: Array, count: int, rng: np.random.Generator) -> tuple[NDArray[np.int_], NDArray[np.int_]]:

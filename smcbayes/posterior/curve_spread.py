@@ -133,6 +133,15 @@ def _function_shift(x: Array, ref: Array, log_w: Array) -> Array:
     return np.abs(_quantiles(x, np.exp(log_w)) - ref)
 
 
+def quantile_moves(x: Array, log_mean: Array, log_functions: Array) -> tuple[Array, Array]:
+    """The mean's 5/50/95 % quantiles ``(3, d)`` on the support ``x`` ``(P, d)`` under its
+    normalised log weights ``log_mean`` ``(P,)``, and each function's move of them ``(F, 3, d)``
+    (log weights ``log_functions`` ``(F, P)``; the whole range, 1, for a function whose
+    likelihood vanishes everywhere on the support)."""
+    ref = _quantiles(x, np.exp(log_mean))
+    return ref, np.array([_function_shift(x, ref, lw) for lw in log_functions])
+
+
 @dataclasses.dataclass
 class FunctionPosteriors:
     """GP sample functions' posteriors on a support of an importance sample of the mean's.
@@ -238,11 +247,11 @@ def function_spread(posteriors: Sequence[FunctionPosteriors], sample: Importance
         # the expected loss exceeds the expected log loss), and that common lean is part of the
         # emulator's uncertainty the spread must show (measured against the pooled posterior, a
         # synthetic posterior 0.18 off in a quantile passed with a spread of 0.086)
-        ref = _quantiles(x, np.exp(support.log_mean))
+        ref, moved = quantile_moves(x, support.log_mean, support.log_functions)
         # on the common support the support's own subsampling cancels (as in the rounds'
         # quantile shift); its noise against the whole sample is reported, not subtracted
         noise = np.maximum(noise, np.max(np.abs(ref - whole), axis=0))
-        moves += [_function_shift(x, ref, lw) for lw in support.log_functions]
+        moves += list(moved)
     shifts = np.max(np.quantile(np.array(moves), SHIFT_LEVEL, axis=0), axis=0)
     return {"functions": len(moves), "steps": 0, "supports": len(posteriors),
             "support_points": int(len(np.unique(np.concatenate([support.rows for support in posteriors])))),

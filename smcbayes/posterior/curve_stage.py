@@ -3,22 +3,22 @@ the force-curve emulator of :mod:`smcbayes.posterior.curves`, confirmed by its r
 posterior.
 
 Starts from the calibration GP's points (simulated again for their curves, through the
-stage's forward cache), then runs rounds of ``round_runs`` forward runs: three quarters draws of
-the emulated posterior pooled with those of GP sample functions
-(:mod:`smcbayes.posterior.curve_spread`), leaning to where the functions disagree
-(:func:`~smcbayes.posterior.curve_aim.targeted`), a quarter (:data:`EXPLORATION`) of the
-tempered one (likelihood^``temper``) of the optimistic loss (curves one emulator sd closer
-to the data), which reaches regions the emulator's mean rates too low because it has no
-points there.  Each round samples the emulated posterior by adaptive importance sampling on
-the emulator (the correction's algorithm, no forward run): emcee chains started at the best
-point under-sample a flat arm of the accuracy benchmark's first case (1.2 % of the mass
-where the exact posterior has 6.5 %), and a stopping rule judged on them stopped early and
-called a posterior reliable that was 0.34 off in a correlation.  Two measures decide when to
-stop, in each of the last :data:`VALIDATED_ROUNDS` rounds: the emulator's error at the
-round's posterior draws, measured before they join its data (mean absolute, nats of
-log-likelihood, each draw weighted back to the posterior's share; at most
-``refine_tolerance_nats``), and how far the emulated posterior's quantiles moved
-(:func:`~smcbayes.posterior.curve_sample.quantile_shift`, on common draws, so that the
+stage's forward cache), then runs rounds of ``round_runs`` forward runs: three quarters
+draws of the emulated posterior pooled with those of GP sample functions
+(:mod:`smcbayes.posterior.curve_spread`), leaning to where the functions disagree and to the
+quantiles they move (:func:`~smcbayes.posterior.curve_aim.targeted`), a quarter
+(:data:`EXPLORATION`) of the tempered one (likelihood^``temper``) of the optimistic loss
+(curves one emulator sd closer to the data), which reaches regions the emulator's mean rates
+too low because it has no points there.  Each round samples the emulated posterior by
+adaptive importance sampling on the emulator (the correction's algorithm, no forward run):
+emcee chains started at the best point under-sample a flat arm of the accuracy benchmark's
+first case (1.2 % of the mass where the exact posterior has 6.5 %), and a stopping rule
+judged on them stopped early and called a posterior reliable that was 0.34 off in a
+correlation.  Two measures decide when to stop, in each of the last :data:`VALIDATED_ROUNDS`
+rounds: the emulator's error at the round's posterior draws, measured before they join its
+data (mean absolute, nats of log-likelihood, each draw weighted back to the posterior's
+share; at most ``refine_tolerance_nats``), and how far the emulated posterior's quantiles
+moved (:func:`~smcbayes.posterior.curve_sample.quantile_shift`, on common draws, so that the
 sampling noise cancels; at most :data:`QUANTILE_SHIFT`); the same rounds' sample functions
 must also move it by at most :data:`~smcbayes.posterior.spread.SPREAD_MAX` on average.  A
 validated emulator's reported posterior (that of the expected loss,
@@ -27,8 +27,7 @@ emulator and pooled with its sample functions' posteriors,
 :mod:`smcbayes.posterior.curve_sample`) is then drawn, and the learning stops only if its
 own spread is within the bound too; after :data:`CONFIRMATIONS` failed confirmations it asks
 for no more before its budget's end.  A stage whose budget runs out first is reported
-unreliable.  ``refine.jsonl`` logs each round.
-"""
+unreliable.  ``refine.jsonl`` logs each round."""
 
 from __future__ import annotations
 
@@ -141,9 +140,9 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     the chains hold; on the first round, whose ``start`` holds only the best training
     points, nearly all tempered; twice as many draws once more when its ESS is below
     :data:`~smcbayes.posterior.curve_sample.ROUND_ESS`) and pooled with the posteriors of GP
-    sample functions on a support of its points, leaning to where they disagree
-    (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest from the tempered posterior
-    of the optimistic loss (emcee)."""
+    sample functions on a support of its points, leaning to where they disagree and to the
+    quantiles they move (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest from the
+    tempered posterior of the optimistic loss (emcee)."""
     d = emulator.x.shape[1]
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
     # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
@@ -166,7 +165,8 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
     # final one; an ESS of a few hundred on the measured thesis trials) still count: there
     # some did in every round, and the rounds could never validate; the stage's own check asks it
     spread = function_spread([posteriors], sample, [str(k) for k in range(d)])
-    rows, error_weight, aim = targeted(posteriors, max(1, size - math.ceil(EXPLORATION * size)), rng)
+    rows, error_weight, aim = targeted(posteriors, sample.unit[posteriors.rows],
+                                      max(1, size - math.ceil(EXPLORATION * size)), rng)
     # fewer distinct posterior points (a posterior on few support points): more exploration
     drawn = len(rows)
     new = np.vstack([sample.unit[posteriors.rows[rows]],

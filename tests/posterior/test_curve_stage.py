@@ -11,7 +11,7 @@ import pytest
 from scipy.stats import norm
 
 from smcbayes.posterior.correct import ImportanceSample
-from smcbayes.posterior.curve_aim import TARGETED, draws, lift, targeted
+from smcbayes.posterior.curve_aim import AIMED, TARGETED, aimed, draws, lift, targeted
 from smcbayes.posterior.curve_sample import START_ROWS, FinalPosterior, quantile_shift
 from smcbayes.posterior.curve_spread import FunctionPosteriors, function_spread
 from smcbayes.posterior.curve_stage import (
@@ -97,24 +97,56 @@ def test_the_targeted_draws_lean_to_disagreement_with_bounded_error_weights() ->
     posteriors = _posteriors(log_lik)
     p, s = posteriors.pooled(), posteriors.disagreement()
     assert np.isclose(p.sum(), 1.0) and np.all(s[:300] == 0.0) and np.all(s[300:] > 0.0)
-    up = lift(p, s)
+    unit = np.linspace(0.0, 1.0, 400)[:, None]
+    toward, tail = aimed(posteriors, unit, p * s)
+    up = lift(p, s, toward)
     # a proposal (sums to one) whose importance weights p / q are bounded
     assert np.isclose(np.sum(p * up), 1.0)
     assert np.max(1.0 / up) <= 1.0 / (1.0 - TARGETED) + 1e-12
     np.testing.assert_allclose(up[:300], 1.0 - TARGETED)
-    chosen, weight, aim = targeted(posteriors, 40, rng)
+    chosen, weight, aim = targeted(posteriors, unit, 40, rng)
     assert len(np.unique(chosen)) == 40 and aim["posterior_points"] == 40
     # each point's importance weight times how often it was drawn
     times = np.rint(weight * up[chosen])
     assert np.allclose(weight * up[chosen], times) and np.all(times >= 1) and times.sum() == aim["draws"]
     assert np.isclose(aim["mean_disagreement_nats"], np.sum(p * s))
     assert np.isclose(aim["error_weight_ess"], weight.sum() ** 2 / np.sum(weight ** 2))
+    assert np.isclose(aim["tail_share"], np.sum((p * up)[tail]))
+    assert np.isclose(aim["tail_posterior"], np.sum(p[tail])) and aim["tail_share"] > aim["tail_posterior"]
     # the disagreeing quarter of the posterior gets more than its share of the draws
     q_far = np.sum((p * up)[300:])
     assert q_far > 0.5 and np.sum(chosen >= 300) > 10
     # functions that agree everywhere leave the posterior's own draws, each of weight one
     still = lift(p, np.zeros(400))
     np.testing.assert_allclose(still, 1.0)
+
+
+def test_the_aimed_draws_go_to_the_tail_whose_quantile_the_functions_move() -> None:
+    rng = np.random.default_rng(3)
+    unit = rng.uniform(size=(2000, 2))
+    # the functions disagree a little everywhere and much beyond x0 = 0.9, which moves the
+    # 95 % quantile of x0 (a tail holding a tenth of the posterior)
+    log_lik = rng.normal(0.0, 0.2, (16, 2000))
+    far = unit[:, 0] > 0.9
+    log_lik[:, far] += rng.normal(0.0, 1.5, (16, 1))
+    posteriors = _posteriors(log_lik)
+    p, s = posteriors.pooled(), posteriors.disagreement()
+    toward, tail = aimed(posteriors, unit, p * s)
+    assert toward is not None and np.isclose(toward.sum(), 1.0) and np.all(toward >= 0.0)
+    # the tail recorded is that of x0's 95 % quantile under the mean's (flat) weights
+    assert abs(tail.mean() - 0.05) < 0.01 and np.all(unit[tail, 0] > 0.9)
+    # beyond the quantile (5 % of the posterior) the aimed weights put far more than the
+    # density-weighted disagreement does, which already leans to the disagreeing tenth
+    lean = p * s / np.sum(p * s)
+    assert np.sum(toward[tail]) > 0.3 and np.sum(toward[tail]) > 2.0 * np.sum(lean[tail])
+    # the proposal still sums to one, with the importance weights bounded
+    up = lift(p, s, toward)
+    assert np.isclose(np.sum(p * up), 1.0) and np.max(1.0 / up) <= 1.0 / (1.0 - TARGETED) + 1e-12
+    np.testing.assert_allclose(lift(p, s, None), (1.0 - TARGETED) + TARGETED * lean / p)
+    np.testing.assert_allclose(up, (1.0 - TARGETED) + TARGETED * ((1.0 - AIMED) * lean + AIMED * toward) / p)
+    # functions that agree everywhere aim nowhere
+    agree = _posteriors(np.zeros((8, 2000)))
+    assert aimed(agree, unit, agree.pooled() * agree.disagreement())[0] is None
 
 
 def test_the_rounds_error_is_the_weighted_mean_at_its_simulated_posterior_draws() -> None:
