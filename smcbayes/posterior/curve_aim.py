@@ -35,8 +35,8 @@ def targeted(posteriors: FunctionPosteriors, unit: Array, count: int, rng: np.ra
              ) -> tuple[NDArray[np.int_], Array, dict[str, float]]:
     """Up to ``count`` distinct support points drawn from the pooled posterior p, each
     point's weight raised by its sample functions' disagreement s (sd of the log-likelihood,
-    nats) and by how much their disagreement there moves a quantile (:func:`aimed`, a):
-    independent draws (:func:`draws`) from the mixture
+    nats) and by how much their disagreement there moves a quantile (:func:`aimed`'s
+    weights a): independent draws (:func:`draws`) from the mixture
     ``q = (1 - TARGETED) p + TARGETED ((1 - AIMED) p s / E_p[s] + AIMED a)``.
 
     Density times the emulator's uncertainty is the acquisition of Acerbi (2018,
@@ -56,10 +56,12 @@ def targeted(posteriors: FunctionPosteriors, unit: Array, count: int, rng: np.ra
         turn the errors at them into the posterior's mean error (how often each was drawn
         times its importance weight ``p / q``, at most ``1 / (1 - TARGETED)``); and what
         ``refine.jsonl`` keeps of the aiming: the points, the draws, the points' ESS under
-        those weights, the functions' mean disagreement under p (nats) and the share of the
-        draws' proposal in the quantiles' tails (beyond the mean's 5 and 95 % quantiles
-        of a parameter whose tail quantile the functions move most).
+        those weights, the functions' mean disagreement under p (nats), and the shares of
+        the draws' proposal and of p beyond the 5 or 95 % quantile the functions move most
+        (:func:`aimed`'s tail).
     """
+    if unit.shape[0] != len(posteriors.rows):
+        raise ValueError(f"the support has {len(posteriors.rows)} points, not {unit.shape[0]}")
     p = posteriors.pooled()
     s = posteriors.disagreement()
     # a function whose loss is not finite at a point has no spread there to measure
@@ -77,53 +79,57 @@ def targeted(posteriors: FunctionPosteriors, unit: Array, count: int, rng: np.ra
 
 def aimed(posteriors: FunctionPosteriors, unit: Array, lean: Array) -> tuple[Array | None, NDArray[np.bool_]]:
     """Where the sample functions' disagreement moves the quantiles: weights ``(P,)`` on
-    the support ``unit`` ``(P, d)`` summing to one (``None`` where the functions move none
-    or ``lean`` vanishes), and the tail of the quantile they move most ``(P,)`` (points
-    beyond it, for the record).
+    the support ``unit`` ``(P, d)`` summing to one (``None`` where the functions move no
+    quantile or ``lean`` vanishes), and the support points beyond the tail (5 or 95 %)
+    quantile they move most ``(P,)`` (for the record; none where the weights are ``None``).
 
-    Raising the log-likelihood of point x by ``e`` moves the weight of x by about
-    ``p(x) e`` and the CDF of parameter k at its level-a quantile q by
-    ``sum_x p(x) e(x) (1[x_k <= q] - a)`` (the weights sum to one, so the constant a costs
-    nothing), and so the quantile by that over the density there.  With ``lean`` ``(P,)``
-    the posterior weights times the functions' disagreement (``p s``), the weights are, per
-    quantile, ``lean |1[x_k <= q] - a|`` (for the 95 % quantile the 5 % of the posterior
-    beyond it count as much as the 95 % within it), mixed in proportion to the square of
-    the move that one function in ten makes (the spread's level,
-    :data:`~smcbayes.posterior.curve_spread.SHIFT_LEVEL`): runs there settle the
-    quantiles the stage's spread judges, which in a posterior's long tails the
-    density-weighted disagreement alone rarely reaches.
+    Reweighting point x by ``exp(e(x))`` and normalising again moves the CDF ``F`` of
+    parameter k at q by about ``sum_x p(x) (e(x) - E_p[e]) 1[x_k <= q]``, which is
+    ``sum_x p(x) e(x) (1[x_k <= q] - F(q))``, with ``F(q) = alpha`` at the level-alpha
+    quantile; the quantile moves by that over the density there (a share of the unit
+    cube).  With ``e`` of the size of the functions' disagreement s, each point's part in
+    that sum is ``p s |1[x_k <= q] - alpha|``: a weight, not the move itself.  Here
+    ``lean`` ``(P,)`` is ``p s`` with p the pooled posterior the round draws from, and q
+    the quantiles of the mean's posterior on the support, against which the spread
+    measures the moves.  For the 95 % quantile the 5 % of the posterior beyond it count as
+    much as the 95 % within it.  The quantiles' weights are mixed in proportion to the
+    square of the move that one function in ten makes of each (the spread's level,
+    :data:`~smcbayes.posterior.curve_spread.SHIFT_LEVEL`), so that the quantile that
+    blocks the stop takes most of the aim (one moved half as far gets a quarter as much):
+    runs there settle the quantiles the stage's spread judges, which in a posterior's long
+    tails the density-weighted disagreement alone rarely reaches.
     """
     ref, moves = quantile_moves(unit, posteriors.log_mean, posteriors.log_functions)
-    level = np.quantile(moves, SHIFT_LEVEL, axis=0)  # (3, d)
-    levels = np.asarray(QUANTILES)[:, None, None]
+    level = np.quantile(moves, SHIFT_LEVEL, axis=0)  # (3, d): the spread's move per quantile
+    alpha = np.asarray(QUANTILES)
     below = unit.T[None, :, :] <= ref[:, :, None]  # (3, d, P)
-    per = np.abs(below - levels) * lean
+    per = np.abs(below - alpha[:, None, None]) * lean
     total = per.sum(axis=2)
-    a, k = np.unravel_index(np.argmax(np.where(levels[:, :, 0] != 0.5, level, -1.0)), level.shape)
-    tail = ~below[a, k] if QUANTILES[a] > 0.5 else below[a, k]
+    tails = np.where((alpha != 0.5)[:, None], level, -1.0)
+    i, k = np.unravel_index(np.argmax(tails), level.shape)
+    tail = ~below[i, k] if alpha[i] > 0.5 else below[i, k]
     mix = np.where(total > 0.0, level ** 2, 0.0)
     if not mix.sum() > 0.0:
-        return None, tail
+        return None, np.zeros_like(tail)
     mix = mix / mix.sum()
-    return np.einsum("ak,akp->p", mix, per / np.where(total > 0.0, total, 1.0)[:, :, None]), tail
+    return np.einsum("ik,ikp->p", mix, per / np.where(total > 0.0, total, 1.0)[:, :, None]), tail
 
 
 def lift(p: Array, s: Array, aim: Array | None = None) -> Array:
     """The ratio ``q / p`` ``(P,)`` of :func:`targeted`'s proposal to the posterior weights
     ``p`` ``(P,)`` (summing to one), from the disagreement ``s`` ``(P,)`` and the aimed
-    weights ``aim`` ``(P,)`` (summing to one; ``None`` for none); each of the two takes the
-    whole of :data:`TARGETED` where the other is missing (functions that agree everywhere),
-    and the ratio is one everywhere where both are."""
+    weights ``aim`` ``(P,)`` (summing to one; ``None`` for none, as where no quantile
+    moves, and then the lean to the disagreement takes the whole of :data:`TARGETED`); one
+    everywhere where the functions agree everywhere (the aimed weights, ``p s`` times a
+    factor, vanish then too)."""
     mean = float(np.sum(p * s))
-    lean = s / mean if mean > 0.0 and np.isfinite(mean) else None
-    # the aimed weights carry the factor p, so they vanish where it does
-    toward = None if aim is None else np.divide(aim, p, out=np.zeros_like(p), where=p > 0.0)
-    if lean is None and toward is None:
+    if not (mean > 0.0 and np.isfinite(mean)):
         return np.ones_like(p)
-    if toward is None:
+    lean = s / mean
+    if aim is None:
         return (1.0 - TARGETED) + TARGETED * lean
-    if lean is None:
-        return (1.0 - TARGETED) + TARGETED * toward
+    # the aimed weights carry the factor p, so they vanish where it does
+    toward = np.divide(aim, p, out=np.zeros_like(p), where=p > 0.0)
     return (1.0 - TARGETED) + TARGETED * ((1.0 - AIMED) * lean + AIMED * toward)
 
 

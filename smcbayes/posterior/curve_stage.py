@@ -111,8 +111,9 @@ class _Round:
     Attributes:
         new: the rows to simulate ``(B, d)``: the first ``posterior`` are draws of the
             emulated posterior pooled with its GP sample functions', leaning to where
-            they disagree (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest of
-            the tempered optimistic one.
+            they disagree and to the quantiles they move
+            (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest of the tempered
+            optimistic one.
         posterior: how many of ``new`` are posterior draws.
         sample: the round's importance sample of the emulated posterior (the mean's).
         spread: how far its sample functions move its 5/50/95 % quantiles (share of the unit cube).
@@ -158,8 +159,8 @@ def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec:
         # too few to measure the round's move by: once more, twice as long, from what it found
         found = sample.resample(START_ROWS // 2, rng)
         sample = emulator_sample(emulator, n_eff, np.vstack([found, share]), spec, 2 * ROUND_DRAWS, rng)
-    # the posterior draws from the pooled posterior, which the stage reports, leaning to
-    # where its sample functions disagree: there the next runs settle it
+    # the posterior draws from the pooled posterior the stage reports, leaning to where its
+    # functions disagree and to the quantiles they move: there the next runs settle it
     posteriors = function_posteriors(emulator, n_eff, sample, rng)
     # functions resting on few points of a round's sample (fewer draws than the stage's
     # final one; an ESS of a few hundred on the measured thesis trials) still count: there

@@ -121,32 +121,38 @@ def test_the_targeted_draws_lean_to_disagreement_with_bounded_error_weights() ->
     np.testing.assert_allclose(still, 1.0)
 
 
-def test_the_aimed_draws_go_to_the_tail_whose_quantile_the_functions_move() -> None:
+@pytest.mark.parametrize("upper", [True, False])
+def test_the_aimed_draws_go_to_the_tail_whose_quantile_the_functions_move(upper: bool) -> None:
     rng = np.random.default_rng(3)
     unit = rng.uniform(size=(2000, 2))
-    # the functions disagree a little everywhere and much beyond x0 = 0.9, which moves the
-    # 95 % quantile of x0 (a tail holding a tenth of the posterior)
+    # the functions disagree a little everywhere and much beyond x0 = 0.9 (or below 0.1),
+    # which moves the 95 % (5 %) quantile of x0 (a tail holding a tenth of the posterior)
     log_lik = rng.normal(0.0, 0.2, (16, 2000))
-    far = unit[:, 0] > 0.9
+    far = unit[:, 0] > 0.9 if upper else unit[:, 0] < 0.1
     log_lik[:, far] += rng.normal(0.0, 1.5, (16, 1))
     posteriors = _posteriors(log_lik)
     p, s = posteriors.pooled(), posteriors.disagreement()
     toward, tail = aimed(posteriors, unit, p * s)
     assert toward is not None and np.isclose(toward.sum(), 1.0) and np.all(toward >= 0.0)
-    # the tail recorded is that of x0's 95 % quantile under the mean's (flat) weights
-    assert abs(tail.mean() - 0.05) < 0.01 and np.all(unit[tail, 0] > 0.9)
+    # the tail recorded is beyond x0's 95 % (5 %) quantile under the mean's (flat) weights
+    assert abs(tail.mean() - 0.05) < 0.01 and np.all(far[tail])
     # beyond the quantile (5 % of the posterior) the aimed weights put far more than the
     # density-weighted disagreement does, which already leans to the disagreeing tenth
     lean = p * s / np.sum(p * s)
-    assert np.sum(toward[tail]) > 0.3 and np.sum(toward[tail]) > 2.0 * np.sum(lean[tail])
+    assert np.sum(toward[tail]) > 0.4 and np.sum(toward[tail]) > 2.0 * np.sum(lean[tail])
     # the proposal still sums to one, with the importance weights bounded
     up = lift(p, s, toward)
     assert np.isclose(np.sum(p * up), 1.0) and np.max(1.0 / up) <= 1.0 / (1.0 - TARGETED) + 1e-12
     np.testing.assert_allclose(lift(p, s, None), (1.0 - TARGETED) + TARGETED * lean / p)
     np.testing.assert_allclose(up, (1.0 - TARGETED) + TARGETED * ((1.0 - AIMED) * lean + AIMED * toward) / p)
-    # functions that agree everywhere aim nowhere
+    # a quarter of the proposal is aimed, as the README's formula says
+    assert (TARGETED, AIMED) == (0.5, 0.5)
+    # functions that agree everywhere aim nowhere and record no tail
     agree = _posteriors(np.zeros((8, 2000)))
-    assert aimed(agree, unit, agree.pooled() * agree.disagreement())[0] is None
+    none, no_tail = aimed(agree, unit, agree.pooled() * agree.disagreement())
+    assert none is None and not no_tail.any()
+    with pytest.raises(ValueError, match="support has 2000 points"):
+        targeted(posteriors, unit[:10], 5, rng)
 
 
 def test_the_rounds_error_is_the_weighted_mean_at_its_simulated_posterior_draws() -> None:
