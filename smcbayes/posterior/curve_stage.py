@@ -3,22 +3,14 @@ the force-curve emulator of :mod:`smcbayes.posterior.curves`, confirmed by its r
 posterior.
 
 Starts from the calibration GP's points (simulated again for their curves, through the
-stage's forward cache), then runs rounds of ``round_runs`` forward runs: three quarters
-draws of the emulated posterior pooled with those of GP sample functions
-(:mod:`smcbayes.posterior.curve_spread`), leaning to where the functions disagree and to the
-quantiles they move (:func:`~smcbayes.posterior.curve_aim.targeted`), a quarter
-(:data:`EXPLORATION`) of the tempered one (likelihood^``temper``) of the optimistic loss
-(curves one emulator sd closer to the data), which reaches regions the emulator's mean rates
-too low because it has no points there.  Each round samples the emulated posterior by
-adaptive importance sampling on the emulator (the correction's algorithm, no forward run):
-emcee chains started at the best point under-sample a flat arm of the accuracy benchmark's
-first case (1.2 % of the mass where the exact posterior has 6.5 %), and a stopping rule
-judged on them stopped early and called a posterior reliable that was 0.34 off in a
-correlation.  Two measures decide when to stop, in each of the last :data:`VALIDATED_ROUNDS`
-rounds: the emulator's error at the round's posterior draws, measured before they join its
-data (mean absolute, nats of log-likelihood, each draw weighted back to the posterior's
-share; at most ``refine_tolerance_nats``), and how far the emulated posterior's quantiles
-moved (:func:`~smcbayes.posterior.curve_sample.quantile_shift`, on common draws, so that the
+stage's forward cache), then runs rounds of ``round_runs`` forward runs, each chosen by
+:func:`~smcbayes.posterior.curve_round.next_round`: mostly draws of the emulated posterior
+where the emulator's GP sample functions disagree, the rest exploring.  Two measures decide
+when to stop, in each of the last :data:`VALIDATED_ROUNDS` rounds: the emulator's error at
+the round's posterior draws, measured before they join its data (mean absolute, nats of
+log-likelihood, each draw weighted back to the posterior's share; at most
+``refine_tolerance_nats``), and how far the emulated posterior's quantiles moved
+(:func:`~smcbayes.posterior.curve_sample.quantile_shift`, on common draws, so that the
 sampling noise cancels; at most :data:`QUANTILE_SHIFT`); the same rounds' sample functions
 must also move it by at most :data:`~smcbayes.posterior.spread.SPREAD_MAX` on average.  A
 validated emulator's reported posterior (that of the expected loss,
@@ -34,7 +26,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -48,36 +39,24 @@ from smcbayes.config import PosteriorSpec
 from smcbayes.config.settings import ROUND_RUNS_CURVES
 from smcbayes.errors import SurrogateError
 from smcbayes.posterior.context import RunContext
-from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample
-from smcbayes.posterior.curve_aim import targeted
+from smcbayes.posterior.correct import CorrectionSettings
+from smcbayes.posterior.curve_round import Round, next_round
 from smcbayes.posterior.curve_sample import (
     EXPECTED_LOSS,
     ROUND_ESS,
     START_ROWS,
     CurveEmulation,
     FinalPosterior,
-    emulator_sample,
     final_posterior,
     quantile_shift,
-    sample_chains,
 )
-from smcbayes.posterior.curve_spread import curve_spread, function_posteriors, function_spread
+from smcbayes.posterior.curve_spread import curve_spread
 from smcbayes.posterior.curves import CurveEmulator, CurveFeatures, log_posterior
 from smcbayes.posterior.spread import SPREAD_MAX
 
 logger = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
-
-TEMPER = 0.25
-"""Exponent of the exploration's likelihood."""
-
-EXPLORATION = 0.25
-"""Share of a round's runs drawn from the tempered optimistic posterior (the exploration);
-the rest are posterior draws.  The spread that decides the stop falls with the runs where
-the posterior lives: on the measured thesis trials an emulator of 60 calibration points and
-340 draws of the posterior had a spread of 0.089, while the active learning, with half its
-runs exploring, read 0.10-0.15 after 400-800 runs."""
 
 VALIDATED_ROUNDS = 3
 """Rounds in a row whose out-of-sample error is within the tolerance and whose posterior
@@ -94,86 +73,6 @@ CONFIRMATIONS = 3
 budget.  Each draws the reported posterior, 130-210 s on the measured thesis trials beside
 other work (three to five rounds' fit and sampling); a learning whose validations the
 reported posterior keeps failing would spend that every three rounds until its budget ends."""
-
-ROUND_STEPS = 1000
-"""Most emcee steps of a round's tempered sampling."""
-
-ROUND_DRAWS = 20000
-"""Most proposal draws of a round's importance sample of the emulated posterior (it stops
-at the correction's ESS and k-hat targets)."""
-
-
-
-@dataclass
-class _Round:
-    """One round's choice of forward runs and the emulated posterior it was drawn from.
-
-    Attributes:
-        new: the rows to simulate ``(B, d)``: the first ``posterior`` are draws of the
-            emulated posterior pooled with its GP sample functions', leaning to where
-            they disagree and to the quantiles they move
-            (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest of the tempered
-            optimistic one.
-        posterior: how many of ``new`` are posterior draws.
-        sample: the round's importance sample of the emulated posterior (the mean's).
-        spread: how far its sample functions move its 5/50/95 % quantiles (share of the unit cube).
-        error_weight: the weights ``(posterior,)`` of the posterior draws' errors in the
-            round's mean error (:func:`~smcbayes.posterior.curve_aim.targeted`).
-        aim: what ``refine.jsonl`` keeps of the aiming
-            (:func:`~smcbayes.posterior.curve_aim.targeted`).
-    """
-
-    new: Array
-    posterior: int
-    sample: ImportanceSample
-    spread: float
-    error_weight: Array
-    aim: dict[str, float] = field(default_factory=dict)
-
-
-def _round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec: CorrectionSettings,
-           rng: np.random.Generator, walkers: int) -> _Round:
-    """The next batch of ``size`` rows: all but a share :data:`EXPLORATION` (fewer when the
-    posterior rests on fewer support points) drawn from the emulated posterior, sampled by
-    importance (:data:`ROUND_DRAWS` emulator evaluations; its first proposal fitted to the
-    earlier round's posterior draws ``start`` ``(S, d)`` and tempered draws, a quarter of
-    :data:`~smcbayes.posterior.curve_sample.START_ROWS` or as many as
-    the chains hold; on the first round, whose ``start`` holds only the best training
-    points, nearly all tempered; twice as many draws once more when its ESS is below
-    :data:`~smcbayes.posterior.curve_sample.ROUND_ESS`) and pooled with the posteriors of GP
-    sample functions on a support of its points, leaning to where they disagree and to the
-    quantiles they move (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest from the
-    tempered posterior of the optimistic loss (emcee)."""
-    d = emulator.x.shape[1]
-    centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
-    # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
-    wide = np.unique(sample_chains(emulator, n_eff, rng, centre, TEMPER, ROUND_STEPS, walkers,
-                                   optimistic=True).samples.reshape(-1, d), axis=0)
-    # after the first round mostly the last round's posterior: the tempered draws alone,
-    # twice as wide in every direction, make a first proposal that wastes most of its draws
-    # in seven dimensions
-    count = min(len(wide), max(START_ROWS // 4, START_ROWS - len(start)))
-    share = wide[rng.choice(len(wide), count, replace=False)]
-    sample = emulator_sample(emulator, n_eff, np.vstack([start, share]), spec, ROUND_DRAWS, rng)
-    if sample.ess < ROUND_ESS:
-        # too few to measure the round's move by: once more, twice as long, from what it found
-        found = sample.resample(START_ROWS // 2, rng)
-        sample = emulator_sample(emulator, n_eff, np.vstack([found, share]), spec, 2 * ROUND_DRAWS, rng)
-    # the posterior draws from the pooled posterior the stage reports, leaning to where its
-    # functions disagree and to the quantiles they move: there the next runs settle it
-    posteriors = function_posteriors(emulator, n_eff, sample, rng)
-    # functions resting on few points of a round's sample (fewer draws than the stage's
-    # final one; an ESS of a few hundred on the measured thesis trials) still count: there
-    # some did in every round, and the rounds could never validate; the stage's own check asks it
-    spread = function_spread([posteriors], sample, [str(k) for k in range(d)])
-    rows, error_weight, aim = targeted(posteriors, sample.unit[posteriors.rows],
-                                      max(1, size - math.ceil(EXPLORATION * size)), rng)
-    # fewer distinct posterior points (a posterior on few support points): more exploration
-    drawn = len(rows)
-    new = np.vstack([sample.unit[posteriors.rows[rows]],
-                     wide[rng.choice(len(wide), size - drawn, replace=size - drawn > len(wide))]])
-    return _Round(new, drawn, sample, spread["max_quantile_shift"], error_weight, aim)
-
 
 @dataclass
 class Learned:
@@ -218,9 +117,10 @@ class _Progress:
     confirmations: list[dict[str, Any]] = field(default_factory=list)
     before: Callable[[Array], Array] | None = None
 
-    def validated(self, tolerance_nats: float) -> bool:
-        """The rounds since the last failed confirmation validate the emulator (:func:`_validated`)."""
-        k = self.since
+    def validated(self, tolerance_nats: float, ended: bool = False) -> bool:
+        """The rounds since the last failed confirmation validate the emulator
+        (:func:`_validated`); once the budget has ``ended``, the last rounds whenever they ran."""
+        k = 0 if ended else self.since
         return _validated(self.errors[k:], self.shifts[k:], tolerance_nats, self.spreads[k:])
 
     def failed(self) -> int:
@@ -259,8 +159,10 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     and a stop on the rounds' alone ended learnings whose reported posterior was then called
     unreliable.  After a failed confirmation the next rounds start from its sample, and
     :data:`VALIDATED_ROUNDS` new rounds must validate before the next; after
-    :data:`CONFIRMATIONS` failed ones the learning runs to its budget, where a validation
-    is confirmed once more.
+    :data:`CONFIRMATIONS` failed ones the learning runs to its budget.  At the budget's end
+    the last rounds validate whenever they ran (no new round can follow) and a validation
+    is confirmed once more; after more than one confirmation the stage measures the
+    confirming spread again on fresh supports (:func:`curve_posterior`).
 
     Args:
         simulate: unit-cube rows ``(P, d)`` -> features ``(P, F)`` and success ``(P,)``.
@@ -300,8 +202,12 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         final = None
         # a reported posterior that keeps failing would cost a draw every few rounds; at the
         # budget's end the stage draws it anyway, so there it still confirms
-        asks = confirm is None or progress.failed() < CONFIRMATIONS or progress.spent >= budget
-        converged = progress.validated(tolerance_nats) and asks
+        ended = progress.spent >= budget
+        asks = confirm is None or progress.failed() < CONFIRMATIONS or ended
+        # after a failed confirmation new rounds must validate before the next one, but at
+        # the budget's end none can follow: the last rounds validate whenever they ran and
+        # the reported posterior, drawn there anyway, decides by its own spread
+        converged = progress.validated(tolerance_nats, ended) and asks
         if converged and confirm is not None:
             t_confirm = time.perf_counter()
             final = confirm(emulator)
@@ -311,7 +217,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         if converged or progress.spent >= budget:
             break
         size = min(round_runs, budget - progress.spent)
-        step = _round(emulator, n_eff, size, progress.start, spec, rng, walkers)
+        step = next_round(emulator, n_eff, size, progress.start, spec, rng, walkers)
         record = _take(progress, step, emulator, n_eff, simulate, rng, t0)
         logger.info("curve emulator round %d: %d points, error %.2f nats at fresh posterior draws",
                     progress.rounds, record["training_points"], progress.errors[-1])
@@ -321,7 +227,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
                    {**progress.record(converged), "variance_factor": _factor_range(emulator)}, final)
 
 
-def _take(progress: _Progress, step: _Round, emulator: CurveEmulator, n_eff: float,
+def _take(progress: _Progress, step: Round, emulator: CurveEmulator, n_eff: float,
           simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], rng: np.random.Generator,
           t0: float) -> dict[str, Any]:
     """Record the round ``step`` drawn from ``emulator``, simulate its rows, add them to the
@@ -375,7 +281,7 @@ def _fit(features: CurveFeatures, x: Array, y: Array, earlier: CurveEmulator | N
     return emulator
 
 
-def _fresh_error(emulator: CurveEmulator, n_eff: float, step: _Round, y_new: Array,
+def _fresh_error(emulator: CurveEmulator, n_eff: float, step: Round, y_new: Array,
                  ok: NDArray[np.bool_]) -> float:
     """The mean |emulated - simulated| log-likelihood (nats) at the round's successfully
     simulated posterior draws, weighted by ``step.error_weight`` so that it estimates the
@@ -401,7 +307,7 @@ def _factor_range(emulator: CurveEmulator) -> dict[str, float] | None:
             "median": float(np.median(factor)), "max": float(np.max(factor))}
 
 
-def _round_record(emulator: CurveEmulator, step: _Round) -> dict[str, Any]:
+def _round_record(emulator: CurveEmulator, step: Round) -> dict[str, Any]:
     """What ``refine.jsonl`` keeps of a round's sample, spread and emulator."""
     return {"spread": _finite(step.spread), "importance_ess": step.sample.ess, "k_hat": step.sample.k_hat,
             **step.aim,

@@ -12,6 +12,7 @@ from scipy.stats import norm
 
 from smcbayes.posterior.correct import ImportanceSample
 from smcbayes.posterior.curve_aim import AIMED, TARGETED, aimed, draws, lift, targeted
+from smcbayes.posterior.curve_round import Round
 from smcbayes.posterior.curve_sample import START_ROWS, FinalPosterior, quantile_shift
 from smcbayes.posterior.curve_spread import FunctionPosteriors, function_spread
 from smcbayes.posterior.curve_stage import (
@@ -20,7 +21,6 @@ from smcbayes.posterior.curve_stage import (
     _confirmed,
     _fresh_error,
     _Progress,
-    _Round,
     _validated,
 )
 from smcbayes.posterior.spread import SPREAD_MAX
@@ -163,7 +163,7 @@ def test_the_rounds_error_is_the_weighted_mean_at_its_simulated_posterior_draws(
                                features=features)
     new = np.zeros((5, 2))
     y_new = np.arange(5.0)[:, None]
-    step = _Round(new, 3, None, 0.0, np.array([2.0, 1.0, 1.0]))
+    step = Round(new, 3, None, 0.0, np.array([2.0, 1.0, 1.0]))
     ok = np.array([True, True, False, True, True])
     # rows 3 and 4 are exploration; row 2 failed: (2 * 0 + 1 * 0.1) / 3 * 4 / 2
     assert np.isclose(_fresh_error(emulator, 4.0, step, y_new, ok), 0.2 / 3)
@@ -198,8 +198,8 @@ def _final(spread: float | None) -> FinalPosterior:
 
 def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its_sample() -> None:
     """The reported posterior's own spread confirms a validation; when it does not, the
-    rounds that validated no longer count, the next round starts from the reported sample,
-    and both confirmations are recorded."""
+    rounds that validated no longer count (but at the budget's end), the next round starts
+    from the reported sample, and both confirmations are recorded."""
     progress = _Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
 
     def good_round() -> None:
@@ -215,6 +215,8 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
     rng = np.random.default_rng(0)
     assert not _confirmed(progress, _final(1.5 * SPREAD_MAX), rng, True)
     assert not progress.validated(1.0) and progress.since == VALIDATED_ROUNDS
+    # at the budget's end no new round can follow: the last rounds validate whenever they ran
+    assert progress.validated(1.0, ended=True)
     # the next round's importance sampling starts from the reported sample (centred at 0.7)
     assert progress.start.shape == (3 * START_ROWS // 4, 1) and abs(np.median(progress.start) - 0.7) < 0.05
     for _ in range(VALIDATED_ROUNDS - 1):

@@ -15,6 +15,7 @@ import pytest
 from smcbayes.cli import main
 from smcbayes.config.settings import ROUND_RUNS_CURVES
 from smcbayes.config.specs import LossSpec
+from smcbayes.posterior import curve_round
 from smcbayes.posterior.active import STABLE_ROUNDS
 from smcbayes.posterior.context import load_run
 from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample
@@ -659,7 +660,7 @@ def _scripted_learning(run_dir: Path, monkeypatch: pytest.MonkeyPatch, budget: i
     import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.curve_sample import FinalPosterior
 
-    monkeypatch.setattr(curve_stage, "ROUND_DRAWS", 4000)
+    monkeypatch.setattr(curve_round, "ROUND_DRAWS", 4000)
     monkeypatch.setattr(curve_stage, "_validated", lambda *args: True)
     ctx = load_run(run_dir)
     features, u, y, _ = _rows(run_dir, 25, 5)
@@ -763,13 +764,12 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     simulating nothing (every curve batch is seeded and kept in the stage's cache)."""
     import smcbayes.posterior.curve_sample as curve_sample
     import smcbayes.posterior.curve_spread as curve_spread
-    import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.stage import PosteriorSettings, run_posterior
 
     # a small budget: the importance sampling's algorithm has its own tests
     monkeypatch.setattr(curve_sample, "EMULATOR_DRAWS", 8000)
     monkeypatch.setattr(curve_sample, "FINAL_ITERATION", 2000)
-    monkeypatch.setattr(curve_stage, "ROUND_DRAWS", 4000)
+    monkeypatch.setattr(curve_round, "ROUND_DRAWS", 4000)
     settings = PosteriorSettings(emulator="curves", walkers=16, steps=1500, refine=120, draws=20,
                                  correct_draws=0, seed=1)
     folder = _fresh_copy(run_dir, tmp_path / "curves")
@@ -795,3 +795,4 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     assert any("not measured" in r and "active learning" in r for r in info["reliability"]["reasons"])
     again = run_posterior(folder, settings)
     assert again["forward_runs_made"] == 0 and again["parameters"] == info["parameters"]
+
