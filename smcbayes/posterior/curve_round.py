@@ -4,15 +4,15 @@ All but a share :data:`EXPLORATION` of a round's runs are draws of the emulated 
 pooled with those of GP sample functions (:mod:`smcbayes.posterior.curve_spread`), leaning
 to where the functions disagree and to the quantiles they move
 (:func:`~smcbayes.posterior.curve_aim.targeted`); the rest are draws of the tempered
-(likelihood^:data:`TEMPER`) posterior of the optimistic loss (curves one emulator sd closer
-to the data), which reaches regions the emulator's mean rates too low because it has no
-points there.  The emulated posterior is sampled by adaptive importance sampling on the
-emulator (the correction's algorithm, no forward run): emcee chains started at the best
-point under-sample a flat arm of the accuracy benchmark's first case (1.2 % of the mass
-where the exact posterior has 6.5 %), and a stopping rule judged on them stopped early and
-called a posterior reliable that was 0.34 off in a correlation.  The tempered posterior,
-which only has to be reached, not weighed, is sampled by emcee.  :mod:`smcbayes.posterior.curve_stage` decides
-from the rounds when the learning stops.
+posterior (the likelihood to the power :data:`TEMPER`) of the optimistic loss (curves one
+emulator sd closer to the data), which reaches regions the emulator's mean rates too low
+because it has no points there.  The emulated posterior is sampled by adaptive importance
+sampling on the emulator (the correction's algorithm, no forward run): emcee chains started
+at the best point under-sample a flat arm of the accuracy benchmark's first case (1.2 % of
+the mass where the exact posterior has 6.5 %), and a stopping rule judged on them stopped
+early and called a posterior reliable that was 0.34 off in a correlation.  The tempered
+posterior, which only has to be reached, not weighed, is sampled by emcee.
+:mod:`smcbayes.posterior.curve_stage` decides from the rounds when the learning stops.
 """
 
 from __future__ import annotations

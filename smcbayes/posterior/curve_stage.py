@@ -18,8 +18,9 @@ validated emulator's reported posterior (that of the expected loss,
 emulator and pooled with its sample functions' posteriors,
 :mod:`smcbayes.posterior.curve_sample`) is then drawn, and the learning stops only if its
 own spread is within the bound too; after :data:`CONFIRMATIONS` failed confirmations it asks
-for no more before its budget's end.  A stage whose budget runs out first is reported
-unreliable.  ``refine.jsonl`` logs each round."""
+for no more before its budget's end, where the last rounds count towards a validation
+whether they ran before or after a failed confirmation.  A stage whose budget runs out
+first is reported unreliable.  ``refine.jsonl`` logs each round."""
 
 from __future__ import annotations
 
@@ -74,6 +75,7 @@ budget.  Each draws the reported posterior, 130-210 s on the measured thesis tri
 other work (three to five rounds' fit and sampling); a learning whose validations the
 reported posterior keeps failing would spend that every three rounds until its budget ends."""
 
+
 @dataclass
 class Learned:
     """What the active learning leaves.
@@ -100,8 +102,10 @@ class _Progress:
 
     Attributes:
         since: the first round that counts towards a validation (the one after the last
-            failed confirmation).
+            failed confirmation), but at the budget's end.
         before: the log posterior of the emulator the last round sampled.
+        late: the last validation counted rounds from before the last failed confirmation,
+            which only the budget's end allows.
     """
 
     x: Array
@@ -116,10 +120,12 @@ class _Progress:
     recent: list[Array] = field(default_factory=list)
     confirmations: list[dict[str, Any]] = field(default_factory=list)
     before: Callable[[Array], Array] | None = None
+    late: bool = False
 
     def validated(self, tolerance_nats: float, ended: bool = False) -> bool:
         """The rounds since the last failed confirmation validate the emulator
-        (:func:`_validated`); once the budget has ``ended``, the last rounds whenever they ran."""
+        (:func:`_validated`); once the budget has ``ended``, the last
+        :data:`VALIDATED_ROUNDS` rounds count whether they ran before or after it."""
         k = 0 if ended else self.since
         return _validated(self.errors[k:], self.shifts[k:], tolerance_nats, self.spreads[k:])
 
@@ -135,7 +141,7 @@ class _Progress:
                 "quantile_shift": self.shifts[-1] if self.shifts else None,
                 "last_errors_nats": last, "last_quantile_shifts": self.shifts[-VALIDATED_ROUNDS:],
                 "last_spreads": [_finite(v) for v in self.spreads[-VALIDATED_ROUNDS:]],
-                "confirmations": self.confirmations}
+                "confirmations": self.confirmations, "validated_at_budget_end": self.late}
 
 
 def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features: CurveFeatures,
@@ -160,9 +166,10 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     unreliable.  After a failed confirmation the next rounds start from its sample, and
     :data:`VALIDATED_ROUNDS` new rounds must validate before the next; after
     :data:`CONFIRMATIONS` failed ones the learning runs to its budget.  At the budget's end
-    the last rounds validate whenever they ran (no new round can follow) and a validation
-    is confirmed once more; after more than one confirmation the stage measures the
-    confirming spread again on fresh supports (:func:`curve_posterior`).
+    no new round can follow: the last :data:`VALIDATED_ROUNDS` rounds count towards the
+    validation whether they ran before or after the last failed confirmation, and a
+    validation is confirmed once more; a confirmation that passes after another is measured
+    again on fresh supports by the stage (:func:`curve_posterior`).
 
     Args:
         simulate: unit-cube rows ``(P, d)`` -> features ``(P, F)`` and success ``(P,)``.
@@ -186,7 +193,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         sample too thin to tell), ``last_spreads`` (those of the last
         :data:`VALIDATED_ROUNDS` rounds), ``confirmations`` (after how many ``rounds`` and
         ``forward_runs`` each was drawn, its ``spread``, whether it ``passed`` and its
-        ``seconds``) and
+        ``seconds``), ``validated_at_budget_end`` (the last validation counted rounds from
+        before a failed confirmation, which only the budget's end allows) and
         ``variance_factor`` (the last emulator's calibration of its output variances,
         :meth:`~smcbayes.posterior.curves.CurveEmulator.calibrate`: rows used and range;
         ``None`` when nothing calibrated them)).  The first round has no earlier emulator to
@@ -205,9 +213,11 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         ended = progress.spent >= budget
         asks = confirm is None or progress.failed() < CONFIRMATIONS or ended
         # after a failed confirmation new rounds must validate before the next one, but at
-        # the budget's end none can follow: the last rounds validate whenever they ran and
-        # the reported posterior, drawn there anyway, decides by its own spread
-        converged = progress.validated(tolerance_nats, ended) and asks
+        # the budget's end none can follow: the last rounds count whenever they ran, and the
+        # reported posterior, drawn there anyway, decides by its own spread
+        validated = progress.validated(tolerance_nats)
+        progress.late = not validated and ended and progress.validated(tolerance_nats, True)
+        converged = (validated or progress.late) and asks
         if converged and confirm is not None:
             t_confirm = time.perf_counter()
             final = confirm(emulator)
@@ -336,9 +346,10 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
     """The curve emulator's active learning from the calibration GP's points ``start``
     ``(N, d)`` (unit cube) and, when the stage reports the emulated posterior (no
     correction), that posterior (:func:`~smcbayes.posterior.curve_sample.final_posterior`),
-    which confirms a validated active learning before it stops (:func:`learn`).  After
-    more than one confirmation the spread is measured again on fresh supports
-    (``emulator_spread`` keeps the confirming reading as ``confirmed_shift``).
+    which confirms a validated active learning before it stops (:func:`learn`).  A
+    confirmation that passes after a failed one is measured again on fresh supports
+    (``emulator_spread`` keeps the confirming reading as ``confirmed_shift``); one that
+    fails needs no second reading, as none chose it for being low.
 
     Returns:
         The emulator, the active learning's record (``enabled``, ``kind``, ``evaluations``
@@ -392,7 +403,7 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
     posterior = learned.final
     if posterior is None:
         posterior = final(learned.emulator) if reported else None
-    elif len(active["confirmations"]) > 1:
+    elif len(active["confirmations"]) > 1 and active["confirmations"][-1]["passed"]:
         posterior = _measured_again(posterior, CurveEmulation(learned.emulator, n_eff), space.free_names, rng)
     data = (learned.x, np.log(features.loss(learned.y)))
     return CurveEmulation(learned.emulator, n_eff), active, data, posterior

@@ -105,12 +105,14 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
     if not check <= CHECK_MAX_NATS:
         out.append(f"the emulator is {check:.2g} nats off at posterior draws (> {CHECK_MAX_NATS}) and "
                    "nothing corrects it; use the correction (--correct-draws) or --refine")
+    # a validated active learning stops at the same point with a larger budget, unless only
+    # the budget's end let it count rounds from before a failed confirmation
+    same_point = bool(active.get("converged")) and not active.get("validated_at_budget_end")
     spread = info.get("emulator_spread")
     if spread and not spread["max_quantile_shift"] <= SPREAD_MAX:
         worst = max(spread["per_parameter"], key=spread["per_parameter"].get)
-        # a validated active learning stops at the same point with a larger budget
         remedy = ("use the correction (--correct-draws) where the simulator is cheap, or lower "
-                  "refine_tolerance_nats in the project's [posterior] table" if active.get("converged")
+                  "refine_tolerance_nats in the project's [posterior] table" if same_point
                   else "raise --refine or use the correction (--correct-draws)")
         which = ("a GP sample function" if spread.get("shift_level", 1.0) >= 1.0
                  else share_words(spread, "GP sample function "))
@@ -120,7 +122,7 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
                    f"(> {SPREAD_MAX}), so a tail or an arm of the posterior is not pinned down yet; {remedy}")
     thin = _thin_functions(spread or {})
     if thin:
-        remedy = ("lower refine_tolerance_nats in the project's [posterior] table" if active.get("converged")
+        remedy = ("lower refine_tolerance_nats in the project's [posterior] table" if same_point
                   else "raise --refine")
         out.append(f"{thin}: such a posterior lies mostly where that sample has no points, so the spread is "
                    f"larger than measured; {remedy}")
@@ -179,7 +181,8 @@ def _curve_budget_reason(active: dict[str, Any]) -> str:
                      f"{failed[-1]['forward_runs']} forward runs, the reported posterior's sample "
                      f"functions moved a quantile by {_past(failed[-1]['spread'], SPREAD_MAX)} "
                      f"(> {SPREAD_MAX})")
-    if len(failed) >= CONFIRMATIONS:
+    # the budget's own last confirmation asked for nothing more: only those before it count
+    if len([c for c in failed if c["forward_runs"] < active.get("evaluations", 0)]) >= CONFIRMATIONS:
         confirm_words += f"; after {CONFIRMATIONS} failed confirmations it asked for none until its budget's end"
     return (f"the active learning spent its {active.get('evaluations')} forward runs before the emulator was "
             f"validated where the posterior lies (its last rounds' errors at fresh posterior draws "

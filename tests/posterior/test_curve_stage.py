@@ -198,14 +198,15 @@ def _final(spread: float | None) -> FinalPosterior:
 
 def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its_sample() -> None:
     """The reported posterior's own spread confirms a validation; when it does not, the
-    rounds that validated no longer count (but at the budget's end), the next round starts
-    from the reported sample, and both confirmations are recorded."""
+    rounds that validated no longer count (but at the budget's end, with the new rounds
+    among them), the next round starts from the reported sample, and both confirmations
+    are recorded."""
     progress = _Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
 
-    def good_round() -> None:
+    def good_round(error: float = 0.5) -> None:
         progress.rounds += 1
         progress.spent += 40
-        progress.errors.append(0.5)
+        progress.errors.append(error)
         progress.shifts.append(QUANTILE_SHIFT / 2)
         progress.spreads.append(SPREAD_MAX / 2)
 
@@ -215,11 +216,12 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
     rng = np.random.default_rng(0)
     assert not _confirmed(progress, _final(1.5 * SPREAD_MAX), rng, True)
     assert not progress.validated(1.0) and progress.since == VALIDATED_ROUNDS
-    # at the budget's end no new round can follow: the last rounds validate whenever they ran
-    assert progress.validated(1.0, ended=True)
     # the next round's importance sampling starts from the reported sample (centred at 0.7)
     assert progress.start.shape == (3 * START_ROWS // 4, 1) and abs(np.median(progress.start) - 0.7) < 0.05
-    for _ in range(VALIDATED_ROUNDS - 1):
+    good_round()
+    # at the budget's end no new round can follow: the last rounds count whenever they ran
+    assert not progress.validated(1.0) and progress.validated(1.0, ended=True)
+    for _ in range(VALIDATED_ROUNDS - 2):
         good_round()
         assert not progress.validated(1.0)
     good_round()
@@ -235,6 +237,18 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
     assert record["confirmations"][0]["spread"] == 1.5 * SPREAD_MAX
     assert record["confirmations"][1]["forward_runs"] == 240 and record["confirmations"][2]["spread"] is None
     assert all(c["seconds"] == 0.0 for c in record["confirmations"])
+
+
+def test_at_the_budgets_end_a_new_round_that_fails_keeps_the_learning_unvalidated() -> None:
+    """Rounds from before a failed confirmation count at the budget's end only beside new
+    rounds that pass too."""
+    progress = _Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
+    for error in [0.5] * VALIDATED_ROUNDS + [1.5]:
+        progress.errors.append(error)
+        progress.shifts.append(QUANTILE_SHIFT / 2)
+        progress.spreads.append(SPREAD_MAX / 2)
+    progress.since = VALIDATED_ROUNDS
+    assert not progress.validated(1.0) and not progress.validated(1.0, ended=True)
 
 
 def test_the_correlation_kernels_are_the_matern_of_the_distances() -> None:

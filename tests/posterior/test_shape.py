@@ -143,8 +143,12 @@ def test_a_curve_emulator_out_of_budget_names_its_last_rounds_and_spread() -> No
     reason = assess(info, space, 10.0)["reasons"][0]
     assert ("after 520 forward runs, the reported posterior's sample functions moved a quantile by 0.12"
             in reason) and "asked for none" not in reason
-    # the third failure: no more were asked until the budget's end
+    # a third failure at the budget's end asked for nothing more: nothing was left to ask
     active["confirmations"].append({"rounds": 16, "forward_runs": 640, "spread": 0.11, "passed": False})
+    reason = assess(info, space, 10.0)["reasons"][0]
+    assert "asked for none" not in reason
+    # a third failure before it: no more were asked until the budget's end
+    active["confirmations"][-1].update(rounds=15, forward_runs=600)
     reason = assess(info, space, 10.0)["reasons"][0]
     assert "after 3 failed confirmations it asked for none until its budget's end" in reason
     # a reading just above the bound prints apart from it
@@ -174,3 +178,22 @@ def test_a_sample_function_resting_on_few_points_leaves_the_spread_unmeasured() 
     assert not verdict["reliable"]
     assert "3 of 20 GP sample functions' posteriors, more than one in 10, rest on 9-49 effective" \
         in verdict["reasons"][0]
+
+
+def test_a_spread_too_large_after_a_validation_at_the_budgets_end_asks_for_more_runs() -> None:
+    """A validated learning would stop at the same point with a larger budget, so a spread
+    above the bound asks for a tighter tolerance; one validated only because the budget's
+    end let rounds from before a failed confirmation count asks for more runs."""
+    space = _space()
+    narrow = [{"name": p.name, "q05": p.lower + 0.4 * (p.upper - p.lower),
+               "q95": p.lower + 0.5 * (p.upper - p.lower), "r_hat": 1.01} for p in space.free]
+    spread = {"max_quantile_shift": 0.14, "per_parameter": {p.name: 0.14 for p in space.free}}
+    active = {"enabled": True, "kind": "curves", "converged": True, "evaluations": 1461}
+    info = {"parameters": narrow, "emulator_spread": spread, "active_learning": active,
+            "emulator_check": {"mean_abs_error": 0.5},
+            "correction": {"enabled": True, "target": "emulator", "k_hat": 0.2, "ess": 2500, "settled": True}}
+    reasons = assess(info, space, 10.0)["reasons"]
+    assert len(reasons) == 1 and "lower refine_tolerance_nats" in reasons[0] and "--refine" not in reasons[0]
+    active["validated_at_budget_end"] = True
+    reasons = assess(info, space, 10.0)["reasons"]
+    assert len(reasons) == 1 and reasons[0].endswith("raise --refine or use the correction (--correct-draws)")

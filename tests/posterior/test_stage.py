@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -653,15 +654,17 @@ def test_the_reported_emulator_sample_aims_past_the_target_it_is_settled_at(
 
 
 def _scripted_learning(run_dir: Path, monkeypatch: pytest.MonkeyPatch, budget: int, readings: list[float],
-                       round_runs: int = ROUND_RUNS_CURVES) -> tuple[Learned, list[int]]:
+                       round_runs: int = ROUND_RUNS_CURVES, validated: Callable[..., bool] | None = None,
+                       ) -> tuple[Learned, list[int]]:
     """The curve emulator's active learning from 25 points in rounds of ``round_runs`` with
-    every round validated (the validation stubbed) and confirmations that read the spreads
+    the validation stubbed (``validated`` of the rounds' errors, shifts, tolerance and
+    spreads; by default every round validates) and confirmations that read the spreads
     ``readings`` in turn: what it learned and the training points each confirmation saw."""
     import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.curve_sample import FinalPosterior
 
     monkeypatch.setattr(curve_round, "ROUND_DRAWS", 4000)
-    monkeypatch.setattr(curve_stage, "_validated", lambda *args: True)
+    monkeypatch.setattr(curve_stage, "_validated", validated or (lambda *args: True))
     ctx = load_run(run_dir)
     features, u, y, _ = _rows(run_dir, 25, 5)
     rng = np.random.default_rng(3)
@@ -718,6 +721,23 @@ def test_after_its_last_failed_confirmation_the_learning_runs_to_its_budget(
     # none after the first round: the one failure allowed was spent
     assert seen == [25, 25 + budget] and [c["passed"] for c in record["confirmations"]] == [False, True]
     assert record["converged"] and record["rounds"] == 2 and record["evaluations"] == budget
+    assert learned.final is not None and learned.final.max_shift == 0.5 * SPREAD_MAX
+
+
+def test_at_the_budgets_end_rounds_from_before_a_failed_confirmation_count(
+        run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """After a failed confirmation new rounds must validate before the next one, but at the
+    budget's end, where none can follow, the last rounds count whenever they ran, and the
+    reported posterior drawn there confirms the learning (the validation stubbed: any two
+    rounds validate)."""
+    learned, seen = _scripted_learning(run_dir, monkeypatch, 3 * ROUND_RUNS_CURVES,
+                                       [1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX],
+                                       validated=lambda errors, *args: len(errors) >= 2)
+    record = learned.record
+    # the failure after two rounds asks for two new ones; only one more fits the budget
+    assert [(c["rounds"], c["passed"]) for c in record["confirmations"]] == [(2, False), (3, True)]
+    assert seen == [25 + 2 * ROUND_RUNS_CURVES, 25 + 3 * ROUND_RUNS_CURVES]
+    assert record["converged"] and record["validated_at_budget_end"] and record["rounds"] == 3
     assert learned.final is not None and learned.final.max_shift == 0.5 * SPREAD_MAX
 
 
@@ -795,4 +815,3 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     assert any("not measured" in r and "active learning" in r for r in info["reliability"]["reasons"])
     again = run_posterior(folder, settings)
     assert again["forward_runs_made"] == 0 and again["parameters"] == info["parameters"]
-
