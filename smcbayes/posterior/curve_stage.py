@@ -18,9 +18,9 @@ validated emulator's reported posterior (that of the expected loss,
 emulator and pooled with its sample functions' posteriors,
 :mod:`smcbayes.posterior.curve_sample`) is then drawn, and the learning stops only if its
 own spread is within the bound too; after :data:`CONFIRMATIONS` failed confirmations it asks
-for no more before its budget's end, where the last rounds count towards a validation
-whether they ran before or after a failed confirmation.  A stage whose budget runs out
-first is reported unreliable.  ``refine.jsonl`` logs each round."""
+for no more before its budget's end.  At the budget's end the last rounds count towards a
+validation whether they ran before or after a failed confirmation.  A stage whose budget
+runs out first is reported unreliable.  ``refine.jsonl`` logs each round."""
 
 from __future__ import annotations
 

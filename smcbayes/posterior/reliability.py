@@ -106,8 +106,11 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
         out.append(f"the emulator is {check:.2g} nats off at posterior draws (> {CHECK_MAX_NATS}) and "
                    "nothing corrects it; use the correction (--correct-draws) or --refine")
     # a validated active learning stops at the same point with a larger budget, unless only
-    # the budget's end let it count rounds from before a failed confirmation
-    same_point = bool(active.get("converged")) and not active.get("validated_at_budget_end")
+    # the budget's end let it stop: by counting rounds from before a failed confirmation, or
+    # by confirming at all after its last allowed failed confirmation
+    failed = sum(1 for c in active.get("confirmations") or [] if not c.get("passed"))
+    same_point = (bool(active.get("converged")) and not active.get("validated_at_budget_end")
+                  and failed < CONFIRMATIONS)
     spread = info.get("emulator_spread")
     if spread and not spread["max_quantile_shift"] <= SPREAD_MAX:
         worst = max(spread["per_parameter"], key=spread["per_parameter"].get)

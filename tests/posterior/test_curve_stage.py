@@ -203,10 +203,10 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
     are recorded."""
     progress = _Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
 
-    def good_round(error: float = 0.5) -> None:
+    def good_round() -> None:
         progress.rounds += 1
         progress.spent += 40
-        progress.errors.append(error)
+        progress.errors.append(0.5)
         progress.shifts.append(QUANTILE_SHIFT / 2)
         progress.spreads.append(SPREAD_MAX / 2)
 

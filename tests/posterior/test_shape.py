@@ -182,8 +182,9 @@ def test_a_sample_function_resting_on_few_points_leaves_the_spread_unmeasured() 
 
 def test_a_spread_too_large_after_a_validation_at_the_budgets_end_asks_for_more_runs() -> None:
     """A validated learning would stop at the same point with a larger budget, so a spread
-    above the bound asks for a tighter tolerance; one validated only because the budget's
-    end let rounds from before a failed confirmation count asks for more runs."""
+    above the bound asks for a tighter tolerance; one that only the budget's end let stop
+    (rounds from before a failed confirmation counted, or a confirmation after the last
+    allowed failure) asks for more runs."""
     space = _space()
     narrow = [{"name": p.name, "q05": p.lower + 0.4 * (p.upper - p.lower),
                "q95": p.lower + 0.5 * (p.upper - p.lower), "r_hat": 1.01} for p in space.free]
@@ -195,5 +196,11 @@ def test_a_spread_too_large_after_a_validation_at_the_budgets_end_asks_for_more_
     reasons = assess(info, space, 10.0)["reasons"]
     assert len(reasons) == 1 and "lower refine_tolerance_nats" in reasons[0] and "--refine" not in reasons[0]
     active["validated_at_budget_end"] = True
+    reasons = assess(info, space, 10.0)["reasons"]
+    assert len(reasons) == 1 and reasons[0].endswith("raise --refine or use the correction (--correct-draws)")
+    # a learning that confirms after its last allowed failed confirmation stops only at its budget's end
+    active["validated_at_budget_end"] = False
+    active["confirmations"] = [{"rounds": r, "forward_runs": 40 * r, "spread": 0.12, "passed": False}
+                               for r in (10, 15, 20)] + [{"rounds": 35, "forward_runs": 1461, "passed": True}]
     reasons = assess(info, space, 10.0)["reasons"]
     assert len(reasons) == 1 and reasons[0].endswith("raise --refine or use the correction (--correct-draws)")

@@ -8,6 +8,7 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import arviz as az
 import numpy as np
@@ -729,16 +730,24 @@ def test_at_the_budgets_end_rounds_from_before_a_failed_confirmation_count(
     """After a failed confirmation new rounds must validate before the next one, but at the
     budget's end, where none can follow, the last rounds count whenever they ran, and the
     reported posterior drawn there confirms the learning (the validation stubbed: any two
-    rounds validate)."""
-    learned, seen = _scripted_learning(run_dir, monkeypatch, 3 * ROUND_RUNS_CURVES,
-                                       [1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX],
-                                       validated=lambda errors, *args: len(errors) >= 2)
+    rounds validate); before the budget's end the old rounds do not count."""
+    def two_rounds(errors: list[float], *args: Any) -> bool:
+        return len(errors) >= 2
+
+    readings = [1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX]
+    learned, seen = _scripted_learning(run_dir, monkeypatch, 3 * ROUND_RUNS_CURVES, readings, validated=two_rounds)
     record = learned.record
     # the failure after two rounds asks for two new ones; only one more fits the budget
     assert [(c["rounds"], c["passed"]) for c in record["confirmations"]] == [(2, False), (3, True)]
     assert seen == [25 + 2 * ROUND_RUNS_CURVES, 25 + 3 * ROUND_RUNS_CURVES]
     assert record["converged"] and record["validated_at_budget_end"] and record["rounds"] == 3
     assert learned.final is not None and learned.final.max_shift == 0.5 * SPREAD_MAX
+    # with room for both new rounds the next confirmation waits for them, and at the
+    # budget's end it is an ordinary validation
+    learned, _ = _scripted_learning(run_dir, monkeypatch, 4 * ROUND_RUNS_CURVES, readings, validated=two_rounds)
+    record = learned.record
+    assert [(c["rounds"], c["passed"]) for c in record["confirmations"]] == [(2, False), (4, True)]
+    assert record["converged"] and not record["validated_at_budget_end"]
 
 
 def test_a_confirmation_that_passes_is_the_posterior_drawn_after_the_learning(
