@@ -60,12 +60,13 @@ SPREAD_SUPPORTS = 12
 functions (the rounds of the active learning draw one).  Where a posterior's tail rests on
 a few heavy points of its sample, whether one function in ten moves a quantile there flips
 from draw to draw, and the reading decides the verdict against
-:data:`~smcbayes.posterior.spread.SPREAD_MAX`: on the final emulator of one run on the
-measured thesis trials, eight draws of one support's spread gave 0.065-0.225, of four
-supports' 0.075-0.134 (sd 0.014-0.020); on another, ten draws of four supports' gave
-0.059-0.096 (sd 0.011), where the stage's own had read 0.110 and called the run
-unreliable, and ten of twelve supports' 0.062-0.081 (sd 0.007).  Each support costs about
-two seconds there."""
+:data:`~smcbayes.posterior.spread.SPREAD_MAX`.  On the final emulator of one run on the
+measured thesis trials, eight draws of the spread on one support gave 0.065-0.225 (sd
+0.02-0.05 over two importance samples), on four 0.075-0.134 (sd 0.014-0.020); on the final
+emulator of another run, whose stage had read 0.110 on four supports and called it
+unreliable, ten further draws on the same importance sample gave 0.059-0.096 on four
+(sd 0.011) and 0.062-0.081 on twelve (sd 0.007).  A support costs 2-3 s on these
+emulators."""
 
 SUPPORT_POINTS = 1500
 """Draws of the support (with repeats) on which the sample functions are drawn jointly."""

@@ -71,7 +71,7 @@ the unit cube) that a validated round allows."""
 
 CONFIRMATIONS = 3
 """Most confirmations that may fail: then the learning asks for no more until the end of its
-budget.  Each draws the reported posterior, 130-210 s on the measured thesis trials beside
+budget.  Each draws the reported posterior, 70-220 s on the measured thesis trials beside
 other work (three to five rounds' fit and sampling); a learning whose validations the
 reported posterior keeps failing would spend that every three rounds until its budget ends."""
 
