@@ -144,14 +144,14 @@ def print_record(rec: dict[str, Any]) -> None:
 
 
 def seed_list(text: str) -> list[int]:
-    """Comma-separated seeds, at least one, none negative."""
+    """Comma-separated integers (seeds, or counts), at least one, none negative."""
     try:
-        seeds = [int(v) for v in text.split(",") if v.strip()]
+        values = [int(v) for v in text.split(",") if v.strip()]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"seeds must be integers, comma-separated, not {text!r}") from None
-    if not seeds or min(seeds) < 0:
-        raise argparse.ArgumentTypeError(f"give one or more seeds of 0 or more, not {text!r}")
-    return seeds
+        raise argparse.ArgumentTypeError(f"give integers, comma-separated, not {text!r}") from None
+    if not values or min(values) < 0:
+        raise argparse.ArgumentTypeError(f"give one or more integers of 0 or more, not {text!r}")
+    return values
 
 
 def parse() -> argparse.Namespace:

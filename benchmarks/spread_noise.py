@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from real_posterior import DATA, PROJECT, RESULTS, calibrated  # noqa: E402
+from real_posterior import DATA, PROJECT, RESULTS, calibrated, seed_list  # noqa: E402
 
 
 def final_state(run: Path, seed: int) -> dict[str, Any]:
@@ -87,23 +87,12 @@ def readings(state: dict[str, Any], supports: int, draws: int) -> dict[str, Any]
             "seconds_per_reading": (time.perf_counter() - t0) / draws}
 
 
-def counts_of(text: str) -> list[int]:
-    """Comma-separated counts of supports, at least one, each 1 or more."""
-    try:
-        counts = [int(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"counts must be integers, comma-separated, not {text!r}") from None
-    if not counts or min(counts) < 1:
-        raise argparse.ArgumentTypeError(f"give one or more counts of 1 or more, not {text!r}")
-    return counts
-
-
 def main() -> int:
     """Run the stage once, read its spread again and again, print and write the figures."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0, help="the posterior stage's seed")
     ap.add_argument("--draws", type=int, default=10, help="readings per count of supports")
-    ap.add_argument("--supports", type=counts_of, default=[4, 12], help="counts of supports, comma-separated")
+    ap.add_argument("--supports", type=seed_list, default=[4, 12], help="counts of supports, comma-separated")
     ap.add_argument("--workdir", default=None, help="default: benchmarks/results/NAME/work")
     ap.add_argument("--data-dir", default=str(DATA))
     ap.add_argument("--name", default="spread_noise")
@@ -111,8 +100,8 @@ def main() -> int:
     if not Path(args.data_dir).is_dir():
         print(f"skipped: no measured data at {args.data_dir} (pass --data-dir)")
         return 0
-    if args.draws < 2:
-        ap.error("--draws must be at least 2")
+    if args.draws < 2 or min(args.supports) < 1:
+        ap.error("--draws must be at least 2 and each count of --supports at least 1")
     workdir = Path(args.workdir or RESULTS / args.name / "work")
     calibration, _ = calibrated(workdir, PROJECT, Path(args.data_dir), 0)
     run = workdir / f"spread-seed-{args.seed}"
