@@ -65,7 +65,7 @@ measured thesis trials, eight draws of the spread on one support gave 0.065-0.22
 0.017 and 0.047 over two importance samples), on four 0.075-0.134 (sd 0.020 and 0.014);
 on the final emulator of another run, whose stage had read 0.110 on four supports and
 called it unreliable, ten further draws on the same importance sample gave 0.059-0.096 on
-four (sd 0.011) and 0.062-0.081 on twelve (sd 0.007).  A support costs 2-3 s on these
+four (sd 0.011) and 0.062-0.081 on twelve (sd 0.007).  A support costs 1.5-3 s on these
 emulators."""
 
 SUPPORT_POINTS = 1500
