@@ -36,7 +36,7 @@ judged only when its reference can be trusted: the reference and its check have 
 <= 0.7 and agree with each other within half the targets.  Otherwise the case is
 reported as not judged, with all differences.
 
-    python benchmarks/posterior_accuracy.py [--cases 2 | --case K] [--refine 150] [--emulator curves]
+    python benchmarks/posterior_accuracy.py [--cases 2 | --case K] [--refine 150] [--emulator auto|curves|loss]
         [--correct-draws 14000] [--steps 10000] [--is-reference-draws 30000]
         [--reference-draws 120000] [--posterior-seeds 1] [--workdir DIR]
 
@@ -477,8 +477,8 @@ def main() -> int:
                     help="forward runs per active-learning round (default: the stage's)")
     ap.add_argument("--correct-draws", type=int, default=0,
                     help="most proposal draws of the importance correction (0: the emulator alone, the "
-                         "default of an external simulator; the built-in simulator's default corrects "
-                         "with the [posterior.correction] draws)")
+                         "stage's default with the curve emulator; with the log-loss one the built-in "
+                         "simulator's default corrects with the [posterior.correction] draws)")
     ap.add_argument("--emulator", choices=choices_of(PosteriorSpec, "emulator"),
                     default=PosteriorSettings().emulator,
                     help="what the stage's GP emulates (default: the stage's)")

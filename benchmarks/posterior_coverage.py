@@ -18,11 +18,11 @@ datasets fit in about half an hour on two shared cores; the forward model is the
 1-D solver of the accuracy benchmark.
 
     python benchmarks/posterior_coverage.py [--datasets 20] [--quick] [--free n,B_Pa_s,tau_c_MPa]
-        [--refine 800] [--correct-draws 0] [--emulator curves] [--jobs 2] [--workdir DIR]
+        [--refine 800] [--correct-draws 0] [--emulator auto|curves|loss] [--jobs 2] [--workdir DIR]
 
-With ``--emulator curves --correct-draws 0`` the weighted posterior is the curve emulator's
-own importance sample (no forward run; the stage's reported posterior), the raw one its
-emcee chains.
+With the curve emulator (``auto``, the default, takes it here) and ``--correct-draws 0``
+the weighted posterior is the curve emulator's own importance sample (no forward run; the
+stage's reported posterior), the raw one its emcee chains.
 
 Prints a table and writes benchmarks/results/posterior_coverage.json.
 """
@@ -105,6 +105,8 @@ def one_dataset(i: int, free: list[str], args: argparse.Namespace, tmp: Path) ->
     row.update({"band_coverage90": {c: b["coverage90"] for c, b in bands.items()},
                 "band_width90_kN": {c: b.get("width90_kN", float("nan")) for c, b in bands.items()},
                 "reliable": bool(info.get("reliable", False)),
+                # what the stage's emulator resolved to (``auto`` takes the curves where the loss allows)
+                "emulator": "curves" if (info.get("active_learning") or {}).get("kind") == "curves" else "loss",
                 "band_coverage50": {c: b["coverage50"] for c, b in bands.items()},
                 "emulator_check_nats": info["emulator_check"]["mean_abs_error"],
                 "correction": {k: v for k, v in info["correction"].items() if k != "history"},
@@ -235,7 +237,7 @@ def main() -> int:
     raw, corrected, b = tabulate(free, rows, "raw"), tabulate(free, rows, "corrected"), tabulate_bands(rows)
     print_table("emulated posterior (emcee on the actively learnt GP)", raw)
     if corrected:
-        own = args.emulator == "curves" and args.correct_draws == 0
+        own = args.correct_draws == 0 and all(r["emulator"] == "curves" for r in rows)
         print_table("the curve emulator's importance sample (the reported posterior)" if own
                     else "importance-corrected posterior", corrected)
     k_hat = [r["correction"].get("k_hat", float("nan")) for r in rows]

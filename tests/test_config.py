@@ -77,19 +77,39 @@ def test_parse_assignments() -> None:
 
 
 def test_posterior_defaults_depend_on_the_simulator() -> None:
-    """The built-in simulator corrects by default (with a smaller active learning before);
-    an external one reports the emulator alone; given values are kept."""
+    """The log-loss emulator is corrected by default with the built-in simulator (with a
+    smaller active learning before); with an external one it reports the emulator alone;
+    given values are kept."""
     from smcbayes.config import PosteriorSpec
     from smcbayes.config.settings import REFINE_CORRECTED, REFINE_EMULATED
 
-    spec = PosteriorSpec()
+    spec = PosteriorSpec(emulator="loss")
     native, external = spec.resolved(slow=False), spec.resolved(slow=True)
     assert native.correct_draws == spec.correction.draws > 0 and native.refine == REFINE_CORRECTED
     assert external.correct_draws == 0 and external.refine == REFINE_EMULATED
     assert REFINE_CORRECTED < REFINE_EMULATED
-    given = PosteriorSpec(refine=50, correct_draws=0, round_runs=12)
+    given = PosteriorSpec(emulator="loss", refine=50, correct_draws=0, round_runs=12)
     assert given.resolved(slow=False) == given.resolved(slow=True) == given
-    assert PosteriorSpec(correct_draws=3000).resolved(slow=True).refine == REFINE_CORRECTED
+    assert PosteriorSpec(emulator="loss", correct_draws=3000).resolved(slow=True).refine == REFINE_CORRECTED
+
+
+def test_auto_takes_the_curve_emulator_where_the_loss_allows_it_without_a_correction() -> None:
+    """``auto`` (the default) resolves to the curve emulator where the loss allows it, else to
+    the log-loss one; the curve emulator's posterior is reported without a correction unless
+    one is asked for, whatever the simulator."""
+    from smcbayes.config import PosteriorSpec
+    from smcbayes.config.settings import REFINE_CORRECTED, REFINE_CURVES
+
+    assert PosteriorSpec().emulator == "auto"
+    for slow in (False, True):
+        curves = PosteriorSpec().resolved(slow=slow)
+        assert (curves.emulator, curves.correct_draws, curves.refine) == ("curves", 0, REFINE_CURVES)
+        assert PosteriorSpec(emulator="curves").resolved(slow=slow) == curves
+    assert PosteriorSpec().resolved(slow=False, curves=False) == PosteriorSpec(emulator="loss").resolved(slow=False)
+    native = PosteriorSpec().resolved(slow=False, curves=False)
+    assert (native.emulator, native.refine) == ("loss", REFINE_CORRECTED) and native.correct_draws > 0
+    asked = PosteriorSpec(correct_draws=3000).resolved(slow=True)
+    assert (asked.emulator, asked.correct_draws) == ("curves", 3000)
 
 
 def test_the_round_size_defaults_to_the_emulator_s_own() -> None:
@@ -99,9 +119,9 @@ def test_the_round_size_defaults_to_the_emulator_s_own() -> None:
     from smcbayes.config.settings import ROUND_RUNS_CURVES
 
     assert PosteriorSpec(emulator="curves").resolved(slow=True).round_runs == ROUND_RUNS_CURVES == 40
-    assert PosteriorSpec().resolved(slow=True).round_runs == 30  # a budget of 800
-    assert PosteriorSpec(refine=60).resolved(slow=True).round_runs == 15
-    assert PosteriorSpec(refine=16).resolved(slow=True).round_runs == 9
+    assert PosteriorSpec(emulator="loss").resolved(slow=True).round_runs == 30  # a budget of 800
+    assert PosteriorSpec(emulator="loss", refine=60).resolved(slow=True).round_runs == 15
+    assert PosteriorSpec(emulator="loss", refine=16).resolved(slow=True).round_runs == 9
     assert PosteriorSpec(emulator="curves", round_runs=120).resolved(slow=False).round_runs == 120
     for outside in (8, 401):
         with pytest.raises(ValueError):
@@ -111,5 +131,5 @@ def test_the_round_size_defaults_to_the_emulator_s_own() -> None:
 def test_the_choices_of_a_literal_setting_come_from_its_model() -> None:
     from smcbayes.config import CalibrationSpec, PosteriorSpec, choices_of
 
-    assert choices_of(PosteriorSpec, "emulator") == ("loss", "curves")
+    assert choices_of(PosteriorSpec, "emulator") == ("auto", "loss", "curves")
     assert set(choices_of(CalibrationSpec, "kernel")) == {"rbf", "matern52"}

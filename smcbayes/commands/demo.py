@@ -63,9 +63,9 @@ class DemoPlan:
         noise: ``synth`` noise options (``white_kN``, ``correlated_kN``, ``correlation_s``).
         seed: seed of the synthetic noise.
         stage: budgets (``budget``, ``init``, ``walkers``, ``steps``, ``functions``,
-            ``draws``, ``population``, ``generations``, optional ``candidates``, ``refine``
-            and ``correct_draws``, and ``effect_budget``, ``effect_init`` of the second
-            calibration).
+            ``draws``, ``population``, ``generations``, optional ``candidates``,
+            ``emulator``, ``refine`` and ``correct_draws``, and ``effect_budget``,
+            ``effect_init`` of the second calibration).
     """
 
     project: dict[str, Any]
@@ -116,7 +116,7 @@ def command_lines(plan: DemoPlan, out: Path, effect: str | None) -> dict[str, li
     truth = " ".join(f"--truth {k}={v:g}" for k, v in plan.truth.items())
     posterior = (f"--walkers {s['walkers']} --steps {s['steps']} --functions {s['functions']} "
                  f"--draws {s['draws']} --seed 0")
-    for key in ("refine", "correct_draws"):
+    for key in ("emulator", "refine", "correct_draws"):
         if s.get(key) is not None:
             posterior += f" --{key.replace('_', '-')} {s[key]}"
     lines = {
@@ -191,7 +191,7 @@ def run_stage(plan: DemoPlan, stage: str, out: Path) -> None:
     log = out / "logs" / f"{stage}.log"
     posterior = {"walkers": s["walkers"], "steps": s["steps"], "functions": s["functions"],
                  "draws": s["draws"], "seed": 0}
-    for key in ("refine", "correct_draws"):
+    for key in ("emulator", "refine", "correct_draws"):
         if s.get(key) is not None:
             posterior[key] = s[key]
     try:

@@ -17,22 +17,25 @@ from smcbayes.simulation.executors.base import make_executor
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the subcommand."""
     p = sub.add_parser(
-        "posterior", help="posterior of the parameters from a calibration run (GP emulator + emcee)",
-        description="Start from the calibration's GP as an emulator of the likelihood, train it "
-                    "by active learning with the run's simulator (fresh posterior draws as the "
-                    "out-of-sample check, points where the GP is unsure and a tempered posterior "
-                    "could be large; stops once validated and GP sample functions no longer move "
-                    "the posterior), sample it with emcee (without a correction, the GP mean's "
-                    "posterior pooled with those of GP sample functions, so the emulator's "
-                    "uncertainty widens the posterior), correct it by adaptive importance sampling with the exact "
-                    "forward model (Pareto k-hat reported; by default with the built-in 1-D model, "
-                    "not with an external simulator or the 2-D solver; --correct-draws sets or skips it), and write "
-                    "RUN_DIR/posterior/: posterior.nc (arviz), summary table, correlations, corner "
-                    "plot, and predictive bands with coverage on the validation configurations "
-                    "(figure, and bands/<id>.csv with the predictive mean, the point prediction). "
-                    "With --emulator curves the GP emulates each training configuration's force curve "
-                    "instead of the log loss, and the likelihood is computed from the emulated curves. "
-                    "Settings come from the project's [posterior] table; the options override it.")
+        "posterior", help="posterior of the parameters from a calibration run (actively learned GP emulator)",
+        description="Start from the calibration's GP as an emulator, train it by active "
+                    "learning with the run's simulator (fresh posterior draws as the out-of-sample "
+                    "check, points where the GP is unsure and a tempered posterior could be large; "
+                    "stops once validated and GP sample functions no longer move the posterior), "
+                    "and report its posterior pooled with those of GP sample functions, so the "
+                    "emulator's uncertainty widens the posterior.  By default (--emulator auto) the "
+                    "GP emulates each training configuration's force curve where the project's "
+                    "loss allows it, the likelihood computed from the emulated curves and its "
+                    "posterior sampled by importance on the emulator; otherwise it emulates the "
+                    "log loss, sampled with emcee and, with the built-in 1-D model, corrected by "
+                    "adaptive importance sampling with the exact forward model (Pareto k-hat "
+                    "reported).  --correct-draws D runs that correction after either emulator, 0 "
+                    "skips it.  Writes RUN_DIR/posterior/: posterior.nc (arviz), summary table, "
+                    "correlations, corner plot, and predictive bands with coverage on the "
+                    "validation configurations (figure, and bands/<id>.csv with the predictive "
+                    "mean, the point prediction).  summary.json says whether the posterior is "
+                    "reliable, with the reasons.  Settings come from the project's [posterior] "
+                    "table; the options override it.")
     p.add_argument("run_dir", help="directory of a `smcbayes calibrate` run")
     for name, kind, metavar in (("walkers", int, None), ("steps", int, None), ("functions", int, None),
                                 ("refine", int, "N"), ("round_runs", int, "N"), ("draws", int, None),

@@ -45,7 +45,7 @@ from smcbayes.posterior.crossfit import LocalFit
 from smcbayes.posterior.curve_sample import FinalPosterior, curve_chains
 from smcbayes.posterior.curve_spread import CURVE_FUNCTIONS, SPREAD_SUPPORTS
 from smcbayes.posterior.curve_stage import curve_posterior
-from smcbayes.posterior.curves import CurveFeatures
+from smcbayes.posterior.curves import CurveFeatures, CurveLossUnsupported
 from smcbayes.posterior.likelihood import effective_points, sandwich_points
 from smcbayes.posterior.reliability import assess
 from smcbayes.posterior.report import write_outputs
@@ -157,7 +157,7 @@ def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSetti
     slow = not ctx.problem.fast
     if ctx.noise_free and settings.correct_draws is None:
         settings = settings.model_copy(update={"correct_draws": 0})  # no weights can resolve a spike
-    settings = settings.resolved(slow)
+    settings = settings.resolved(slow, _curves_allowed(ctx, settings.emulator))
     if settings.emulator == "curves":
         CurveFeatures(ctx.problem)  # a loss the curves cannot give is refused before any run
         if settings.functions > 0:
@@ -177,6 +177,26 @@ def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSetti
                     "reported unreliable")
         settings = settings.model_copy(update={"refine": 0})
     return settings, out_dir
+
+
+def _curves_allowed(ctx: RunContext, emulator: str) -> bool:
+    """Whether ``emulator = "auto"`` takes the curve emulator: the project's loss is one the
+    emulated curves give (:class:`~smcbayes.posterior.curves.CurveFeatures`) and the
+    training curves are not noise-free; the log-loss emulator otherwise, and the log says
+    why.  On noise-free curves (a truth check) the likelihood is a spike that no posterior
+    resolves, and the log-loss emulator reports that from the calibration's GP without a
+    forward run, where the curve emulator would first simulate the calibration's points again."""
+    if emulator != "auto":
+        return emulator == "curves"
+    if ctx.noise_free:
+        logger.info("posterior: the log-loss emulator (emulator 'auto'): the training curves are noise-free")
+        return False
+    try:
+        CurveFeatures(ctx.problem)
+    except CurveLossUnsupported as exc:
+        logger.info("posterior: the log-loss emulator (emulator 'auto'): %s", exc)
+        return False
+    return True
 
 
 def _spread_and_pool(ctx: RunContext, surrogate: Any, n_eff: float, settings: PosteriorSettings,

@@ -40,7 +40,8 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
                  "--out", str(base / "data")]) == 0
     assert main(["calibrate", str(base / "data" / "project.toml"), "--out", str(base / "run"),
                  "--budget", "20", "--init", "6", "--seed", "0", "--no-figures"]) == 0
-    assert main(["posterior", str(base / "run"), "--walkers", "16", "--steps", "1500",
+    # the log-loss emulator's path (the curve emulator's has its own tests below)
+    assert main(["posterior", str(base / "run"), "--emulator", "loss", "--walkers", "16", "--steps", "1500",
                  "--functions", "4", "--refine", "16", "--round-runs", "10", "--draws", "30",
                  "--correct-draws", "14000", "--seed", "1"]) == 0
     return base / "run"
@@ -144,7 +145,8 @@ def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path
     stage's verdict consistent with its stopping rule."""
     from smcbayes.posterior.stage import PosteriorSettings, run_posterior
 
-    settings = PosteriorSettings(walkers=16, steps=1500, refine=90, draws=20, correct_draws=0, seed=1)
+    settings = PosteriorSettings(emulator="loss", walkers=16, steps=1500, refine=90, draws=20, correct_draws=0,
+                                 seed=1)
     info = run_posterior(_fresh_copy(run_dir, tmp_path / "active"), settings)
     truth = _truth_inside_and_slip_pair_positive(info)
     active = info["active_learning"]
@@ -215,8 +217,8 @@ def test_a_large_spread_sends_the_active_learning_where_sample_functions_disagre
     monkeypatch.setattr(active, "spread_chains", recorded(ended))
     monkeypatch.setattr(stage, "spread_chains", recorded(repeated))
     folder = _fresh_copy(run_dir, tmp_path / "spread")
-    info = run_posterior(folder, PosteriorSettings(walkers=16, steps=300, refine=150, draws=10, correct_draws=0,
-                                                   seed=2))
+    info = run_posterior(folder, PosteriorSettings(emulator="loss", walkers=16, steps=300, refine=150, draws=10,
+                                                   correct_draws=0, seed=2))
     status = info["active_learning"]
     assert status["converged"] and status["spread_checks"] == 2 and status["spread"] == 0.02
     assert status["rounds"] == STABLE_ROUNDS + 1
@@ -291,7 +293,7 @@ def test_killed_and_rerun_posterior_equals_uninterrupted(run_dir: Path, tmp_path
     from smcbayes.posterior.stage import PosteriorSettings, run_posterior
     from smcbayes.run.cache import ForwardCache
 
-    settings = PosteriorSettings(walkers=8, steps=100, functions=1, refine=18, draws=4,
+    settings = PosteriorSettings(emulator="loss", walkers=8, steps=100, functions=1, refine=18, draws=4,
                                  correct_draws=500, seed=4)
     whole = run_posterior(_fresh_copy(run_dir, tmp_path / "whole"), settings)
     # the best point's runs (5 configurations), made for N_eff, are read again for the bands' error model
@@ -346,6 +348,25 @@ def test_a_truth_check_is_named_degenerate_without_spending_runs(tmp_path: Path,
     assert not info["correction"]["enabled"]  # nor an importance correction by default
 
 
+def test_auto_takes_the_curve_emulator_where_the_loss_allows_it(run_dir: Path,
+                                                                 caplog: pytest.LogCaptureFixture) -> None:
+    """``auto`` takes the curve emulator on noisy curves whose loss it gives; the log-loss
+    one, saying why, for a loss it cannot give or noise-free curves; a named emulator stays."""
+    import logging
+
+    from smcbayes.posterior.stage import _curves_allowed
+
+    ctx = load_run(run_dir)
+    assert not ctx.noise_free
+    assert _curves_allowed(ctx, "auto") and _curves_allowed(ctx, "curves") and not _curves_allowed(ctx, "loss")
+    profiled = LossSpec(contact="profile", contact_offset_mm=0.3)
+    other = SimpleNamespace(noise_free=False, problem=SimpleNamespace(project=SimpleNamespace(loss=profiled)))
+    with caplog.at_level(logging.INFO, logger="smcbayes.posterior.stage"):
+        assert not _curves_allowed(other, "auto")
+        assert not _curves_allowed(SimpleNamespace(noise_free=True, problem=ctx.problem), "auto")
+    assert "contact 'profile'" in caplog.text and "noise-free" in caplog.text
+
+
 def test_the_correction_is_on_by_default_only_with_a_fast_simulator(tmp_path: Path) -> None:
     """The built-in 1-D model (milliseconds a run) corrects by default; the 2-D solver and an
     external simulator (seconds or minutes a run) do not, unless asked."""
@@ -359,11 +380,12 @@ def test_the_correction_is_on_by_default_only_with_a_fast_simulator(tmp_path: Pa
         return SimpleNamespace(summary={"simulator": simulator}, noise_free=False, run=run,
                                problem=SimpleNamespace(fast=fast, train_ids=["a"]))
 
-    draws = PosteriorSpec().correction.draws
-    assert _begin(ctx(True, "native"), PosteriorSpec())[0].correct_draws == draws
-    assert _begin(ctx(False, "native"), PosteriorSpec())[0].correct_draws == 0  # the 2-D solver
-    assert _begin(ctx(False, "external"), PosteriorSpec())[0].correct_draws == 0
-    assert _begin(ctx(False, "native"), PosteriorSpec(correct_draws=50))[0].correct_draws == 50
+    loss = PosteriorSpec(emulator="loss")
+    draws = loss.correction.draws
+    assert _begin(ctx(True, "native"), loss)[0].correct_draws == draws
+    assert _begin(ctx(False, "native"), loss)[0].correct_draws == 0  # the 2-D solver
+    assert _begin(ctx(False, "external"), loss)[0].correct_draws == 0
+    assert _begin(ctx(False, "native"), PosteriorSpec(emulator="loss", correct_draws=50))[0].correct_draws == 50
 
 
 def _rows(run: Path, count: int, seed: int) -> tuple[CurveFeatures, np.ndarray, np.ndarray, np.ndarray]:

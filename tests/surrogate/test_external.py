@@ -130,8 +130,9 @@ def test_posterior_of_an_external_run_uses_the_external_command(tmp_path: Path, 
                  "--external", cmd, "--no-figures"]) == 0
     calls = Path(str(config) + ".calls")
     before = len(calls.read_text().splitlines())
-    assert main(["posterior", str(out), "--walkers", "8", "--steps", "60", "--functions", "0",
-                 "--draws", "2", "--refine", "0"]) == 0
+    # the log-loss emulator, whose stage without learning makes no run but these below
+    assert main(["posterior", str(out), "--emulator", "loss", "--walkers", "8", "--steps", "60", "--functions",
+                 "0", "--draws", "2", "--refine", "0"]) == 0
     info = json.loads((out / "posterior" / "summary.json").read_text())
     made = len(calls.read_text().splitlines()) - before
     assert info["simulator"] == "external"
@@ -148,10 +149,13 @@ def _quantiles(run: Path) -> np.ndarray:
     return np.array([[p[k] for k in ("q05", "q50", "q95")] for p in info["parameters"]])
 
 
-def test_external_run_gives_the_native_posterior(tmp_path: Path, script: Path) -> None:
+@pytest.mark.parametrize("emulator", ["curves", "loss"])
+def test_external_run_gives_the_native_posterior(tmp_path: Path, script: Path, emulator: str) -> None:
     """The same calibration and posterior, once with the native model in process and once
-    with an external command that wraps it: the same numbers (up to the 12 digits of the
-    exchanged CSV), and every forward run of the external posterior is a counted call."""
+    with an external command that wraps it, with either emulator (the data are a truth
+    check's, on which ``auto`` takes the log-loss one): the same numbers (up to the 12
+    digits of the exchanged CSV), and every forward run of the external posterior is a
+    counted call."""
     config = one_config(tmp_path)
     cmd = f"{sys.executable} {script} {{params}} {{output}} {config}"
     runs = {"native": tmp_path / "native", "external": tmp_path / "external"}
@@ -163,11 +167,13 @@ def test_external_run_gives_the_native_posterior(tmp_path: Path, script: Path) -
     calls = Path(str(config) + ".calls")
     before = len(calls.read_text().splitlines())
     for out in runs.values():
-        assert main(["posterior", str(out), "--walkers", "8", "--steps", "80", "--functions", "0",
-                     "--refine", "9", "--draws", "2", "--correct-draws", "0", "--seed", "3"]) == 0
+        assert main(["posterior", str(out), "--emulator", emulator, "--walkers", "8", "--steps", "80",
+                     "--functions", "0", "--refine", "9", "--draws", "2", "--correct-draws", "0",
+                     "--seed", "3"]) == 0
     made = len(calls.read_text().splitlines()) - before
     ext = json.loads((runs["external"] / "posterior" / "summary.json").read_text())
     nat = json.loads((runs["native"] / "posterior" / "summary.json").read_text())
+    assert ext["settings"]["emulator"] == nat["settings"]["emulator"] == emulator
     assert made == ext["forward_runs_made"] == nat["forward_runs_made"] > 0
     assert ext["forward_evaluations"] == nat["forward_evaluations"]
     np.testing.assert_allclose(_quantiles(runs["external"]), _quantiles(runs["native"]), rtol=1e-6)
