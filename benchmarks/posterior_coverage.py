@@ -18,7 +18,7 @@ datasets fit in about half an hour on two shared cores; the forward model is the
 1-D solver of the accuracy benchmark.
 
     python benchmarks/posterior_coverage.py [--datasets 20] [--quick] [--free n,B_Pa_s,tau_c_MPa]
-        [--refine 800] [--correct-draws 0] [--emulator auto|curves|loss] [--jobs 2] [--workdir DIR]
+        [--refine N] [--correct-draws 0] [--emulator auto|curves|loss] [--jobs 2] [--workdir DIR]
 
 With the curve emulator (``auto``, the default, takes it here) and ``--correct-draws 0``
 the weighted posterior is the curve emulator's own importance sample (no forward run; the

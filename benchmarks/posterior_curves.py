@@ -2,9 +2,9 @@
 
 Runs on the cases of ``benchmarks/posterior_accuracy.py`` and reuses its work folder: the
 calibration run (60 evaluations), the exact reference (adaptive importance sampling on the
-forward model, cached there) and, when present, the stage's own posterior of that run (the
-log-loss GP's active learning, the emulator path's default) for a comparison in the same
-run.  The curve emulator (:mod:`smcbayes.posterior.curves`) starts from the calibration's
+forward model, cached there) and, when present, the stage's own posterior of that run (of
+whichever emulator that run's settings took, named in the output) for a comparison in the
+same run.  The curve emulator (:mod:`smcbayes.posterior.curves`) starts from the calibration's
 points, simulated again for their curves (counted as the calibration's), and learns
 actively (its stopping rule off, so every budget is spent; each budget's learning starts
 afresh from the last one's points); at each budget its posterior is sampled, as the stage
@@ -125,8 +125,9 @@ def baseline(run_dir: Path, ref: tuple[np.ndarray, np.ndarray]) -> dict[str, Any
     info = json.loads(post.read_text(encoding="utf-8"))
     c = summary(compare(NAMES, ref, posterior_samples(run_dir)["emulator"], np.zeros(len(NAMES))))
     cal = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))
+    kind = "curve" if (info.get("active_learning") or {}).get("kind") == "curves" else "log-loss"
     return {**c, "forward_runs": int(cal["evaluations"]) + info["forward_evaluations"]["inference"],
-            "reliable": info["reliable"]}
+            "reliable": info["reliable"], "emulator": kind}
 
 
 def main() -> int:
@@ -142,7 +143,7 @@ def main() -> int:
     ref = reference(folder, args.case)
     base = baseline(folder / "run", ref)
     if base is not None:
-        print(f"case {args.case}: the stage's log-loss emulator, {base['forward_runs']} forward runs: "
+        print(f"case {args.case}: the stage's {base['emulator']} emulator, {base['forward_runs']} forward runs: "
               f"quantiles {base['max_quantile_diff']:.3f} correlations {base['max_correlation_diff']:.2f} "
               f"MMTV {base['mmtv']:.3f} gsKL {base['gskl']:.2f} (reliable: {base['reliable']})")
     budgets = [int(b) for b in args.budgets.split(",")]

@@ -84,13 +84,13 @@ def test_posterior_defaults_depend_on_the_simulator() -> None:
     from smcbayes.config.settings import REFINE_CORRECTED, REFINE_EMULATED
 
     spec = PosteriorSpec(emulator="loss")
-    native, external = spec.resolved(slow=False), spec.resolved(slow=True)
+    native, external = spec.resolved(slow=False, curves=True), spec.resolved(slow=True, curves=True)
     assert native.correct_draws == spec.correction.draws > 0 and native.refine == REFINE_CORRECTED
     assert external.correct_draws == 0 and external.refine == REFINE_EMULATED
     assert REFINE_CORRECTED < REFINE_EMULATED
     given = PosteriorSpec(emulator="loss", refine=50, correct_draws=0, round_runs=12)
-    assert given.resolved(slow=False) == given.resolved(slow=True) == given
-    assert PosteriorSpec(emulator="loss", correct_draws=3000).resolved(slow=True).refine == REFINE_CORRECTED
+    assert given.resolved(slow=False, curves=True) == given.resolved(slow=True, curves=True) == given
+    assert PosteriorSpec(emulator="loss", correct_draws=3000).resolved(slow=True, curves=True).refine == REFINE_CORRECTED
 
 
 def test_auto_takes_the_curve_emulator_where_the_loss_allows_it_without_a_correction() -> None:
@@ -102,13 +102,14 @@ def test_auto_takes_the_curve_emulator_where_the_loss_allows_it_without_a_correc
 
     assert PosteriorSpec().emulator == "auto"
     for slow in (False, True):
-        curves = PosteriorSpec().resolved(slow=slow)
+        curves = PosteriorSpec().resolved(slow=slow, curves=True)
         assert (curves.emulator, curves.correct_draws, curves.refine) == ("curves", 0, REFINE_CURVES)
-        assert PosteriorSpec(emulator="curves").resolved(slow=slow) == curves
-    assert PosteriorSpec().resolved(slow=False, curves=False) == PosteriorSpec(emulator="loss").resolved(slow=False)
+        assert PosteriorSpec(emulator="curves").resolved(slow=slow, curves=False) == curves
+    assert PosteriorSpec().resolved(slow=False, curves=False) == \
+        PosteriorSpec(emulator="loss").resolved(slow=False, curves=True)
     native = PosteriorSpec().resolved(slow=False, curves=False)
     assert (native.emulator, native.refine) == ("loss", REFINE_CORRECTED) and native.correct_draws > 0
-    asked = PosteriorSpec(correct_draws=3000).resolved(slow=True)
+    asked = PosteriorSpec(correct_draws=3000).resolved(slow=True, curves=True)
     assert (asked.emulator, asked.correct_draws) == ("curves", 3000)
 
 
@@ -118,11 +119,11 @@ def test_the_round_size_defaults_to_the_emulator_s_own() -> None:
     from smcbayes.config import PosteriorSpec
     from smcbayes.config.settings import ROUND_RUNS_CURVES
 
-    assert PosteriorSpec(emulator="curves").resolved(slow=True).round_runs == ROUND_RUNS_CURVES == 40
-    assert PosteriorSpec(emulator="loss").resolved(slow=True).round_runs == 30  # a budget of 800
-    assert PosteriorSpec(emulator="loss", refine=60).resolved(slow=True).round_runs == 15
-    assert PosteriorSpec(emulator="loss", refine=16).resolved(slow=True).round_runs == 9
-    assert PosteriorSpec(emulator="curves", round_runs=120).resolved(slow=False).round_runs == 120
+    assert PosteriorSpec(emulator="curves").resolved(slow=True, curves=True).round_runs == ROUND_RUNS_CURVES == 40
+    assert PosteriorSpec(emulator="loss").resolved(slow=True, curves=True).round_runs == 30  # a budget of 800
+    assert PosteriorSpec(emulator="loss", refine=60).resolved(slow=True, curves=True).round_runs == 15
+    assert PosteriorSpec(emulator="loss", refine=16).resolved(slow=True, curves=True).round_runs == 9
+    assert PosteriorSpec(emulator="curves", round_runs=120).resolved(slow=False, curves=True).round_runs == 120
     for outside in (8, 401):
         with pytest.raises(ValueError):
             PosteriorSpec(round_runs=outside)

@@ -200,8 +200,9 @@ class PosteriorSpec(Strict):
                             "nominal contact or the end state's, without the displacement term, "
                             "clipped 'none' or 'flow_stop'; its posterior is sampled by importance on "
                             "the emulator, without a correction unless correct_draws asks for one); "
-                            "'loss', the log loss (any loss settings); 'auto' (default): 'curves' where "
-                            "the project's loss allows it, else 'loss'")
+                            "'loss', the log loss (any loss settings); 'auto': 'curves' where the "
+                            "project's loss and data allow it (not on noise-free curves, nor without "
+                            "the flow-stop times or end states the loss needs), else 'loss'")
     walkers: int = Field(32, ge=4, le=10000, description="emcee walkers")
     steps: int = Field(10000, ge=1, le=10_000_000, description="maximum steps per chain")
     functions: int = Field(0, ge=0, le=1000,
@@ -218,9 +219,10 @@ class PosteriorSpec(Strict):
         description=f"most forward evaluations of the active learning of the emulator (rounds of "
                     f"fresh posterior draws and points where the GP is unsure and a tempered "
                     f"posterior could be large; it stops earlier once validated and GP sample "
-                    f"functions no longer move the posterior); default {REFINE_EMULATED}, or "
+                    f"functions no longer move the posterior); default {REFINE_CURVES} with the "
+                    f"curve emulator; with the log-loss one {REFINE_EMULATED}, or "
                     f"{REFINE_CORRECTED} when the importance correction follows (it needs a "
-                    f"proposal, not a validated emulator); {REFINE_CURVES} with the curve emulator")
+                    f"proposal, not a validated emulator)")
     round_runs: int | None = Field(
         None, ge=ROUND_RUNS_LOSS[0], le=400,
         description=f"forward runs per active-learning round, one batch through the executor (with a "
@@ -249,12 +251,12 @@ class PosteriorSpec(Strict):
     correction: CorrectionSpec = Field(CorrectionSpec(), description="the importance correction's "
                                        "other settings ([posterior.correction])")
 
-    def resolved(self, slow: bool, curves: bool = True) -> PosteriorSpec:
+    def resolved(self, slow: bool, *, curves: bool) -> PosteriorSpec:
         """These settings with the defaults that depend on the simulator, the loss and the
         emulator filled in (``emulator``, ``correct_draws``, ``refine``, ``round_runs``).
 
-        ``auto`` takes the curve emulator where the project's loss allows it (``curves``),
-        else the log-loss one.  The curve emulator's validated posterior is reported without
+        ``auto`` takes the curve emulator where the project's loss and data allow it
+        (``curves``, :func:`smcbayes.posterior.stage._curves_allowed`), else the log-loss one.  The curve emulator's validated posterior is reported without
         a correction unless asked: on the synthetic accuracy benchmark it met every target
         after 411-731 forward runs in all, where the log-loss emulator needs the correction's
         11,000-12,000 runs of the built-in 1-D model to meet them.  With the log-loss

@@ -151,13 +151,14 @@ def _count_runs(runs: dict[str, int], refine: int, residual_budget: int) -> None
 
 
 def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSettings, Path]:
-    """Start the stage in the run directory; returns the settings it runs with (the
-    simulator's defaults of the correction and the active learning filled in, no active
-    learning on noise-free data) and its output folder."""
+    """Start the stage in the run directory; returns the settings it runs with (``auto``
+    resolved to an emulator, the defaults of the correction and the active learning that
+    depend on it and the simulator filled in, no active learning on noise-free data) and
+    its output folder."""
     slow = not ctx.problem.fast
     if ctx.noise_free and settings.correct_draws is None:
         settings = settings.model_copy(update={"correct_draws": 0})  # no weights can resolve a spike
-    settings = settings.resolved(slow, _curves_allowed(ctx, settings.emulator))
+    settings = settings.resolved(slow, curves=_curves_allowed(ctx, settings.emulator))
     if settings.emulator == "curves":
         CurveFeatures(ctx.problem)  # a loss the curves cannot give is refused before any run
         if settings.functions > 0:
@@ -184,8 +185,9 @@ def _curves_allowed(ctx: RunContext, emulator: str) -> bool:
     emulated curves give (:class:`~smcbayes.posterior.curves.CurveFeatures`) and the
     training curves are not noise-free; the log-loss emulator otherwise, and the log says
     why.  On noise-free curves (a truth check) the likelihood is a spike that no posterior
-    resolves, and the log-loss emulator reports that from the calibration's GP without a
-    forward run, where the curve emulator would first simulate the calibration's points again."""
+    resolves, and the log-loss emulator reports that from the calibration's GP without
+    active learning, where the curve emulator would first simulate the calibration's points
+    again."""
     if emulator != "auto":
         return emulator == "curves"
     if ctx.noise_free:

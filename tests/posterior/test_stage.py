@@ -367,25 +367,44 @@ def test_auto_takes_the_curve_emulator_where_the_loss_allows_it(run_dir: Path,
     assert "contact 'profile'" in caplog.text and "noise-free" in caplog.text
 
 
-def test_the_correction_is_on_by_default_only_with_a_fast_simulator(tmp_path: Path) -> None:
-    """The built-in 1-D model (milliseconds a run) corrects by default; the 2-D solver and an
+def test_the_log_loss_emulator_is_corrected_by_default_only_with_a_fast_simulator(tmp_path: Path) -> None:
+    """After the log-loss emulator (asked for, or ``auto`` on a loss the curves cannot give)
+    the built-in 1-D model (milliseconds a run) corrects by default; the 2-D solver and an
     external simulator (seconds or minutes a run) do not, unless asked."""
     from types import SimpleNamespace
 
     from smcbayes.config import PosteriorSpec
+    from smcbayes.config.settings import REFINE_CORRECTED
     from smcbayes.posterior.stage import _begin
 
     def ctx(fast: bool, simulator: str) -> SimpleNamespace:
         run = SimpleNamespace(begin_stage=lambda name, settings: tmp_path)
+        profiled = SimpleNamespace(loss=LossSpec(contact="profile", contact_offset_mm=0.3))
         return SimpleNamespace(summary={"simulator": simulator}, noise_free=False, run=run,
-                               problem=SimpleNamespace(fast=fast, train_ids=["a"]))
+                               problem=SimpleNamespace(fast=fast, train_ids=["a"], project=profiled))
 
-    loss = PosteriorSpec(emulator="loss")
-    draws = loss.correction.draws
-    assert _begin(ctx(True, "native"), loss)[0].correct_draws == draws
-    assert _begin(ctx(False, "native"), loss)[0].correct_draws == 0  # the 2-D solver
-    assert _begin(ctx(False, "external"), loss)[0].correct_draws == 0
+    for spec in (PosteriorSpec(emulator="loss"), PosteriorSpec()):
+        draws = spec.correction.draws
+        native = _begin(ctx(True, "native"), spec)[0]
+        assert (native.emulator, native.correct_draws, native.refine) == ("loss", draws, REFINE_CORRECTED)
+        assert _begin(ctx(False, "native"), spec)[0].correct_draws == 0  # the 2-D solver
+        assert _begin(ctx(False, "external"), spec)[0].correct_draws == 0
     assert _begin(ctx(False, "native"), PosteriorSpec(emulator="loss", correct_draws=50))[0].correct_draws == 50
+
+
+def test_auto_starts_the_stage_with_the_curve_emulator_and_no_correction(run_dir: Path, tmp_path: Path) -> None:
+    """On noisy curves whose loss the curve emulator gives, the default settings start the
+    stage with it, its budget and no correction, although the built-in model is fast."""
+    from smcbayes.config import PosteriorSpec
+    from smcbayes.config.settings import REFINE_CURVES, ROUND_RUNS_CURVES
+    from smcbayes.posterior.stage import _begin
+
+    ctx = load_run(_fresh_copy(run_dir, tmp_path / "auto"))
+    assert ctx.problem.fast and not ctx.noise_free
+    settings, out_dir = _begin(ctx, PosteriorSpec())
+    assert (settings.emulator, settings.correct_draws, settings.refine, settings.round_runs) == \
+        ("curves", 0, REFINE_CURVES, ROUND_RUNS_CURVES)
+    assert out_dir.is_dir()
 
 
 def _rows(run: Path, count: int, seed: int) -> tuple[CurveFeatures, np.ndarray, np.ndarray, np.ndarray]:
