@@ -4,8 +4,8 @@ Runs on the cases of ``benchmarks/posterior_accuracy.py`` and reuses its work fo
 calibration run (60 evaluations), the exact reference (adaptive importance sampling on the
 forward model, cached there) and, when present, the stage's own posterior of that run (of
 whichever emulator that run's settings took, named in the output) for a comparison in the
-same run.  The curve emulator (:mod:`smcbayes.posterior.curves`) starts from the calibration's
-points, simulated again for their curves (counted as the calibration's), and learns
+same run.  The curve emulator (:mod:`smcbayes.posterior.curves`) starts from the
+calibration's points, simulated again for their curves (counted as the calibration's), and learns
 actively (its stopping rule off, so every budget is spent; each budget's learning starts
 afresh from the last one's points); at each budget its posterior is sampled, as the stage
 reports it, by importance on the emulator (from 10,000 emcee steps, the stage's chains

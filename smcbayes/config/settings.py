@@ -256,8 +256,9 @@ class PosteriorSpec(Strict):
         emulator filled in (``emulator``, ``correct_draws``, ``refine``, ``round_runs``).
 
         ``auto`` takes the curve emulator where the project's loss and data allow it
-        (``curves``, :func:`smcbayes.posterior.stage._curves_allowed`), else the log-loss one.  The curve emulator's validated posterior is reported without
-        a correction unless asked: on the synthetic accuracy benchmark it met every target
+        (``curves``, as the posterior stage finds), else the log-loss one.  The curve
+        emulator's validated posterior is reported without a correction unless asked: on
+        the synthetic accuracy benchmark it met every target
         after 411-731 forward runs in all, where the log-loss emulator needs the correction's
         11,000-12,000 runs of the built-in 1-D model to meet them.  With the log-loss
         emulator the stage corrects the emulated posterior by the exact one with the

@@ -160,7 +160,6 @@ def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSetti
         settings = settings.model_copy(update={"correct_draws": 0})  # no weights can resolve a spike
     settings = settings.resolved(slow, curves=_curves_allowed(ctx, settings.emulator))
     if settings.emulator == "curves":
-        CurveFeatures(ctx.problem)  # a loss the curves cannot give is refused before any run
         if settings.functions > 0:
             logger.warning("--functions %d draws sample functions of the log-loss emulator; the curve "
                            "emulator pools its own %d (see --no-pool-functions), so it is ignored",
@@ -181,15 +180,19 @@ def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSetti
 
 
 def _curves_allowed(ctx: RunContext, emulator: str) -> bool:
-    """Whether ``emulator = "auto"`` takes the curve emulator: the project's loss is one the
+    """Whether the stage runs the curve emulator: when named (a loss the curves cannot give
+    is refused here, before any run), and with ``auto`` where the project's loss is one the
     emulated curves give (:class:`~smcbayes.posterior.curves.CurveFeatures`) and the
     training curves are not noise-free; the log-loss emulator otherwise, and the log says
     why.  On noise-free curves (a truth check) the likelihood is a spike that no posterior
     resolves, and the log-loss emulator reports that from the calibration's GP without
     active learning, where the curve emulator would first simulate the calibration's points
     again."""
+    if emulator == "curves":
+        CurveFeatures(ctx.problem)
+        return True
     if emulator != "auto":
-        return emulator == "curves"
+        return False
     if ctx.noise_free:
         logger.info("posterior: the log-loss emulator (emulator 'auto'): the training curves are noise-free")
         return False

@@ -351,7 +351,8 @@ def test_a_truth_check_is_named_degenerate_without_spending_runs(tmp_path: Path,
 def test_auto_takes_the_curve_emulator_where_the_loss_allows_it(run_dir: Path,
                                                                  caplog: pytest.LogCaptureFixture) -> None:
     """``auto`` takes the curve emulator on noisy curves whose loss it gives; the log-loss
-    one, saying why, for a loss it cannot give or noise-free curves; a named emulator stays."""
+    one, saying why, for a loss it cannot give or noise-free curves; a named emulator stays,
+    and the curve emulator named for a loss it cannot give is refused."""
     import logging
 
     from smcbayes.posterior.stage import _curves_allowed
@@ -365,6 +366,8 @@ def test_auto_takes_the_curve_emulator_where_the_loss_allows_it(run_dir: Path,
         assert not _curves_allowed(other, "auto")
         assert not _curves_allowed(SimpleNamespace(noise_free=True, problem=ctx.problem), "auto")
     assert "contact 'profile'" in caplog.text and "noise-free" in caplog.text
+    with pytest.raises(CurveLossUnsupported, match="nominal contact"):  # named, it is refused
+        _curves_allowed(other, "curves")
 
 
 def test_the_log_loss_emulator_is_corrected_by_default_only_with_a_fast_simulator(tmp_path: Path) -> None:
