@@ -11,6 +11,7 @@ import logging
 import os
 import shlex
 import sys
+import textwrap
 import warnings
 from collections.abc import Sequence
 from typing import TextIO
@@ -31,6 +32,15 @@ class DefaultsFormatter(argparse.HelpFormatter):
                 or default == argparse.SUPPRESS or not action.option_strings):
             return text
         return f"{text} (default: %(default)s)"
+
+    # a hyphenated word (log-loss, flow-stop, 2-D) stays whole: "log- loss" across two lines
+    # reads as two words, and the help's text would no longer be found in it
+    def _split_lines(self, text: str, width: int) -> list[str]:
+        return textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False)
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        return textwrap.fill(" ".join(text.split()), width, initial_indent=indent, subsequent_indent=indent,
+                             break_on_hyphens=False)
 
 
 def build_parser() -> argparse.ArgumentParser:
