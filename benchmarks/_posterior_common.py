@@ -109,6 +109,12 @@ def emulated_draws(run_dir: Path) -> np.ndarray:
     return posterior_samples(run_dir)["reported"]
 
 
+def stage_emulator(info: dict[str, Any]) -> str:
+    """The emulator a posterior stage ran, from its ``summary.json`` ``info``: ``curves`` or
+    ``loss`` (``auto`` resolves to one of them)."""
+    return "curves" if (info.get("active_learning") or {}).get("kind") == "curves" else "loss"
+
+
 def posterior_samples(run_dir: Path) -> dict[str, Any]:
     """Samples of ``posterior/posterior.nc`` in the unit cube.
 

@@ -48,6 +48,7 @@ from _posterior_common import (
     make_dataset,
     posterior_samples,
     project_doc,
+    stage_emulator,
     unit_of,
     write_result,
 )
@@ -105,8 +106,7 @@ def one_dataset(i: int, free: list[str], args: argparse.Namespace, tmp: Path) ->
     row.update({"band_coverage90": {c: b["coverage90"] for c, b in bands.items()},
                 "band_width90_kN": {c: b.get("width90_kN", float("nan")) for c, b in bands.items()},
                 "reliable": bool(info.get("reliable", False)),
-                # what the stage's emulator resolved to (``auto`` takes the curves where the loss allows)
-                "emulator": "curves" if (info.get("active_learning") or {}).get("kind") == "curves" else "loss",
+                "emulator": stage_emulator(info),
                 "band_coverage50": {c: b["coverage50"] for c, b in bands.items()},
                 "emulator_check_nats": info["emulator_check"]["mean_abs_error"],
                 "correction": {k: v for k, v in info["correction"].items() if k != "history"},

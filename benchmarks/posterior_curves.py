@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _posterior_common import posterior_samples, write_result
+from _posterior_common import posterior_samples, stage_emulator, write_result
 from posterior_accuracy import Q_TARGET, R_TARGET, compare
 
 from smcbayes.posterior.correct import CorrectionSettings
@@ -125,7 +125,7 @@ def baseline(run_dir: Path, ref: tuple[np.ndarray, np.ndarray]) -> dict[str, Any
     info = json.loads(post.read_text(encoding="utf-8"))
     c = summary(compare(NAMES, ref, posterior_samples(run_dir)["emulator"], np.zeros(len(NAMES))))
     cal = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))
-    kind = "curve" if (info.get("active_learning") or {}).get("kind") == "curves" else "log-loss"
+    kind = {"curves": "curve", "loss": "log-loss"}[stage_emulator(info)]
     return {**c, "forward_runs": int(cal["evaluations"]) + info["forward_evaluations"]["inference"],
             "reliable": info["reliable"], "emulator": kind}
 
