@@ -61,10 +61,13 @@ _fills_and_stops = _jit(programme.fills_and_stops)
 _load_travel = _jit(programme.load_travel)
 _hold_step = _jit(programme.hold_step)
 _stretch = _jit(programme.closing_stretch)
+_deflection = _jit(programme.step_deflection)
+_frame_load = _jit(programme.frame_load)
 
 DISPATCHERS = (_compaction_pressure, _relax_temperature, _arrhenius, _cure_shift, _cure_substeps,
                _cure_rk4_step, _cure_factor, _ramp_speed, _reaches_limit, _crossing, _hold_over,
-               _fills_and_stops, _load_travel, _hold_step, _stretch)
+               _fills_and_stops, _load_travel, _hold_step, _stretch, _deflection,
+               _frame_load)
 """Compiled shared functions (their caches go with the kernel's, see the module docstring)."""
 
 # row parameters
@@ -346,6 +349,7 @@ def _advance(st: Array, balance: float, speed: float, spread: float, dt: float, 
     """march._advance for one active row, in place."""
     a_m = geo[G_AREA_M]
     gap0, area0 = st[S_GAP], st[S_AREA]
+    solved_dt = dt
     gap = gap0 - speed * dt
     ratio = spread / speed if speed > 0 else 0.0
     area = area0 * (gap0 / gap) ** ratio
@@ -366,7 +370,7 @@ def _advance(st: Array, balance: float, speed: float, spread: float, dt: float, 
     st[S_GAP], st[S_AREA] = gap, area
     _advance_state(st, gap0, dt, rp, geo)
     if st[S_PHASE] != PHASE_FORCE:
-        st[S_DELTA] = balance * rp[R_INV_K]
+        st[S_DELTA] = _deflection(st[S_DELTA], balance * rp[R_INV_K], dt, solved_dt)
         if fills and s0 < 1.0:
             st[S_PHASE] = PHASE_FULL
 
@@ -444,7 +448,8 @@ def _march_row(r: int, tau: Array, slip: Array, shear: Array, eta0: float, rp: A
             free = _ramp_speed(geo[G_SPEED], st[S_T], rp[R_T_RAMP]) if rp[R_RAMP_ON] > 0 else geo[G_SPEED]
             free = _nmax(free, 1e-6 * geo[G_SPEED])
             # programme.load_time, whose call of load_travel numba would not see
-            st[S_T] += _nmax(_load_travel(force, f_lim, rp[R_INV_K], rp[R_BETA]) / free, geo[G_JUMP])
+            loaded = _frame_load(force, st[S_DELTA], rp[R_INV_K])
+            st[S_T] += _nmax(_load_travel(loaded, f_lim, rp[R_INV_K], rp[R_BETA]) / free, geo[G_JUMP])
             st[S_PHASE] = PHASE_FORCE
             st[S_SWITCH] = st[S_T]
         elif fc and _hold_over(st[S_T], st[S_SWITCH], hold):

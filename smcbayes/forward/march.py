@@ -40,9 +40,11 @@ from smcbayes.forward.programme import (
     PressProgramme,
     closing_stretch,
     fills_and_stops,
+    frame_load,
     hold_step,
     load_time,
     load_travel,
+    step_deflection,
 )
 from smcbayes.forward.result import PHASE_FLOW, PHASE_FORCE, PHASE_FULL, STATUS_OK
 
@@ -296,6 +298,7 @@ def _advance(ctx: _Context, st: _State, rates: _Rates, dt: Array, active: NDArra
     c = ctx.case
     new = st.copy()
     dt = np.where(active, dt, 0.0)
+    solved_dt = dt
     gap = st.gap - rates.speed * dt
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(rates.speed > 0, rates.spread / rates.speed, 0.0)
@@ -319,7 +322,8 @@ def _advance(ctx: _Context, st: _State, rates: _Rates, dt: Array, active: NDArra
         gap, area = np.where(dense, gap_s1, gap), np.where(dense, area_s1, area)
         dt = np.where(dense, np.clip(dt_s1, 0.0, dt), dt)
     new.t, new.gap, new.area = st.t + dt, gap, area
-    new.delta = np.where(active & (st.phase != PHASE_FORCE), rates.balance * ctx.inv_k, st.delta)
+    new.delta = np.where(active & (st.phase != PHASE_FORCE),
+                         step_deflection(st.delta, rates.balance * ctx.inv_k, dt, solved_dt), st.delta)
     new.extra = ctx.effects.advance(c, ctx.p, st.extra, st.gap, dt)
     if ctx.compressible.any():
         new.phase = np.where(fills & ctx.compressible & (st.phase != PHASE_FORCE), PHASE_FULL,
@@ -430,13 +434,16 @@ def _fill_stops(ctx: _Context, st: _State, force: Array, done: NDArray[np.bool_]
 
 
 def _frame_loading(ctx: _Context, st: _State, force: Array, rows: NDArray[np.bool_]) -> Array:
-    """Time (s) from a fill of the cavity (incompressible charge, at ``force`` N) to the
-    force limit, ``(P,)`` (``jump_time`` outside ``rows``): the gap stops, the ram runs on
+    """Time (s) from a fill of the cavity (incompressible charge, at ``force`` N on a rigid
+    frame, at the load of its deflection on a compliant one,
+    :func:`~smcbayes.forward.programme.frame_load`) to the force limit, ``(P,)``
+    (``jump_time`` outside ``rows``): the gap stops, the ram runs on
     and loads the frame (a jump of ``jump_time`` on a rigid one;
     :func:`~smcbayes.forward.programme.load_travel`), at its free speed at the fill, or
     along the measured profile with the speed ramp's factor at the fill held (inf where
     the log ends at rest before the limit)."""
     c = ctx.case
+    force = frame_load(force, st.delta, ctx.inv_k)
     free, beta = ctx.effects.ram_speed(c, ctx.p, st.t, c.set_speed(st.t))
     if c.profile is None:
         with np.errstate(divide="ignore", invalid="ignore"):

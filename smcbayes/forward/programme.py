@@ -112,6 +112,36 @@ def crossing_fraction(prev_force: X, force: X, force_limit: float) -> X:
     return np.minimum(np.maximum(theta, 0.0), 1.0)
 
 
+def step_deflection(delta: X, balanced: X, dt: X, solved_dt: X) -> X:
+    """Frame deflection (m) after a speed-controlled step of ``dt`` (s) whose balance was
+    solved for a step of ``solved_dt`` (s), from ``delta`` (m) at its start.
+
+    The balance (backward Euler, V + F / (k dt) = U + delta / dt) gives the deflection
+    ``balanced`` = F / k = delta + (U - V) dt after a whole step.  A step cut short at the
+    cavity fill or the pore-free state takes the same rates over ``dt`` only, so the
+    deflection grows by the share ``dt / solved_dt`` of that increment, as the 2-D
+    stepper's does.  Taken whole, a cut step loaded the frame by a whole step's worth
+    however short it was: a fill just after a step's end found the frame a step further
+    loaded than a fill at its end, and the switch time jumped by up to 70 ms as a
+    parameter moved the fill across a step's end (``benchmarks/forward_smoothness.py``).
+    """
+    share = select(solved_dt > 0.0, np.minimum(dt / np.maximum(solved_dt, 1e-300), 1.0), 1.0)
+    return delta + share * (balanced - delta)
+
+
+def frame_load(force: X, delta: X, inv_k: X) -> X:
+    """The force (N) a compliant frame carries at a fill of the cavity, that of its
+    deflection ``delta`` (m), ``delta / inv_k``; ``force`` (N) on a rigid frame.
+
+    The force the marching evaluates at the filled state balances the step it would take
+    next (backward Euler): it lies a step ahead of the frame, by an amount that depends on
+    where the fill falls within its step.  The frame's loading started from it, and the
+    switch time with it, moved by a few ms each time a parameter moved the fill across a
+    step's end.  The deflection is the state the fill leaves (:func:`step_deflection`).
+    """
+    return select(inv_k > 0.0, delta / np.maximum(inv_k, 1e-300), force)
+
+
 def hold_over(t: X, t_switch: X, hold: float) -> X:
     """True where the hold begun at ``t_switch`` (s) is over at ``t`` (s)."""
     return t >= t_switch + hold - HOLD_END_TOL

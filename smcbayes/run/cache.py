@@ -1,9 +1,9 @@
 """The forward-run cache of a stage: what a killed stage already simulated, kept on disk.
 
 Each model of a stage (the posterior's one, the diagnosis's one per set of effects) gets an
-append-only log ``<folder>/<tag>.jsonl``, ``tag`` a hash of the run's identity and the
-model (see :meth:`smcbayes.run.directory.RunDir.forward_cache`), so a cache of another
-calibration or model is never read.  A line is either a batch marker ``{"batch": runs}``
+append-only log ``<folder>/<tag>.jsonl``, ``tag`` a hash of the run's identity, the
+model and the model's code (see :meth:`smcbayes.run.directory.RunDir.forward_cache`), so a
+cache of another calibration, model or model code is never read.  A line is either a batch marker ``{"batch": runs}``
 written before a batch's runs start, or one forward run (one parameter row on one
 configuration)::
 
@@ -21,6 +21,7 @@ failure (possibly a lost worker) is tried again by the next run.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -39,20 +40,37 @@ from smcbayes.simulation.objective import TaskResult
 
 Array = NDArray[np.float64]
 
+MODEL_PACKAGES = ("forward", "data", "simulation")
+"""Packages of ``smcbayes`` whose code decides a cached forward run's curves and errors."""
+
 _CURVES = ("time_s", "gap_mm", "displacement_mm", "force_kN", "fill_fraction", "solid_fraction",
            "phase", "switch_time_s")
 
 
 def cache_tag(identity: Mapping[str, Any], model: Sequence[str] = ()) -> str:
     """Hash of what makes forward runs comparable: the run's model identity (project,
-    effects, overrides, fidelity, external simulator), a stage's extra effects ``model``
-    and the package version."""
+    effects, overrides, fidelity, external simulator), a stage's extra effects ``model``,
+    the package version and the source of the code that computes a run (:func:`model_source`)."""
     try:
         version = metadata.version("smcbayes")
     except metadata.PackageNotFoundError:
         version = "unknown"
-    key = {"identity": dict(identity), "model": list(model), "version": version}
+    key = {"identity": dict(identity), "model": list(model), "version": version, "source": model_source()}
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode("utf-8")).hexdigest()[:16]
+
+
+@functools.cache
+def model_source() -> str:
+    """Hash of the sources of the forward model, the data and losses and the simulation
+    layer (the packages :data:`MODEL_PACKAGES`): a fixed or changed model must not read
+    the runs its earlier code cached, although the package's version is still the same."""
+    digest = hashlib.sha256()
+    root = Path(__file__).resolve().parents[1]
+    for package in MODEL_PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            digest.update(path.relative_to(root).as_posix().encode("utf-8"))
+            digest.update(path.read_bytes())
+    return digest.hexdigest()
 
 
 def row_key(config_id: str, row: Array) -> str:

@@ -307,8 +307,9 @@ class RunDir:
                       model: Sequence[str] = ()) -> ForwardCache:
         """The forward-run cache of a stage's model (``<stage folder>/forward_cache/``), tied
         to the run's identity (project, effects, overrides, fidelity, external simulator),
-        the model's extra effects ``model`` and the package version, so that runs of
-        another calibration or model are never reused."""
+        the model's extra effects ``model``, the package version and the model's source
+        (:func:`~smcbayes.run.cache.model_source`), so that runs of another calibration,
+        model or model code are never reused."""
         ident = self.identity().to_json()
         tag = cache_tag({k: ident.get(k) for k in _MODEL_KEYS}, model)
         return ForwardCache(self.stage_dir(stage, folder) / "forward_cache", tag)

@@ -269,3 +269,23 @@ def test_packing_against_a_soft_frame_rises_smoothly(thesis_config: Path) -> Non
     rise = np.diff(nodes.force[0, :n][packing])
     assert rise.size > 50 and np.all(rise > 0)
     assert np.all((rise[1:] / rise[:-1] > 0.5) & (rise[1:] / rise[:-1] < 2.0))
+
+
+
+def test_the_switch_on_a_compliant_frame_moves_smoothly_as_the_fill_crosses_a_step(
+        make_project: Callable[..., ProjectConfig]) -> None:
+    """An incompressible charge that fills the cavity well below the limit, on a soft frame
+    and a ram that slows under load: as the viscosity rises, the fill moves across the ends
+    of the marching steps, and the switch time (the fill plus the frame's loading) must
+    follow smoothly.  When the step cut short at the fill loaded the frame by a whole
+    step's worth, the switch time jumped by up to 30 ms here each time the fill crossed a
+    step's end, against a trend of a few ms over the whole sweep."""
+    project = make_project(press={"force_limit_kN": 500.0})
+    b_Pa_s = np.linspace(1.0e3, 2.0e3, 121)
+    res = run(project, ("press_compliance", "speed_ramp"), rows=len(b_Pa_s), k_press_kN_mm=50.0,
+              ramp_time_s=0.01, load_slowdown=0.5, **{**SHEAR, "B_Pa_s": list(b_Pa_s), "tau_c_MPa": 0.01})
+    t_switch = res.switch_time_s
+    trend = abs(t_switch[-1] - t_switch[0])
+    assert trend > 0.002
+    # over 121 close steps of a smooth trend the second differences are tiny; jumps are not
+    assert np.max(np.abs(np.diff(t_switch, 2))) < 0.05 * trend

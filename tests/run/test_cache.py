@@ -105,3 +105,14 @@ def test_tags_separate_runs_and_models() -> None:
     assert cache_tag(ident) == cache_tag(dict(ident))
     assert cache_tag(ident) != cache_tag({**ident, "project": {"name": "b"}})
     assert cache_tag(ident) != cache_tag(ident, ("press_compliance",))
+
+
+def test_the_tag_changes_with_the_model_code(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A fixed forward model must not read what its earlier code cached, although the
+    package's version is unchanged."""
+    from smcbayes.run import cache
+
+    ident = {"project": {"name": "a"}}
+    before = cache_tag(ident)
+    monkeypatch.setattr(cache, "model_source", lambda: "another model")
+    assert cache_tag(ident) != before
