@@ -437,11 +437,10 @@ def _frame_loading(ctx: _Context, st: _State, force: Array, rows: NDArray[np.boo
     """Time (s) from a fill of the cavity (incompressible charge, at ``force`` N on a rigid
     frame, at the load of its deflection on a compliant one,
     :func:`~smcbayes.forward.programme.frame_load`) to the force limit, ``(P,)``
-    (``jump_time`` outside ``rows``): the gap stops, the ram runs on
-    and loads the frame (a jump of ``jump_time`` on a rigid one;
-    :func:`~smcbayes.forward.programme.load_travel`), at its free speed at the fill, or
-    along the measured profile with the speed ramp's factor at the fill held (inf where
-    the log ends at rest before the limit)."""
+    (``jump_time`` outside ``rows``): the gap stops, the ram runs on and loads the frame (a
+    jump of ``jump_time`` on a rigid one; :func:`~smcbayes.forward.programme.load_travel`),
+    at its free speed at the fill, or along the measured profile with the speed ramp's
+    factor at the fill held (inf where the log ends at rest before the limit)."""
     c = ctx.case
     force = frame_load(force, st.delta, ctx.inv_k)
     free, beta = ctx.effects.ram_speed(c, ctx.p, st.t, c.set_speed(st.t))

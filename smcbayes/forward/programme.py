@@ -125,8 +125,9 @@ def step_deflection(delta: X, balanced: X, dt: X, solved_dt: X) -> X:
     loaded than a fill at its end, and the switch time jumped by up to 70 ms as a
     parameter moved the fill across a step's end (``benchmarks/forward_smoothness.py``).
     """
-    share = select(solved_dt > 0.0, np.minimum(dt / np.maximum(solved_dt, 1e-300), 1.0), 1.0)
-    return delta + share * (balanced - delta)
+    cut = dt < solved_dt
+    share = select(cut, dt / np.maximum(solved_dt, 1e-300), 1.0)
+    return select(cut, delta + share * (balanced - delta), balanced)
 
 
 def frame_load(force: X, delta: X, inv_k: X) -> X:
@@ -136,8 +137,9 @@ def frame_load(force: X, delta: X, inv_k: X) -> X:
     The force the marching evaluates at the filled state balances the step it would take
     next (backward Euler): it lies a step ahead of the frame, by an amount that depends on
     where the fill falls within its step.  The frame's loading started from it, and the
-    switch time with it, moved by a few ms each time a parameter moved the fill across a
-    step's end.  The deflection is the state the fill leaves (:func:`step_deflection`).
+    switch time with it, moved by up to a few ms each time a parameter moved the fill
+    across a step's end.  The deflection is the state the fill leaves
+    (:func:`step_deflection`).
     """
     return select(inv_k > 0.0, delta / np.maximum(inv_k, 1e-300), force)
 

@@ -418,7 +418,9 @@ class Stepper:
         limit: the gap stops, the ram runs on and loads the frame (a jump on a rigid one;
         :func:`~smcbayes.forward.programme.load_travel`), at its free speed at the fill or
         along the measured profile with the speed ramp's factor at the fill held, as in the
-        1-D solver."""
+        1-D solver, which starts from the load of the frame's deflection
+        (:func:`~smcbayes.forward.programme.frame_load`) where this starts from
+        ``force``."""
         case, jump = self.case, self.press.jump_time
         free, beta = self.ram_speed(t)
         if case.profile is None:

@@ -3,9 +3,9 @@
 Each model of a stage (the posterior's one, the diagnosis's one per set of effects) gets an
 append-only log ``<folder>/<tag>.jsonl``, ``tag`` a hash of the run's identity, the
 model and the model's code (see :meth:`smcbayes.run.directory.RunDir.forward_cache`), so a
-cache of another calibration, model or model code is never read.  A line is either a batch marker ``{"batch": runs}``
-written before a batch's runs start, or one forward run (one parameter row on one
-configuration)::
+cache of another calibration, model or model code is never read.  A line is either a batch
+marker ``{"batch": runs}`` written before a batch's runs start, or one forward run (one
+parameter row on one configuration)::
 
     {"k": key, "c": config_id, "e": error, "f": force_mse_kN2, "d": displacement_mse_mm2,
      "s": status, "z": curves file or null, "i": row in it}
@@ -61,16 +61,25 @@ def cache_tag(identity: Mapping[str, Any], model: Sequence[str] = ()) -> str:
 
 @functools.cache
 def model_source() -> str:
-    """Hash of the sources of the forward model, the data and losses and the simulation
-    layer (the packages :data:`MODEL_PACKAGES`): a fixed or changed model must not read
-    the runs its earlier code cached, although the package's version is still the same."""
+    """Hash of this installation's sources of the forward model, the data and losses and
+    the simulation layer (:data:`MODEL_PACKAGES`, :func:`source_digest`): a fixed or
+    changed model must not read the runs its earlier code cached, although the package's
+    version is still the same.  Read once, when this module is imported."""
+    return source_digest(Path(__file__).resolve().parents[1])
+
+
+def source_digest(root: Path) -> str:
+    """SHA-256 of the ``.py`` files of :data:`MODEL_PACKAGES` under the package folder
+    ``root`` (paths and contents); ``"unknown"`` where none is found (an installation
+    without its sources, whose cache then goes by the version alone)."""
     digest = hashlib.sha256()
-    root = Path(__file__).resolve().parents[1]
+    found = False
     for package in MODEL_PACKAGES:
         for path in sorted((root / package).rglob("*.py")):
             digest.update(path.relative_to(root).as_posix().encode("utf-8"))
             digest.update(path.read_bytes())
-    return digest.hexdigest()
+            found = True
+    return digest.hexdigest() if found else "unknown"
 
 
 def row_key(config_id: str, row: Array) -> str:
@@ -242,3 +251,6 @@ class ForwardCache:
         return TaskResult((0,), rec["c"], np.array([rec["e"]], dtype=float),
                           np.array([rec["f"]], dtype=float), np.array([rec["d"]], dtype=float),
                           [rec["s"]], 0.0, sim)
+
+
+model_source()  # the code this process runs, before any later edit of its files

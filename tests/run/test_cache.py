@@ -107,6 +107,7 @@ def test_tags_separate_runs_and_models() -> None:
     assert cache_tag(ident) != cache_tag(ident, ("press_compliance",))
 
 
+
 def test_the_tag_changes_with_the_model_code(monkeypatch: pytest.MonkeyPatch) -> None:
     """A fixed forward model must not read what its earlier code cached, although the
     package's version is unchanged."""
@@ -116,3 +117,18 @@ def test_the_tag_changes_with_the_model_code(monkeypatch: pytest.MonkeyPatch) ->
     before = cache_tag(ident)
     monkeypatch.setattr(cache, "model_source", lambda: "another model")
     assert cache_tag(ident) != before
+
+
+def test_the_source_digest_follows_every_model_file(tmp_path: Path) -> None:
+    from smcbayes.run.cache import MODEL_PACKAGES, source_digest
+
+    assert source_digest(tmp_path) == "unknown"
+    for package in MODEL_PACKAGES:
+        (tmp_path / package / "sub").mkdir(parents=True)
+        (tmp_path / package / "sub" / "law.py").write_text("K = 1\n")
+    (tmp_path / "report.py").write_text("X = 1\n")  # outside the model: not hashed
+    first = source_digest(tmp_path)
+    (tmp_path / "report.py").write_text("X = 2\n")
+    assert source_digest(tmp_path) == first
+    (tmp_path / "forward" / "sub" / "law.py").write_text("K = 2\n")
+    assert source_digest(tmp_path) not in (first, "unknown")
