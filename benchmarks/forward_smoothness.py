@@ -10,9 +10,10 @@ The embedded demonstration's twelve configurations with the frame's stiffness on
 time of every configuration.  A smooth model has second differences of the order of the
 trend's curvature, tiny at this spacing; a jump of the switch time as a parameter moves
 an event of the marching across a step's end shows as one large second difference.
-Printed per line: the largest second difference of the switch time over the
-configurations (ms) and how many exceed 1 ms.  The emulators and the calibration's GP
-assume a smooth response: such jumps become noise they cannot learn.
+Printed: each line's largest second difference of the switch time over the
+configurations (ms), their range and median over the lines, and how many second
+differences exceed 1 ms (the JSON keeps each line's, with its trend).  The emulators and
+the calibration's GP assume a smooth response: such jumps become noise they cannot learn.
 
 ``--compare DIR`` runs the same measurement with the code of another checkout ``DIR``
 (its ``smcbayes`` package first on the path) in the same call, e.g. the code before a

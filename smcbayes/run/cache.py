@@ -50,7 +50,8 @@ _CURVES = ("time_s", "gap_mm", "displacement_mm", "force_kN", "fill_fraction", "
 def cache_tag(identity: Mapping[str, Any], model: Sequence[str] = ()) -> str:
     """Hash of what makes forward runs comparable: the run's model identity (project,
     effects, overrides, fidelity, external simulator), a stage's extra effects ``model``,
-    the package version and the source of the code that computes a run (:func:`model_source`)."""
+    the package version and the source of the code that computes a run
+    (:func:`model_source`)."""
     try:
         version = metadata.version("smcbayes")
     except metadata.PackageNotFoundError:

@@ -10,7 +10,8 @@ import pytest
 
 from smcbayes.forward.parameters import BASE_PARAMETERS, ParameterSpace
 from smcbayes.forward.result import SimulationResult
-from smcbayes.run.cache import ForwardCache, cache_tag
+from smcbayes.run import cache as cache_module
+from smcbayes.run.cache import MODEL_PACKAGES, ForwardCache, cache_tag, source_digest
 from smcbayes.simulation.objective import Task, TaskResult
 from smcbayes.simulation.runner import Runner
 
@@ -107,21 +108,16 @@ def test_tags_separate_runs_and_models() -> None:
     assert cache_tag(ident) != cache_tag(ident, ("press_compliance",))
 
 
-
 def test_the_tag_changes_with_the_model_code(monkeypatch: pytest.MonkeyPatch) -> None:
     """A fixed forward model must not read what its earlier code cached, although the
     package's version is unchanged."""
-    from smcbayes.run import cache
-
     ident = {"project": {"name": "a"}}
     before = cache_tag(ident)
-    monkeypatch.setattr(cache, "model_source", lambda: "another model")
+    monkeypatch.setattr(cache_module, "model_source", lambda: "another model")
     assert cache_tag(ident) != before
 
 
 def test_the_source_digest_follows_every_model_file(tmp_path: Path) -> None:
-    from smcbayes.run.cache import MODEL_PACKAGES, source_digest
-
     assert source_digest(tmp_path) == "unknown"
     for package in MODEL_PACKAGES:
         (tmp_path / package / "sub").mkdir(parents=True)
