@@ -40,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("run_dir", help="directory of a `smcbayes calibrate` run")
     for name, kind, metavar in (("walkers", int, None), ("steps", int, None), ("functions", int, None),
                                 ("refine", int, "N"), ("round_runs", int, "N"), ("draws", int, None),
-                                ("correct_draws", int, "D"), ("seed", int, None)):
+                                ("correct_draws", int, "D"), ("seed", int, None), ("threads", int, "T")):
         p.add_argument("--" + name.replace("_", "-"), type=kind, default=None, metavar=metavar,
                        help=help_of(PosteriorSpec, name))
     p.add_argument("--pool-functions", action=argparse.BooleanOptionalAction, default=None,
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     run_dir.require()
     project = run_dir.identity().project_config()
     fields = ("emulator", "walkers", "steps", "functions", "pool_functions", "refine", "round_runs", "draws",
-              "correct_draws", "seed")
+              "correct_draws", "seed", "threads")
     settings = override(project.posterior, {k: getattr(args, k) for k in fields})
     run_dir.record_command("posterior", args.argv)
     with warnings.catch_warnings():

@@ -235,6 +235,11 @@ class PosteriorSpec(Strict):
     draws: int = Field(100, ge=1, le=1_000_000,
                        description="posterior draws through the forward model for bands and checks")
     seed: int = Field(0, ge=0, description="random seed (same seed, same posterior)")
+    threads: int | None = Field(None, ge=1, le=1024,
+                                description="threads of the emulator's arithmetic (sample functions and "
+                                            "batches of the importance samples run side by side); "
+                                            "default: the cores this process may use; the posterior is "
+                                            "the same to the last digit whatever the number")
     refine_tolerance_nats: float = Field(
         1.0, gt=0, description="active learning stops once the emulator's out-of-sample error at "
                                "fresh posterior draws is below this (nats) in three rounds in a row, the "

@@ -25,8 +25,8 @@ from smcbayes.forward._interp_kernel import _bracket
 # numpy's error model: a division by zero gives inf or NaN, as in the numpy code it replaces.
 # The on-disk cache is keyed to this file only: after a change to ``_bracket`` it must be
 # cleared (the __pycache__ entries of this module), or the old compiled call stays in use.
-_jit = njit(cache=True, error_model="numpy")
-_parallel = njit(cache=True, error_model="numpy", parallel=True)
+_jit = njit(cache=True, error_model="numpy", nogil=True)
+_parallel = njit(cache=True, error_model="numpy", parallel=True, nogil=True)
 
 
 @_jit

@@ -25,8 +25,8 @@ from numpy.typing import NDArray
 
 # numpy's error model; no fast-math, so that the compiler keeps the order of the
 # arithmetic (the exponential is still the platform's)
-_jit = njit(cache=True, error_model="numpy")
-_parallel = njit(cache=True, error_model="numpy", parallel=True)
+_jit = njit(cache=True, error_model="numpy", nogil=True)
+_parallel = njit(cache=True, error_model="numpy", parallel=True, nogil=True)
 
 
 @_jit

@@ -22,8 +22,8 @@ from numpy.typing import NDArray
 
 # numpy's error model, as in the numpy code it replaces; no fast-math: the same result
 # on every machine
-_jit = njit(cache=True, error_model="numpy")
-_parallel = njit(cache=True, error_model="numpy", parallel=True)
+_jit = njit(cache=True, error_model="numpy", nogil=True)
+_parallel = njit(cache=True, error_model="numpy", parallel=True, nogil=True)
 
 
 @_jit

@@ -30,6 +30,7 @@ from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample, cor
 from smcbayes.posterior.curve_spread import curve_spread
 from smcbayes.posterior.curves import CurveEmulator, log_posterior
 from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
+from smcbayes.posterior.threads import thread_map
 
 logger = logging.getLogger(__name__)
 
@@ -156,6 +157,17 @@ def curve_chains(emulation: CurveEmulation, settings: PosteriorSpec,
                           settings.walkers, variance=EXPECTED_LOSS, label=" (curve emulator)")]
 
 
+def batched(log_prob: Callable[[Array], Array]) -> Callable[[Array], Array]:
+    """``log_prob`` ``(P, d) -> (P,)`` evaluated in batches of :data:`EMULATOR_BATCH` rows
+    shared out over the emulator's threads (:func:`~smcbayes.posterior.threads.thread_map`):
+    each call builds ``(rows, points)`` correlations and ``(rows, features)`` curves."""
+    def evaluate(u: Array) -> Array:
+        parts = thread_map(log_prob, [u[i:i + EMULATOR_BATCH] for i in range(0, len(u), EMULATOR_BATCH)])
+        return np.concatenate(parts) if parts else np.empty(0)
+
+    return evaluate
+
+
 def emulator_sample(emulator: CurveEmulator, n_eff: float, start: Array, spec: CorrectionSettings,
                     draws: int, rng: np.random.Generator, aim: float = 0.0,
                     per_iteration: int = EMULATOR_ITERATION) -> ImportanceSample:
@@ -164,7 +176,9 @@ def emulator_sample(emulator: CurveEmulator, n_eff: float, start: Array, spec: C
     at most ``draws`` emulator evaluations in iterations of ``per_iteration`` and no forward
     run.  It is settled at the correction's k-hat target and an ESS of at least the
     correction's target and ``2 * ROUND_ESS``, and once settled draws on to an ESS of ``aim``."""
-    run = spec.model_copy(update={"draws": draws, "batch": EMULATOR_BATCH, "per_iteration": per_iteration,
+    # every draw of an iteration in one call, shared out in batches of EMULATOR_BATCH rows
+    # over the emulator's threads (the batches of one call at a time before: the same rows)
+    run = spec.model_copy(update={"draws": draws, "batch": max(draws, 1), "per_iteration": per_iteration,
                                   "ess_target": max(spec.ess_target, 2 * ROUND_ESS)})
     if len(start) > START_ROWS:  # the first proposal's mixture fit needs no more
         start = start[rng.choice(len(start), START_ROWS, replace=False)]
@@ -172,7 +186,7 @@ def emulator_sample(emulator: CurveEmulator, n_eff: float, start: Array, spec: C
         # the correction's own warnings name its forward-model options; the stage's
         # reliability reasons say what an unsettled sample of the emulator means
         warnings.simplefilter("ignore", SmcBayesWarning)
-        sample = correct(log_posterior(emulator, n_eff, variance=EXPECTED_LOSS), start, run, rng,
+        sample = correct(batched(log_posterior(emulator, n_eff, variance=EXPECTED_LOSS)), start, run, rng,
                          label="importance sampling of the emulator", runs="emulator evaluations", aim=aim)
     return dataclasses.replace(sample, target="emulator", warnings=[])
 
@@ -227,8 +241,7 @@ def quantile_shift(sample: ImportanceSample, before: Callable[[Array], Array]) -
     w = sample.weights
     keep = w > 0
     u, w = sample.unit[keep], w[keep]
-    # in batches: each call builds (rows, points) correlations and (rows, features) curves
-    old = np.concatenate([before(u[i:i + EMULATOR_BATCH]) for i in range(0, len(u), EMULATOR_BATCH)])
+    old = batched(before)(u)
     log_ratio = old - sample.log_target[keep]
     finite = np.isfinite(log_ratio)
     if not np.any(finite):

@@ -40,6 +40,7 @@ from smcbayes.errors import SurrogateError
 from smcbayes.posterior.correct import ImportanceSample
 from smcbayes.posterior.curves import CurveEmulator, matern52
 from smcbayes.posterior.spread import QUANTILES
+from smcbayes.posterior.threads import thread_map
 from smcbayes.posterior.weights import ess_of, weighted_quantile
 
 Array = NDArray[np.float64]
@@ -182,7 +183,8 @@ def function_posteriors(emulator: CurveEmulator, n_eff: float, sample: Importanc
     posterior)."""
     rows, log_w0 = _support(sample, rng)
     x, base = sample.unit[rows], sample.log_target[rows]
-    lik = np.array([_log_lik(emulator, out, n_eff) for out in joint_outputs(emulator, x, functions, rng)])
+    outputs = joint_outputs(emulator, x, functions, rng)
+    lik = np.array(thread_map(lambda out: _log_lik(emulator, out, n_eff), outputs))
     log_ws = np.array([_normalised(log_w0 + lj - base) for lj in lik])
     return FunctionPosteriors(rows, _normalised(log_w0), log_ws, lik)
 

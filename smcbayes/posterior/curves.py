@@ -54,6 +54,7 @@ from smcbayes.errors import ConfigError
 from smcbayes.forward.nodes import interp_rows
 from smcbayes.forward.result import SimulationResult
 from smcbayes.posterior._blocks import BLOCK, PARALLEL_ROWS
+from smcbayes.posterior.threads import in_worker
 from smcbayes.simulation.problem import Problem
 
 Array = NDArray[np.float64]
@@ -162,7 +163,7 @@ class CurveFeatures:
 
         k_count, n = len(self.ids), self.nodes
         out = np.zeros(features.shape[0])
-        threaded = len(out) >= PARALLEL_ROWS
+        threaded = len(out) >= PARALLEL_ROWS and not in_worker()
         for k, m in enumerate(self.measured):
             ts = np.maximum(features[:, k_count * n + k], 1e-9)
             delay = self._delays(features, k)
@@ -198,7 +199,7 @@ def matern52(a: Array, b: Array | None, lengthscales: Array) -> Array:
         return out
     out = np.empty((len(sa), len(b)))
     sbt = np.ascontiguousarray((np.asarray(b, dtype=float) / lengthscales).T)
-    if len(sa) >= PARALLEL_ROWS:
+    if len(sa) >= PARALLEL_ROWS and not in_worker():
         matern52_rows_parallel(sa, sbt, out, BLOCK)
     else:
         matern52_rows(sa, sbt, out)

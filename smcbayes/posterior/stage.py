@@ -51,6 +51,7 @@ from smcbayes.posterior.reliability import assess
 from smcbayes.posterior.report import write_outputs
 from smcbayes.posterior.sampler import Chains
 from smcbayes.posterior.summary import stack_components
+from smcbayes.posterior.threads import emulator_threads
 from smcbayes.run import RunDir
 from smcbayes.simulation.executors.base import Executor
 from smcbayes.surrogate.gp import gp_session, load_surrogate
@@ -313,7 +314,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     rng = np.random.default_rng(settings.seed)
     calibration_gp, _ = load_surrogate(ctx.run.gp_path)
     # torch and BLAS on one thread: two made the GP fits and the emulators slower (gp_session)
-    with ctx.runner, gp_session():
+    with ctx.runner, gp_session(), emulator_threads(settings.threads):
         fit = local_fit(ctx)
         budget = residual_budget(ctx, fit)
         n_eff = budget["n_eff_total"]

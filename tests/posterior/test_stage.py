@@ -671,6 +671,37 @@ def test_the_curve_emulator_spread_and_its_pooled_posterior(run_dir: Path) -> No
         np.testing.assert_allclose(q_same, q_mean, atol=0.02)
 
 
+def test_the_emulated_posterior_is_the_same_to_the_bit_on_one_thread_and_on_two(run_dir: Path) -> None:
+    """The sample functions and the importance sample's batches run side by side on the
+    emulator's threads, each task's rows as on one thread: the same values, the same path."""
+    from smcbayes.posterior import curve_sample
+    from smcbayes.posterior.curve_spread import curve_spread
+    from smcbayes.posterior.curves import log_posterior
+    from smcbayes.posterior.threads import emulator_threads
+
+    features, u, y, _ = _rows(run_dir, 25, 5)
+    emulator = CurveEmulator(features, u, y)
+    sample = _emulator_sample(emulator, 4.0, 9000, 6)
+    start = np.random.default_rng(0).random((400, u.shape[1]))
+    spec = CorrectionSettings(ess_target=2 * curve_sample.ROUND_ESS)
+    before = log_posterior(CurveEmulator(features, u[:20], y[:20]), 4.0)
+    runs = []
+    for count in (1, 2):
+        with emulator_threads(count):
+            spread, pooled = curve_spread(emulator, 4.0, sample, ["a", "b"], np.random.default_rng(1),
+                                          functions=5, supports=2)
+            drawn = curve_sample.emulator_sample(emulator, 4.0, start, spec, 12000, np.random.default_rng(2),
+                                                 per_iteration=6000)
+            runs.append((spread, pooled, drawn, curve_sample.quantile_shift(drawn, before)))
+    (s1, p1, d1, q1), (s2, p2, d2, q2) = runs
+    assert s1 == s2 and q1 == q2 and q1 > 0.0
+    np.testing.assert_array_equal(p1.log_weight, p2.log_weight)
+    # two batches of an iteration (6,000 draws, 4,000 a batch) ran on the two threads
+    assert len(d1.unit) >= 6000 > curve_sample.EMULATOR_BATCH
+    np.testing.assert_array_equal(d1.unit, d2.unit)
+    np.testing.assert_array_equal(d1.log_target, d2.log_target)
+
+
 def test_the_reported_emulator_sample_aims_past_the_target_it_is_settled_at(
         run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The emulated posterior's importance sample draws on to the higher ESS it aims at,

@@ -1,0 +1,64 @@
+"""The emulator's threads: tasks in order, the same values whatever their number."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from smcbayes.posterior import threads
+from smcbayes.posterior.threads import emulator_threads, in_worker, thread_map
+
+
+def test_outside_the_threads_tasks_run_in_order_on_the_calling_thread() -> None:
+    seen: list[tuple[int, str]] = []
+
+    def task(k: int) -> int:
+        seen.append((k, threading.current_thread().name))
+        return k * k
+
+    assert thread_map(task, range(5)) == [0, 1, 4, 9, 16]
+    assert seen == [(k, threading.current_thread().name) for k in range(5)]
+    assert not in_worker()
+
+
+def test_inside_the_threads_results_keep_their_order_and_nested_maps_run_inline() -> None:
+    def task(k: int) -> tuple[int, bool, list[int]]:
+        # a map inside a task runs on the task's own thread (no worker waits on itself)
+        return k, in_worker(), thread_map(lambda j: j + k, range(3))
+
+    with emulator_threads(2) as count:
+        assert count == 2
+        out = thread_map(task, range(6))
+    assert [o[0] for o in out] == list(range(6)) and all(o[1] for o in out)
+    assert [o[2] for o in out] == [[k, k + 1, k + 2] for k in range(6)]
+    assert not in_worker()
+
+
+def test_numpy_tasks_give_the_same_bits_on_one_thread_and_on_several() -> None:
+    rng = np.random.default_rng(0)
+    a, b = rng.standard_normal((6, 300, 60)), rng.standard_normal((60, 500))
+
+    def task(x: np.ndarray) -> np.ndarray:
+        return np.exp(np.tanh(x @ b)).sum(axis=1)
+
+    with emulator_threads(1):
+        one = thread_map(task, list(a))
+    with emulator_threads(3):
+        three = thread_map(task, list(a))
+    for p, q in zip(one, three, strict=True):
+        np.testing.assert_array_equal(p, q)
+
+
+def test_a_count_below_one_is_refused() -> None:
+    with pytest.raises(ValueError, match="at least 1"), emulator_threads(0):
+        pass
+
+
+def test_numbas_workqueue_layer_keeps_one_thread(monkeypatch: pytest.MonkeyPatch) -> None:
+    """numba's fallback threading layer aborts when two threads run its parallel kernels."""
+    monkeypatch.setattr(threads, "_kernels_thread_safe", lambda: False)
+    with emulator_threads(4) as count:
+        assert count == 1
+        assert thread_map(lambda k: (k, in_worker()), range(3)) == [(0, False), (1, False), (2, False)]
