@@ -40,6 +40,14 @@ from scipy.special import logsumexp
 
 Array = NDArray[np.float64]
 
+VAR_FLOOR = 1e-10
+"""Least variance of a coordinate (unit cube) of the covariances the proposals are shaped by:
+it keeps a degenerate sample from giving a singular kernel, and must lie below the
+narrowest posterior the samplers meet.  Data can pin a parameter to a tiny share of its
+range: the demo's press-frame stiffness has a posterior sd of 8e-5 of its log range, so a
+floor of 1e-4 (sd 0.01) made the kernels a hundred times too wide in that direction and
+most draws fell where the posterior has no mass."""
+
 
 @dataclass(frozen=True)
 class Mixture:
@@ -100,7 +108,10 @@ def thin(x: Array, w: Array, count: int, rng: np.random.Generator) -> tuple[Arra
         return x, w
     w = w / np.sum(w)
     # sum_i min(1, c w_i) grows with c from count (at c = count) to N: bisect on log c
-    lo, hi = np.log(count), np.log(count / np.min(w[w > 0]))
+    with np.errstate(over="ignore"):
+        ratio = count / np.min(w[w > 0])
+    # a subnormal weight (a point 700 nats below the heaviest) overflows the ratio
+    lo, hi = np.log(count), (np.log(ratio) if np.isfinite(ratio) else np.log(count) - np.log(np.min(w[w > 0])))
     for _ in range(60):
         c = 0.5 * (lo + hi)
         lo, hi = (c, hi) if np.minimum(1.0, np.exp(c) * w).sum() < count else (lo, c)
@@ -110,7 +121,7 @@ def thin(x: Array, w: Array, count: int, rng: np.random.Generator) -> tuple[Arra
 
 
 def fit_mixture(x: Array, w: Array, components: int, rng: np.random.Generator,
-                iterations: int = 60, tol: float = 1e-6, var_floor: float = 1e-4,
+                iterations: int = 60, tol: float = 1e-6, var_floor: float = VAR_FLOOR,
                 max_points: int = 3000) -> Mixture:
     """Weighted EM fit of a Gaussian mixture (see the module docstring).
 

@@ -16,7 +16,7 @@ from scipy.special import gammaln, logsumexp
 
 from smcbayes.config import CorrectionSpec
 from smcbayes.posterior._blocks import BLOCK, PARALLEL_ROWS
-from smcbayes.posterior.mixture import fit_mixture
+from smcbayes.posterior.mixture import VAR_FLOOR, fit_mixture
 from smcbayes.posterior.weights import ess_of, temper, weighted_cov
 
 Array = NDArray[np.float64]
@@ -199,7 +199,7 @@ def fit_proposal(u: Array, log_w: Array | None, settings: CorrectionSettings, rn
     cov = weighted_cov(u, w)
     # a floor keeps a degenerate sample (one heavy point, a parameter at a bound) from
     # producing a singular kernel
-    cov += np.diag(np.maximum(1e-4 - np.diag(cov), 0.0)) + 1e-9 * np.eye(d)
+    cov += np.diag(np.maximum(VAR_FLOOR - np.diag(cov), 0.0)) + 1e-9 * np.eye(d)
     m = min(settings.centres, n)
     ess = ess_of(lw) if log_w is not None else float(n)
     m_eff = min(m, ess)

@@ -186,6 +186,28 @@ def test_fit_proposal_covers_a_degenerate_sample() -> None:
     assert np.all(np.isfinite(q.log_pdf(rng.random((10, 2)))))
 
 
+def test_a_posterior_pinned_to_a_tiny_share_of_its_range_gets_kernels_of_its_width() -> None:
+    """Data can pin a parameter to 1e-4 of its range: the kernels must shrink to that width
+    (a floor of the variance far above it made them a hundred times wider) and the weights
+    then estimate its spread."""
+    mu, sd = np.array([0.4, 0.6]), np.array([0.1, 1e-4])
+
+    def narrow(u: np.ndarray) -> np.ndarray:
+        z = (np.atleast_2d(u) - mu) / sd
+        return -0.5 * np.sum(z * z, axis=1)
+
+    rng = np.random.default_rng(0)
+    start = rng.normal(mu, 1.5 * sd, size=(3000, 2))
+    settings = CorrectionSettings(draws=4000, per_iteration=1000, ess_target=np.inf)
+    q = fit_proposal(start, None, settings, rng)
+    kernel_sd = np.sqrt(np.einsum("kij,kij->ki", q.chol, q.chol))  # (centres, d)
+    assert np.all(kernel_sd[:, 1] < 3 * sd[1]) and np.all(kernel_sd[:, 0] > 3e-3)
+    res = correct(narrow, start, settings, rng)
+    mean, spread, _ = weighted_moments(res.unit[res.weights > 0], res.weights[res.weights > 0])
+    np.testing.assert_allclose(spread, sd, rtol=0.1)
+    assert abs(mean[1] - mu[1]) < 0.1 * sd[1] and res.ess > 1000
+
+
 @pytest.mark.parametrize("q", [0.05, 0.5, 0.95])
 def test_weighted_quantile_equal_weights(q: float) -> None:
     x = np.random.default_rng(6).standard_normal(4001)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy.stats import multivariate_normal
 
@@ -68,3 +70,18 @@ def test_thinning_keeps_heavy_points_and_the_weighted_mean() -> None:
     heaviest = x[np.argsort(w)[-50:]]
     assert all(np.any(np.all(xt == h, axis=1)) for h in heaviest)
     np.testing.assert_allclose(wt @ xt / wt.sum(), w @ x, atol=0.01)
+
+
+def test_thinning_a_sample_with_subnormal_weights_keeps_its_count_without_a_warning() -> None:
+    """A point 700 nats below the heaviest has a subnormal weight: the bisection's bound
+    comes from logarithms, not from an overflowing ratio (which kept every point)."""
+    rng = np.random.default_rng(4)
+    x = rng.random((20000, 2))
+    log_w = -1500.0 * np.sum((x - 0.5) ** 2, axis=1)
+    w = np.exp(log_w - log_w.max())
+    assert 0.0 < w[w > 0].min() < np.finfo(float).tiny
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        xt, wt = thin(x, w / w.sum(), 2000, rng)
+    assert 1800 < xt.shape[0] < 2200
+    np.testing.assert_allclose(wt @ xt / wt.sum(), w @ x / w.sum(), atol=0.01)
