@@ -80,7 +80,8 @@ START_ROWS = 4000
 """Most draws the first proposal of an importance sampling of the emulator is fitted to."""
 
 EMULATOR_BATCH = 4000
-"""Emulator evaluations per call of the importance sampling."""
+"""Rows of one emulator call of an importance sample (each a task of the emulator's threads,
+:func:`batched`)."""
 
 EMULATOR_ITERATION = 2000
 """Proposal draws per iteration of the importance sampling of the emulator: each
@@ -176,8 +177,7 @@ def emulator_sample(emulator: CurveEmulator, n_eff: float, start: Array, spec: C
     at most ``draws`` emulator evaluations in iterations of ``per_iteration`` and no forward
     run.  It is settled at the correction's k-hat target and an ESS of at least the
     correction's target and ``2 * ROUND_ESS``, and once settled draws on to an ESS of ``aim``."""
-    # every draw of an iteration in one call, shared out in batches of EMULATOR_BATCH rows
-    # over the emulator's threads (the batches of one call at a time before: the same rows)
+    # an iteration's draws reach the target at once, which cuts them into EMULATOR_BATCH rows
     run = spec.model_copy(update={"draws": draws, "batch": max(draws, 1), "per_iteration": per_iteration,
                                   "ess_target": max(spec.ess_target, 2 * ROUND_ESS)})
     if len(start) > START_ROWS:  # the first proposal's mixture fit needs no more

@@ -41,12 +41,13 @@ from scipy.special import logsumexp
 Array = NDArray[np.float64]
 
 VAR_FLOOR = 1e-10
-"""Least variance of a coordinate (unit cube) of the covariances the proposals are shaped by:
-it keeps a degenerate sample from giving a singular kernel, and must lie below the
-narrowest posterior the samplers meet.  Data can pin a parameter to a tiny share of its
-range: the demo's press-frame stiffness has a posterior sd of 8e-5 of its log range, so a
-floor of 1e-4 (sd 0.01) made the kernels a hundred times too wide in that direction and
-most draws fell where the posterior has no mass."""
+"""Least variance of a coordinate (unit cube) of the covariances the proposals are shaped by,
+against a degenerate sample; it lies below the jitter of 1e-9 added to every covariance and
+kernel, which keeps them positive definite and sets their least width (a unit-cube sd of
+about 3e-5).  A floor must lie below the narrowest posterior the samplers meet, and data
+can pin a parameter to a tiny share of its range: the demo's press-frame stiffness has a
+posterior sd of 8e-5 of its log range, where a floor of 1e-4 (sd 0.01) made the kernels a
+hundred times too wide and most draws fell where the posterior has no mass."""
 
 
 @dataclass(frozen=True)
@@ -107,15 +108,21 @@ def thin(x: Array, w: Array, count: int, rng: np.random.Generator) -> tuple[Arra
     if x.shape[0] <= count:
         return x, w
     w = w / np.sum(w)
+    with np.errstate(over="ignore", divide="ignore"):
+        ratio, log_w = count / np.min(w[w > 0]), np.log(w)
+    # a weight below count / DBL_MAX (about 700 nats below their sum) overflows the ratio and
+    # exp(c): the bisection then runs on logarithms
+    huge = not np.isfinite(ratio)
+
+    def kept(c: float) -> Array:
+        return np.exp(np.minimum(c + log_w, 0.0)) if huge else np.minimum(1.0, np.exp(c) * w)
+
     # sum_i min(1, c w_i) grows with c from count (at c = count) to N: bisect on log c
-    with np.errstate(over="ignore"):
-        ratio = count / np.min(w[w > 0])
-    # a subnormal weight (a point 700 nats below the heaviest) overflows the ratio
-    lo, hi = np.log(count), (np.log(ratio) if np.isfinite(ratio) else np.log(count) - np.log(np.min(w[w > 0])))
+    lo, hi = np.log(count), (np.log(count) - np.min(log_w[w > 0]) if huge else np.log(ratio))
     for _ in range(60):
         c = 0.5 * (lo + hi)
-        lo, hi = (c, hi) if np.minimum(1.0, np.exp(c) * w).sum() < count else (lo, c)
-    p = np.minimum(1.0, np.exp(hi) * w)
+        lo, hi = (c, hi) if kept(c).sum() < count else (lo, c)
+    p = kept(hi)
     keep = rng.random(x.shape[0]) < p
     return x[keep], w[keep] / p[keep]
 

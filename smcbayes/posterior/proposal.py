@@ -17,6 +17,7 @@ from scipy.special import gammaln, logsumexp
 from smcbayes.config import CorrectionSpec
 from smcbayes.posterior._blocks import BLOCK, PARALLEL_ROWS
 from smcbayes.posterior.mixture import VAR_FLOOR, fit_mixture
+from smcbayes.posterior.threads import in_worker
 from smcbayes.posterior.weights import ess_of, temper, weighted_cov
 
 Array = NDArray[np.float64]
@@ -88,7 +89,7 @@ class Proposal:
         out = np.empty(u.shape[0])
         args = (u, np.ascontiguousarray(shift), np.ascontiguousarray(inv.transpose(1, 2, 0)), const,
                 float(self.nu), out)
-        if len(u) >= PARALLEL_ROWS:
+        if len(u) >= PARALLEL_ROWS and not in_worker():
             t_mixture_logpdf_parallel(*args, BLOCK)
         else:
             t_mixture_logpdf(*args)

@@ -314,7 +314,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     rng = np.random.default_rng(settings.seed)
     calibration_gp, _ = load_surrogate(ctx.run.gp_path)
     # torch and BLAS on one thread: two made the GP fits and the emulators slower (gp_session)
-    with ctx.runner, gp_session(), emulator_threads(settings.threads):
+    with ctx.runner, gp_session(), emulator_threads(settings.threads) as threads:
         fit = local_fit(ctx)
         budget = residual_budget(ctx, fit)
         n_eff = budget["n_eff_total"]
@@ -338,6 +338,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
                              "emulator_spread": final.seconds["spread"] if final else t_outputs - t_spread,
                              "outputs": time.perf_counter() - t_outputs}
     info["active_learning"] = {**emulated.active, "start_points": emulated.start_points}
+    info["emulator_threads"] = threads
     _count_runs(info["forward_evaluations"], emulated.active["evaluations"], 2 * ctx.space.dim + 1)
     info["reliability"] = assess(info, ctx.space, ctx.summary.get("best_loss_kN2"), ctx.noise_free)
     info["reliable"] = info["reliability"]["reliable"]

@@ -2,8 +2,8 @@
 number.
 
 The stage's samplers spend most of its time in numpy's and numba's arithmetic on the
-emulators, one batch at a time, and numpy releases the interpreter's lock inside its
-products and ufuncs.  Independent tasks of a fixed shape (the log-likelihoods of the GP
+emulators, one batch at a time, and numpy (in its products and ufuncs) and the compiled
+kernels release the interpreter's lock.  Independent tasks of a fixed shape (the log-likelihoods of the GP
 sample functions on a support, the fixed-size batches of an importance sample) therefore
 run side by side on a few threads, each exactly as it would alone: a task's rows are never
 split anew, so every value is the same to the last bit whatever the number of threads, and
@@ -32,8 +32,8 @@ R = TypeVar("R")
 
 _LOCAL = threading.local()
 
-_POOL: contextvars.ContextVar[ThreadPoolExecutor | None] = contextvars.ContextVar("emulator_threads",
-                                                                                    default=None)
+_POOL: contextvars.ContextVar[tuple[ThreadPoolExecutor, int] | None] = contextvars.ContextVar(
+    "emulator_threads", default=None)
 
 
 def default_threads() -> int:
@@ -52,11 +52,6 @@ def emulator_threads(threads: int | None = None) -> Iterator[int]:
     count = default_threads() if threads is None else int(threads)
     if count < 1:
         raise ValueError(f"emulator threads must be at least 1, not {count}")
-    if count > 1 and not _kernels_thread_safe():
-        logger.info("numba's threading layer is 'workqueue', whose compiled kernels must not run on "
-                    "two threads at once: the emulator's arithmetic runs on one thread (install tbb "
-                    "for more)")
-        count = 1
     if count == 1:
         token = _POOL.set(None)
         try:
@@ -65,7 +60,7 @@ def emulator_threads(threads: int | None = None) -> Iterator[int]:
             _POOL.reset(token)
         return
     with ThreadPoolExecutor(count, thread_name_prefix="smcbayes-emulator", initializer=_mark_worker) as pool:
-        token = _POOL.set(pool)
+        token = _POOL.set((pool, count))
         logger.debug("emulator arithmetic on %d threads", count)
         try:
             yield count
@@ -79,27 +74,21 @@ def _mark_worker() -> None:
 
 def in_worker() -> bool:
     """Whether this thread is one of :func:`emulator_threads`'s: its tasks already share the
-    cores, so the compiled kernels run serially there (numba's threads on top of them would
-    only contend; a kernel's values do not depend on its threads)."""
+    cores, so the compiled kernels run serially there (a kernel's values do not depend on
+    its threads; numba's threads on top of the tasks would only contend, and its fallback
+    threading layer, ``workqueue``, aborts when two threads start its parallel kernels)."""
     return bool(getattr(_LOCAL, "worker", False))
-
-
-def _kernels_thread_safe() -> bool:
-    """Whether numba's threading layer lets its parallel kernels run from several threads at
-    once: 'tbb' and 'omp' do, 'workqueue' (numba's fallback) aborts the process."""
-    import numba
-
-    numba.get_num_threads()  # starts the layer, whose name is known only then
-    return str(numba.threading_layer()) != "workqueue"
 
 
 def thread_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
     """``[fn(item) for item in items]``, the calls shared out over the threads of the
-    enclosing :func:`emulator_threads` (in order on this thread outside one, or when called
-    from one of its threads, which would otherwise wait on themselves).  ``fn`` must not
-    draw random numbers or change shared state: the tasks' order of completion varies."""
-    pool = _POOL.get()
+    enclosing :func:`emulator_threads` when there are at least as many calls as threads.
+    Otherwise they run in order on this thread, whose compiled kernels may use every core:
+    outside the threads, with fewer calls than threads, and in one of the threads (which
+    would otherwise wait on itself).  ``fn`` must not draw random numbers or change shared
+    state: the calls' order of completion varies."""
+    open_pool = _POOL.get()
     work = list(items)
-    if pool is None or len(work) < 2:
+    if open_pool is None or in_worker() or len(work) < open_pool[1]:
         return [fn(item) for item in work]
-    return list(pool.map(fn, work))
+    return list(open_pool[0].map(fn, work))

@@ -186,6 +186,18 @@ def test_fit_proposal_covers_a_degenerate_sample() -> None:
     assert np.all(np.isfinite(q.log_pdf(rng.random((10, 2)))))
 
 
+def test_the_correction_recovers_from_a_degenerate_start() -> None:
+    """Every start draw at one point off the posterior: the first kernels are a sliver, and
+    the defensive prior's draws carry the next proposals to the posterior."""
+    rng = np.random.default_rng(0)
+    start = np.tile(MU + np.array([0.1, -0.1, 0.05]), (3000, 1))
+    res = correct(log_target, start, CorrectionSettings(draws=3000, per_iteration=500, ess_target=np.inf), rng)
+    mean, sd, _ = weighted_moments(res.unit[res.weights > 0], res.weights[res.weights > 0])
+    assert res.history[0]["ess"] < 10 and res.ess > 500 and res.k_hat < 0.5
+    np.testing.assert_allclose(mean, MU, atol=0.01)
+    np.testing.assert_allclose(sd, SD, rtol=0.05)
+
+
 def test_a_posterior_pinned_to_a_tiny_share_of_its_range_gets_kernels_of_its_width() -> None:
     """Data can pin a parameter to 1e-4 of its range: the kernels must shrink to that width
     (a floor of the variance far above it made them a hundred times wider) and the weights

@@ -72,16 +72,19 @@ def test_thinning_keeps_heavy_points_and_the_weighted_mean() -> None:
     np.testing.assert_allclose(wt @ xt / wt.sum(), w @ x, atol=0.01)
 
 
-def test_thinning_a_sample_with_subnormal_weights_keeps_its_count_without_a_warning() -> None:
-    """A point 700 nats below the heaviest has a subnormal weight: the bisection's bound
-    comes from logarithms, not from an overflowing ratio (which kept every point)."""
+def test_thinning_weights_700_nats_below_their_sum_keeps_its_count_without_a_warning() -> None:
+    """A weight below count / DBL_MAX overflows count / w and exp(c): the bisection runs on
+    logarithms (the overflow kept every point)."""
     rng = np.random.default_rng(4)
     x = rng.random((20000, 2))
     log_w = -1500.0 * np.sum((x - 0.5) ** 2, axis=1)
     w = np.exp(log_w - log_w.max())
-    assert 0.0 < w[w > 0].min() < np.finfo(float).tiny
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        xt, wt = thin(x, w / w.sum(), 2000, rng)
-    assert 1800 < xt.shape[0] < 2200
-    np.testing.assert_allclose(wt @ xt / wt.sum(), w @ x / w.sum(), atol=0.01)
+    assert 0.0 < w[w > 0].min() < np.finfo(float).tiny  # subnormal
+    # 1,000 heavy points and the rest 720 nats lighter: the threshold itself lies past exp's range
+    two = np.where(np.arange(20000) < 1000, 1.0, np.exp(-720.0))
+    for weights, count in ((w, 2000), (two, 3000)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            xt, wt = thin(x, weights / weights.sum(), count, rng)
+        assert 0.9 * count < xt.shape[0] < 1.1 * count
+        np.testing.assert_allclose(wt @ xt / wt.sum(), weights @ x / weights.sum(), atol=0.02)

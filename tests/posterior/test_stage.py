@@ -694,7 +694,8 @@ def test_the_emulated_posterior_is_the_same_to_the_bit_on_one_thread_and_on_two(
                                                  per_iteration=6000)
             runs.append((spread, pooled, drawn, curve_sample.quantile_shift(drawn, before)))
     (s1, p1, d1, q1), (s2, p2, d2, q2) = runs
-    assert s1 == s2 and q1 == q2 and q1 > 0.0
+    np.testing.assert_equal(s1, s2)  # NaN equal to NaN, as a function's ESS may be
+    assert q1 == q2 and q1 > 0.0
     np.testing.assert_array_equal(p1.log_weight, p2.log_weight)
     # two batches of an iteration (6,000 draws, 4,000 a batch) ran on the two threads
     assert len(d1.unit) >= 6000 > curve_sample.EMULATOR_BATCH

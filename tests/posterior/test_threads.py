@@ -7,7 +7,6 @@ import threading
 import numpy as np
 import pytest
 
-from smcbayes.posterior import threads
 from smcbayes.posterior.threads import emulator_threads, in_worker, thread_map
 
 
@@ -56,9 +55,19 @@ def test_a_count_below_one_is_refused() -> None:
         pass
 
 
-def test_numbas_workqueue_layer_keeps_one_thread(monkeypatch: pytest.MonkeyPatch) -> None:
-    """numba's fallback threading layer aborts when two threads run its parallel kernels."""
-    monkeypatch.setattr(threads, "_kernels_thread_safe", lambda: False)
-    with emulator_threads(4) as count:
-        assert count == 1
-        assert thread_map(lambda k: (k, in_worker()), range(3)) == [(0, False), (1, False), (2, False)]
+def test_fewer_calls_than_threads_run_on_the_calling_thread() -> None:
+    """There the calls' compiled kernels may share every core out themselves."""
+    with emulator_threads(3):
+        assert thread_map(lambda k: in_worker(), range(2)) == [False, False]
+        assert all(thread_map(lambda k: in_worker(), range(3)))
+
+
+def test_an_error_in_a_call_reaches_the_caller_and_the_threads_close() -> None:
+    def task(k: int) -> int:
+        if k == 3:
+            raise ArithmeticError("row 3")
+        return k
+
+    with pytest.raises(ArithmeticError, match="row 3"), emulator_threads(2):
+        thread_map(task, range(6))
+    assert thread_map(lambda k: in_worker(), range(4)) == [False] * 4
