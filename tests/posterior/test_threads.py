@@ -23,15 +23,17 @@ def test_outside_the_threads_tasks_run_in_order_on_the_calling_thread() -> None:
 
 
 def test_inside_the_threads_results_keep_their_order_and_nested_maps_run_inline() -> None:
-    def task(k: int) -> tuple[int, bool, list[int]]:
+    def task(k: int) -> tuple[int, bool, list[tuple[int, str]], str]:
         # a map inside a task runs on the task's own thread (no worker waits on itself)
-        return k, in_worker(), thread_map(lambda j: j + k, range(3))
+        inner = thread_map(lambda j: (j + k, threading.current_thread().name), range(3))
+        return k, in_worker(), inner, threading.current_thread().name
 
     with emulator_threads(2) as count:
         assert count == 2
         out = thread_map(task, range(6))
     assert [o[0] for o in out] == list(range(6)) and all(o[1] for o in out)
-    assert [o[2] for o in out] == [[k, k + 1, k + 2] for k in range(6)]
+    assert [[v for v, _ in o[2]] for o in out] == [[k, k + 1, k + 2] for k in range(6)]
+    assert all(name == o[3] for o in out for _, name in o[2])
     assert not in_worker()
 
 
