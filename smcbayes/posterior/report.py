@@ -157,6 +157,22 @@ def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any
     return bands, runs, val_ids, errors
 
 
+def _chain_warnings(raw: list, chains: list, corrected: Any) -> tuple[list[str], list[str]]:
+    """The emcee chains' convergence warnings and the notes on them that are not warnings.
+
+    The chains are the reported posterior only without importance weights (``corrected``
+    None): then their warnings are raised.  Otherwise they only shaped the proposal: their
+    words are named as the proposal's and not raised, kept as warnings while the importance
+    sample has not settled, and as notes once it has (the reported numbers are the
+    weights', whose ESS and k-hat judge them)."""
+    warns = warnings_for(raw, chains, warn=corrected is None)
+    if corrected is None:
+        return warns, []
+    of = "the importance sampling on the emulator" if corrected.target == "emulator" else "the correction"
+    named = [f"emulator chains (proposal of {of}): {w}" for w in warns]
+    return ([], named) if corrected.settled else (named, [])
+
+
 def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget: dict[str, Any],
                   settings: Any, rng: np.random.Generator, out_dir: Path,
                   corrected: Any = None, fit: LocalFit | None = None) -> dict[str, Any]:
@@ -169,14 +185,8 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     """
     space = ctx.space
     t = _tables(ctx, chains, corrected, rng)
-    # the chains are the reported posterior only without importance weights: otherwise their
-    # warnings are kept in the summary, named as the proposal's, and not raised
-    warns = warnings_for(t["raw"], chains, warn=corrected is None)
+    warns, proposal_notes = _chain_warnings(t["raw"], chains, corrected)
     emulated = corrected is not None and corrected.target == "emulator"
-    if corrected is not None:
-        # the reported numbers are the importance sample's; the chains only shaped the proposal
-        of = "the importance sampling on the emulator" if emulated else "the correction"
-        warns = [f"emulator chains (proposal of {of}): {w}" for w in warns]
     warns += [] if corrected is None else list(corrected.warnings)
     attrs = {"n_eff": budget["n_eff_total"], "functions": emul.functions,
              "pooled_functions": len(chains) - emul.components,
@@ -203,7 +213,7 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     warns += [extrapolation_warning(cid, why, errors.sources.get(cid, "")) for cid, why in notes.items() if why]
     return {
         "method": attrs["method"],
-        "parameters": [asdict(s) for s in t["table"]], "warnings": warns,
+        "parameters": [asdict(s) for s in t["table"]], "warnings": warns, "proposal_notes": proposal_notes,
         "correlation": _corr_block(t["corr"]),
         "emulator_parameters": [asdict(s) for s in t["raw"]], "emulator_correlation": _corr_block(t["raw_corr"]),
         "correction": corr_info,

@@ -120,6 +120,11 @@ def _diagnostics(post: dict[str, Any]) -> list:
     warns = [str(w) for w in post.get("warnings") or []]
     if warns:
         blocks.append(Bullets(tuple(warns), tone="warning"))
+    notes = [str(n) for n in post.get("proposal_notes") or []]
+    if notes:
+        blocks.append(Paragraph("The emcee chains that started the importance sampling, whose settled "
+                                "weights the numbers above come from, say:"))
+        blocks.append(Bullets(tuple(notes)))
     return blocks
 
 

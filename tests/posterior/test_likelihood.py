@@ -6,6 +6,7 @@ import logging
 import warnings
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -394,6 +395,30 @@ def test_sampler_warnings_are_recorded_and_emitted_once_by_class() -> None:
         warnings.simplefilter("always")
         assert warnings_for([bad], chains, warn=False)
     assert not seen
+
+
+def test_chains_that_only_started_a_settled_importance_sample_give_notes_not_warnings() -> None:
+    """The proposal's chains: warnings while the weights have not settled, notes once they
+    have (the reported numbers are the weights'), never raised; the reported chains' own
+    warnings are raised."""
+    from smcbayes.posterior.report import _chain_warnings
+
+    bad = ParameterSummary("eta0", "Pa s", 1.0, 0.1, 0.9, 1.0, 1.1, r_hat=1.3, ess=5000.0)
+    chains = [Chains(np.zeros((10, 4, 2)), np.zeros((10, 4)), np.full(4, 0.3), np.ones(2), 100, 10, 1,
+                     converged=False)]
+    for target, of in (("emulator", "the importance sampling on the emulator"), ("forward model", "the correction")):
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            settled = _chain_warnings([bad], chains, SimpleNamespace(target=target, settled=True))
+            unsettled = _chain_warnings([bad], chains, SimpleNamespace(target=target, settled=False))
+        assert not seen
+        assert settled[0] == [] and unsettled[1] == [] and settled[1] == unsettled[0]
+        assert len(settled[1]) == 2 and all(n.startswith(f"emulator chains (proposal of {of}): ")
+                                            for n in settled[1])
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        raised = _chain_warnings([bad], chains, None)
+    assert raised[1] == [] and [str(w.message) for w in seen] == raised[0] and len(raised[0]) == 2
 
 
 def test_reliability_names_each_failed_diagnostic() -> None:
