@@ -96,7 +96,9 @@ def joint_outputs(emulator: CurveEmulator, x: Array, count: int, rng: np.random.
         val, vec = np.linalg.eigh(cov)
         factor = vec * np.sqrt(np.maximum(val, 0.0))
     z = rng.standard_normal((count, len(x), mean.shape[1]))
-    return mean[None] + np.matmul(factor[None], z) * np.sqrt(emulator.output_variance)[None, None, :]
+    # one product per function, on the emulator's threads (each what the stacked product computes)
+    draws = np.array(thread_map(lambda zk: factor @ zk, list(z))).reshape(z.shape)
+    return mean[None] + draws * np.sqrt(emulator.output_variance)[None, None, :]
 
 
 def _log_lik(emulator: CurveEmulator, outputs: Array, n_eff: float) -> Array:

@@ -3,12 +3,12 @@ number.
 
 The stage's samplers spend most of its time in numpy's and numba's arithmetic on the
 emulators, one batch at a time, and numpy (in its products and ufuncs) and the compiled
-kernels release the interpreter's lock.  Independent tasks of a fixed shape (the log-likelihoods of the GP
-sample functions on a support, the fixed-size batches of an importance sample) therefore
-run side by side on a few threads, each exactly as it would alone: a task's rows are never
-split anew, so every value is the same to the last bit whatever the number of threads, and
-the random path with it.  Splitting a batch differently would change the products' rounding
-and hence the path.
+kernels release the interpreter's lock.  Independent tasks of a fixed shape (the draws
+and log-likelihoods of the GP sample functions on a support, the fixed-size batches of an
+importance sample) therefore run side by side on a few threads, each exactly as it would
+alone: a task's rows are never split anew, so every value is the same to the last bit
+whatever the number of threads, and the random path with it.  Splitting a batch
+differently would change the products' rounding and hence the path.
 
 :func:`emulator_threads` opens the threads for a block of work (the posterior stage opens
 them once); outside it :func:`thread_map` runs its tasks in order on the calling thread.
