@@ -2,16 +2,15 @@
 use).
 
 The emulator's samplers evaluate the loss of tens of thousands of emulated curves a
-round; in numpy each configuration's comparison builds several ``(P, G)`` arrays and
-searches the measured times of every grid point anew.  Here each row's grid is walked
-once: the simulated curve's nodes are evenly spaced, so its bracket is index arithmetic,
-and the measured curve's bracket moves forward with the rising grid.  Most rows share one
-window (it ends at the measured curve's end, or at its flow stop): the measured curve on
-that window's grid is interpolated once per call (:func:`measured_on_grid`).  On one
-calibration of the thesis trials (260-960 measured points a trial) the loss of 4,000
-emulated rows took 0.075 s instead of 0.126 s (one core, idle).  Many rows are shared out
-in blocks over numba's threads; each row's arithmetic is the same, so the result does not
-depend on their number.
+round, most of them in calls of a few rows (the emcee ensembles' half-walkers).  One call
+compares every row with every configuration's measured curve, so that a call costs its
+arithmetic rather than one dispatch per configuration.  Each row's grid is walked once:
+the simulated curve's nodes are evenly spaced, so its bracket is index arithmetic, and the
+measured curve's bracket moves forward with the rising grid.  Most rows share each
+configuration's usual window (it ends at the measured curve's end, or at its flow stop),
+on whose grid the caller interpolates the measured curve once (:func:`measured_on_grid`).
+Many rows are shared out in blocks over numba's threads; each row's arithmetic is the
+same, so the result does not depend on their number.
 """
 
 from __future__ import annotations
@@ -41,11 +40,13 @@ def measured_on_grid(end: float, grid: NDArray[np.float64], time_m: NDArray[np.f
 
 
 @_jit
-def _row_mse(force: NDArray[np.float64], p: int, switch: float, delay: float, end: float,
-             grid: NDArray[np.float64], time_m: NDArray[np.float64], force_m: NDArray[np.float64],
-             common: NDArray[np.float64], common_end: float, own: NDArray[np.float64]) -> float:
-    """Row ``p``'s mean squared force error of :func:`force_mse_kernel` (``own`` ``(G,)`` scratch)."""
-    n = force.shape[1]
+def _row_mse(force: NDArray[np.float64], switch: float, delay: float, end: float, grid: NDArray[np.float64],
+             time_m: NDArray[np.float64], force_m: NDArray[np.float64], common: NDArray[np.float64],
+             common_end: float, own: NDArray[np.float64]) -> float:
+    """One row's mean squared force error (kN^2) over its window (see :func:`loss_rows`):
+    ``force`` ``(n,)`` at nodes evenly spaced over [0, ``switch``], ``common`` ``(G,)`` the
+    measured force on the window ending at ``common_end``, ``own`` ``(G,)`` scratch."""
+    n = force.shape[0]
     G = grid.shape[0]
     measured = common
     if end != common_end:
@@ -60,52 +61,84 @@ def _row_mse(force: NDArray[np.float64], p: int, switch: float, delay: float, en
             return np.nan
         i = min(int(np.floor(x)), n - 2)
         w = x - i
-        err = force[p, i] * (1.0 - w) + force[p, i + 1] * w - measured[g]
+        err = force[i] * (1.0 - w) + force[i + 1] * w - measured[g]
         total += err * err
     return total / G
 
 
 @_jit
-def force_mse_kernel(force: NDArray[np.float64], switch: NDArray[np.float64], delay: NDArray[np.float64],
-                     end: NDArray[np.float64], grid: NDArray[np.float64], time_m: NDArray[np.float64],
-                     force_m: NDArray[np.float64], out: NDArray[np.float64], common_end: float = np.nan
-                     ) -> None:
-    """Add to ``out`` ``(P,)`` each row's mean squared force error (kN^2) over its window.
+def _row_loss(features: NDArray[np.float64], p: int, n: int, end_state: bool, flow_stop: bool, bound: float,
+              end_stack: NDArray[np.float64], speed: NDArray[np.float64], common_end: NDArray[np.float64],
+              common: NDArray[np.float64], grid: NDArray[np.float64], time_m: NDArray[np.float64],
+              force_m: NDArray[np.float64], starts: NDArray[np.int64], own: NDArray[np.float64]) -> float:
+    """Row ``p``'s sum over the configurations of :func:`_row_mse` (see :func:`loss_rows`)."""
+    count = common_end.shape[0]
+    total = 0.0
+    for k in range(count):
+        switch = features[p, count * n + k]
+        if switch == switch and not switch > 1e-9:  # numpy.maximum(switch, 1e-9): NaN stays
+            switch = 1e-9
+        delay = 0.0
+        if end_state:
+            offset = end_stack[k] - features[p, count * (n + 1) + k]
+            if bound > 0.0 and offset == offset:
+                offset = min(max(offset, -bound), bound)
+            delay = offset / speed[k]
+        end = common_end[k]
+        if not flow_stop:
+            late = switch + delay
+            if late != late or late > end:
+                end = late
+        a, b = starts[k], starts[k + 1]
+        total += _row_mse(features[p, k * n:(k + 1) * n], switch, delay, end, grid, time_m[a:b], force_m[a:b],
+                          common[k], common_end[k], own)
+    return total
+
+
+@_jit
+def loss_rows(features: NDArray[np.float64], n: int, end_state: bool, flow_stop: bool, bound: float,
+              end_stack: NDArray[np.float64], speed: NDArray[np.float64], common_end: NDArray[np.float64],
+              common: NDArray[np.float64], grid: NDArray[np.float64], time_m: NDArray[np.float64],
+              force_m: NDArray[np.float64], starts: NDArray[np.int64], out: NDArray[np.float64]) -> None:
+    """Write to ``out`` ``(P,)`` each row's sum over the ``K`` configurations of its mean
+    squared force error (kN^2) over the configuration's window.
 
     Args:
-        force: simulated force ``(P, n)`` (kN) at ``n >= 2`` nodes evenly spaced over [0, switch].
-        switch: switch time per row ``(P,)`` (s, positive).
-        delay: delay of the simulated closing per row ``(P,)`` (s).
-        end: end of the compared window per row ``(P,)`` (s).
+        features: ``(P, K (n + 1 + e))``: each configuration's simulated force (kN) at
+            ``n >= 2`` nodes evenly spaced over [0, switch], then the K switch times (s)
+            and, with ``end_state`` (e = 1), the K end heights (mm).
+        end_state: each configuration's contact is delayed by (``end_stack`` - end height)
+            (mm, clipped to +-``bound`` when ``bound > 0``) over ``speed`` (mm/s), both
+            ``(K,)``; otherwise the delay is 0.
+        flow_stop: every window ends at ``common_end``; otherwise at the later of it and
+            the delayed switch.
+        common_end: each configuration's usual window end ``(K,)`` (s), at which ``common``
+            ``(K, G)`` holds the measured force (:func:`measured_on_grid`).
         grid: the window's points as shares of it ``(G,)``, rising from 0 to 1.
-        time_m, force_m: the measured curve ``(T >= 2,)`` (s, kN), times rising.
-        out: per-row sums to add to ``(P,)``; a row with a NaN switch time, delay or end
-            gets NaN.
-        common_end: the window's end (s) most rows share, whose measured force is
-            interpolated once (:func:`measured_on_grid`); NaN: none.
+        time_m, force_m: the measured curves, concatenated (s, kN), configuration ``k``'s
+            at ``starts[k]:starts[k + 1]`` (``starts`` ``(K + 1,)``), at least 2 points
+            each, times rising.
+        out: the sums ``(P,)``; a row with a NaN switch time, delay or end gets NaN.
+
+    The simulated curve's first value is held before the delayed contact and its switch
+    value beyond the switch; the measured curve's ends are held.
     """
-    common = np.empty(grid.shape[0] if common_end == common_end else 0)
-    if common_end == common_end:
-        measured_on_grid(common_end, grid, time_m, force_m, common)
     own = np.empty(grid.shape[0])
-    for p in range(force.shape[0]):
-        out[p] += _row_mse(force, p, switch[p], delay[p], end[p], grid, time_m, force_m, common, common_end,
-                           own)
+    for p in range(features.shape[0]):
+        out[p] = _row_loss(features, p, n, end_state, flow_stop, bound, end_stack, speed, common_end, common,
+                           grid, time_m, force_m, starts, own)
 
 
 @_parallel
-def force_mse_kernel_parallel(force: NDArray[np.float64], switch: NDArray[np.float64],
-                              delay: NDArray[np.float64], end: NDArray[np.float64],
-                              grid: NDArray[np.float64], time_m: NDArray[np.float64],
-                              force_m: NDArray[np.float64], out: NDArray[np.float64], common_end: float,
-                              block: int) -> None:
-    """:func:`force_mse_kernel` in blocks of ``block`` rows over numba's threads."""
-    common = np.empty(grid.shape[0] if common_end == common_end else 0)
-    if common_end == common_end:
-        measured_on_grid(common_end, grid, time_m, force_m, common)
-    rows = force.shape[0]
+def loss_rows_parallel(features: NDArray[np.float64], n: int, end_state: bool, flow_stop: bool, bound: float,
+                       end_stack: NDArray[np.float64], speed: NDArray[np.float64],
+                       common_end: NDArray[np.float64], common: NDArray[np.float64], grid: NDArray[np.float64],
+                       time_m: NDArray[np.float64], force_m: NDArray[np.float64], starts: NDArray[np.int64],
+                       out: NDArray[np.float64], block: int) -> None:
+    """:func:`loss_rows` in blocks of ``block`` rows over numba's threads."""
+    rows = features.shape[0]
     for b in prange((rows + block - 1) // block):
         own = np.empty(grid.shape[0])
         for p in range(b * block, min(rows, (b + 1) * block)):
-            out[p] += _row_mse(force, p, switch[p], delay[p], end[p], grid, time_m, force_m, common,
-                               common_end, own)
+            out[p] = _row_loss(features, p, n, end_state, flow_stop, bound, end_stack, speed, common_end,
+                               common, grid, time_m, force_m, starts, own)

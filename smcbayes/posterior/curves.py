@@ -110,6 +110,9 @@ class CurveFeatures:
         if self.end_state and any(m.end_stack_mm is None or not m.speed_mm_s for m in self.measured):
             raise CurveLossUnsupported("contact 'end_state' needs every training trial's end state and "
                                        "set speed")
+        self._end_stack = np.array([m.end_stack_mm if self.end_state else 0.0 for m in self.measured], float)
+        self._speed = np.array([m.speed_mm_s if self.end_state else 1.0 for m in self.measured], float)
+        self._grids: tuple[Array, Array, Array, Array, NDArray[np.int64]] | None = None
 
     @property
     def size(self) -> int:
@@ -141,42 +144,45 @@ class CurveFeatures:
             ok &= good
         return np.hstack(forces + [np.column_stack(switches + ends)]), ok
 
-    def _delays(self, features: Array, k: int) -> Array:
-        """Configuration ``k``'s delay (s) of the simulated closing per row ``(P,)``: 0 at
-        the nominal contact; from the end state, the contact offset (clipped to
-        +-``contact_offset_mm`` when above 0) over the set speed."""
-        if not self.end_state:
-            return np.zeros(features.shape[0])
-        m, count = self.measured[k], len(self.ids)
-        offset = m.end_stack_mm - features[:, count * (self.nodes + 1) + k]
-        bound = self.spec.contact_offset_mm
-        return (np.clip(offset, -bound, bound) if bound > 0 else offset) / m.speed_mm_s
+    def _measured_grids(self) -> tuple[Array, Array, Array, Array, NDArray[np.int64]]:
+        """The measured curves as :func:`~._curve_kernel.loss_rows` reads them: each
+        configuration's usual window end ``(K,)`` (s) and its measured force on that window's
+        grid ``(K, G)`` (kN), and the curves concatenated with their starts ``(K + 1,)``;
+        interpolated once per instance, as every call compares with the same curves."""
+        if self._grids is None:
+            from smcbayes.posterior._curve_kernel import measured_on_grid  # numba loads on first use
+
+            flow_stop = self.spec.clip == "flow_stop"
+            ends = np.array([m.flow_stop_s if flow_stop else m.force.time_s[-1] for m in self.measured], float)
+            times = [np.asarray(m.force.time_s, dtype=float) for m in self.measured]
+            forces = [np.asarray(m.force.values, dtype=float) for m in self.measured]
+            common = np.empty((len(self.measured), self.grid.shape[0]))
+            for k in range(len(self.measured)):
+                measured_on_grid(float(ends[k]), self.grid, times[k], forces[k], common[k])
+            starts = np.concatenate([[0], np.cumsum([len(t) for t in times])]).astype(np.int64)
+            self._grids = (ends, common, np.concatenate(times), np.concatenate(forces), starts)
+        return self._grids
 
     def loss(self, features: Array) -> Array:
         """The global loss ``(P,)`` (kN^2) of features ``(P, size)``, as
         :func:`smcbayes.data.loss.evaluate_loss` computes it from the simulations (both
-        curves linearly interpolated onto the window's grid; :mod:`._curve_kernel`)."""
-        from smcbayes.posterior._curve_kernel import (  # numba loads on first use
-            force_mse_kernel,
-            force_mse_kernel_parallel,
-        )
+        curves linearly interpolated onto the window's grid; :mod:`._curve_kernel`).  Each
+        configuration's delay (s) of the simulated closing is 0 at the nominal contact and,
+        from the end state, the contact offset (clipped to +-``contact_offset_mm`` when
+        above 0) over the set speed."""
+        from smcbayes.posterior._curve_kernel import loss_rows, loss_rows_parallel  # numba loads on first use
 
-        k_count, n = len(self.ids), self.nodes
-        out = np.zeros(features.shape[0])
-        threaded = len(out) >= PARALLEL_ROWS and not in_worker()
-        for k, m in enumerate(self.measured):
-            ts = np.maximum(features[:, k_count * n + k], 1e-9)
-            delay = self._delays(features, k)
-            flow_stop = self.spec.clip == "flow_stop"
-            common = m.flow_stop_s if flow_stop else m.force.time_s[-1]
-            end = np.full(ts.shape, common) if flow_stop else np.maximum(ts + delay, common)
-            args = (np.ascontiguousarray(features[:, k * n:(k + 1) * n]), ts, delay, end, self.grid,
-                    m.force.time_s, m.force.values, out, float(common))
-            if threaded:
-                force_mse_kernel_parallel(*args, BLOCK)
-            else:
-                force_mse_kernel(*args)
-        return self.spec.w_force * out / k_count
+        ends, common, times, forces, starts = self._measured_grids()
+        features = np.ascontiguousarray(features, dtype=float)
+        out = np.empty(features.shape[0])
+        args = (features, self.nodes, self.end_state, self.spec.clip == "flow_stop",
+                float(self.spec.contact_offset_mm), self._end_stack, self._speed, ends, common, self.grid,
+                times, forces, starts, out)
+        if len(out) >= PARALLEL_ROWS and not in_worker():
+            loss_rows_parallel(*args, BLOCK)
+        else:
+            loss_rows(*args)
+        return self.spec.w_force * out / len(self.ids)
 
 
 def matern52(a: Array, b: Array | None, lengthscales: Array) -> Array:
@@ -304,6 +310,18 @@ class CurveEmulator:
         self.scale2 = np.einsum("ij,ij->j", z, self.alpha) / len(x)
         self.variance_factor = np.ones_like(self.scale2)
         self.calibration_rows = 0
+        self._profile: tuple[Array, Array, Array] | None = None
+
+    def _node_profile(self) -> Array:
+        """The output variances' share of var log(F + 1 kN) at each node ``(K n,)``: output
+        variances @ basis^2, kept until the variances are set anew (the samplers' calls of
+        16 rows would otherwise spend a sixth of their time on it)."""
+        cached = self._profile
+        if cached is None or cached[0] is not self.scale2 or cached[1] is not self.variance_factor:
+            cached = (self.scale2, self.variance_factor,
+                      self.output_variance[:self.components] @ (self.basis ** 2))
+            self._profile = cached
+        return cached[2]
 
     @property
     def output_variance(self) -> Array:
@@ -381,7 +399,7 @@ class CurveEmulator:
             nk = len(self.features.ids) * self.features.nodes
             # var log(F + 1 kN) at the nodes is share x (output variances @ basis^2): a product
             # of a row's share and one node profile, so no (P, J) @ (J, nodes) product is needed
-            profile = self.output_variance[:self.components] @ (self.basis ** 2)
+            profile = self._node_profile()
             s2 = self.features.spec.w_force * share * (((y[:, :nk] + FORCE_FLOOR_KN) ** 2) @ profile) / nk
             if optimistic:
                 return np.maximum(np.sqrt(out) - np.sqrt(s2), np.sqrt(0.1 * out)) ** 2

@@ -308,56 +308,76 @@ def test_many_rows_share_the_correlation_out_over_threads_with_the_same_values()
     np.testing.assert_array_equal(few, serial[:BLOCK // 2])
 
 
-def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves() -> None:
+def _kernel_case(rng: np.random.Generator, rows: int, nodes: int, grid: np.ndarray) -> dict[str, np.ndarray]:
+    """Two configurations' simulated features (forces, switch times, end heights) and
+    measured curves of different lengths, packed as :func:`loss_rows` reads them."""
+    force = [np.cumsum(rng.random((rows, nodes)), axis=1) for _ in range(2)]
+    switch = rng.uniform(0.5, 2.0, (rows, 2))
+    heights = rng.uniform(3.0, 4.0, (rows, 2))
+    time_m = [np.sort(rng.uniform(0.0, 2.0, 40)), np.sort(rng.uniform(0.0, 1.5, 23))]
+    force_m = [np.cumsum(rng.random(40)), np.cumsum(rng.random(23))]
+    return {"features": np.hstack(force + [switch, heights]), "force": force, "switch": switch,
+            "heights": heights, "time_m": time_m, "force_m": force_m, "grid": grid,
+            "times": np.concatenate(time_m), "forces": np.concatenate(force_m),
+            "starts": np.array([0, 40, 63], dtype=np.int64), "stack": np.array([3.5, 3.4]),
+            "speed": np.array([0.5, 1.1]), "ends": np.array([time_m[0][-1], 1.2])}
+
+
+def _kernel_expected(case: dict[str, np.ndarray], end_state: bool, flow_stop: bool, bound: float) -> np.ndarray:
+    """The same comparison in numpy, summed over the configurations: the simulated curve's
+    first value held before the delayed contact and its switch value beyond the switch, the
+    measured one's ends held."""
+    total = np.zeros(case["switch"].shape[0])
+    nodes = case["force"][0].shape[1]
+    for k in range(2):
+        offset = case["stack"][k] - case["heights"][:, k]
+        delay = (np.clip(offset, -bound, bound) if bound > 0 else offset) / case["speed"][k] if end_state else 0.0
+        switch = case["switch"][:, k]
+        end = np.full(len(switch), case["ends"][k]) if flow_stop else np.maximum(switch + delay, case["ends"][k])
+        t = end[:, None] * case["grid"][None, :]
+        x = np.clip((t - np.reshape(delay, (-1, 1))) / switch[:, None], 0.0, 1.0) * (nodes - 1)
+        i = np.minimum(np.floor(x).astype(int), nodes - 2)
+        w = x - i
+        f = case["force"][k]
+        sim = np.take_along_axis(f, i, 1) * (1 - w) + np.take_along_axis(f, i + 1, 1) * w
+        total += np.mean((sim - np.interp(t, case["time_m"][k], case["force_m"][k])) ** 2, axis=1)
+    return total
+
+
+@pytest.mark.parametrize(("end_state", "flow_stop", "bound"),
+                         [(False, False, 0.0), (True, False, 0.0), (True, False, 0.2), (False, True, 0.0)])
+def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves(end_state: bool, flow_stop: bool,
+                                                                         bound: float) -> None:
     from smcbayes.posterior._blocks import BLOCK
-    from smcbayes.posterior._curve_kernel import force_mse_kernel, force_mse_kernel_parallel
+    from smcbayes.posterior._curve_kernel import loss_rows, loss_rows_parallel, measured_on_grid
 
     rng = np.random.default_rng(1)
     # over several of the parallel kernel's blocks, the last one part-full
     rows, nodes = 2 * BLOCK + 7, 9
-    force = np.cumsum(rng.random((rows, nodes)), axis=1)
-    switch = rng.uniform(0.5, 2.0, rows)
-    delay = rng.uniform(-0.3, 0.3, rows)
-    time_m = np.sort(rng.uniform(0.0, 2.0, 40))
-    force_m = np.cumsum(rng.random(40))
-    end = np.maximum(switch + delay, time_m[-1] * rng.uniform(0.5, 1.5, rows))  # beyond the measured end too
-    grid = np.linspace(0.0, 1.0, 57)
+    case = _kernel_case(rng, rows, nodes, np.linspace(0.0, 1.0, 57))
+    # the window's usual end, and beyond the measured end too
+    case["switch"][::3, 0] = 0.1
+    case["features"][:, 2 * nodes] = case["switch"][:, 0]
+    common = np.empty((2, 57))
+    for k in range(2):
+        measured_on_grid(case["ends"][k], case["grid"], case["time_m"][k], case["force_m"][k], common[k])
 
-    def expected(end: np.ndarray) -> np.ndarray:
-        """The same comparison in numpy: the simulated curve's first value held before the
-        delayed contact and its switch value beyond the switch, the measured one's ends held."""
-        t = end[:, None] * grid[None, :]
-        x = np.clip((t - delay[:, None]) / switch[:, None], 0.0, 1.0) * (nodes - 1)
-        i = np.minimum(np.floor(x).astype(int), nodes - 2)
-        w = x - i
-        sim = np.take_along_axis(force, i, 1) * (1 - w) + np.take_along_axis(force, i + 1, 1) * w
-        return np.mean((sim - np.interp(t, time_m, force_m)) ** 2, axis=1)
+    def run(kernel, features: np.ndarray, *extra: int) -> np.ndarray:
+        out = np.full(rows, -1.0)
+        kernel(features, nodes, end_state, flow_stop, bound, case["stack"], case["speed"], case["ends"], common,
+               case["grid"], case["times"], case["forces"], case["starts"], out, *extra)
+        return out
 
-    out = np.zeros(rows)
-    force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, out)
-    np.testing.assert_allclose(out, expected(end), rtol=1e-12)
+    out = run(loss_rows, case["features"])
+    np.testing.assert_allclose(out, _kernel_expected(case, end_state, flow_stop, bound), rtol=1e-12)
     # shared out over threads: the same values
-    threaded = np.zeros(rows)
-    force_mse_kernel_parallel(force, switch, delay, end, grid, time_m, force_m, threaded, np.nan, BLOCK)
-    np.testing.assert_array_equal(threaded, out)
-    # rows that share the window's end take the measured curve interpolated once: the same sums
-    end[::2] = time_m[-1]
-    each, shared = np.zeros(rows), np.zeros(rows)
-    force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, each)
-    force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, shared, time_m[-1])
-    np.testing.assert_array_equal(shared, each)
-    threaded = np.zeros(rows)
-    force_mse_kernel_parallel(force, switch, delay, end, grid, time_m, force_m, threaded, time_m[-1], BLOCK)
-    np.testing.assert_array_equal(threaded, shared)
-    np.testing.assert_allclose(shared, expected(end), rtol=1e-12)
+    np.testing.assert_array_equal(run(loss_rows_parallel, case["features"], BLOCK), out)
     # a row without a switch time has no loss, not an arbitrary one
-    switch[2] = np.nan
-    out = np.zeros(rows)
-    force_mse_kernel(force, switch, delay, end, grid, time_m, force_m, out)
+    features = case["features"].copy()
+    features[2, 2 * nodes + 1] = np.nan
+    out = run(loss_rows, features)
     assert np.isnan(out[2]) and np.all(np.isfinite(np.delete(out, 2)))
-    threaded = np.zeros(rows)
-    force_mse_kernel_parallel(force, switch, delay, end, grid, time_m, force_m, threaded, np.nan, BLOCK)
-    np.testing.assert_array_equal(threaded, out)
+    np.testing.assert_array_equal(run(loss_rows_parallel, features, BLOCK), out)
 
 
 def test_the_spread_counts_the_functions_common_lean_away_from_the_mean() -> None:
