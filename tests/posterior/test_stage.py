@@ -517,6 +517,15 @@ def test_the_emulator_interpolates_its_points_and_predicts_new_ones(run_dir: Pat
     far = np.random.default_rng(7).random((200, u.shape[1]))
     far_mean, far_optimistic = emulator.loss(far), emulator.loss(far, optimistic=True)
     assert np.all(far_optimistic <= far_mean) and np.all(far_optimistic >= 0.1 * far_mean * (1 - 1e-12))
+    # variances calibrated after a call reach the variance term (it keeps its node profile
+    # until they change)
+    emulator.calibrate(u[:45])
+    mean, var = emulator.predict(u[45:], variance=True)
+    var_log = var[:, :emulator.components] @ emulator.basis ** 2
+    calibrated = emulator.loss(u[45:], variance=True)
+    assert not np.allclose(calibrated, with_var)
+    np.testing.assert_allclose(calibrated, mean_loss + features.spec.w_force * np.mean(force ** 2 * var_log, axis=1),
+                               rtol=1e-12)
 
 
 def test_the_emulator_ignores_repeated_rows(run_dir: Path) -> None:
