@@ -132,9 +132,9 @@ def loss_rows(features: NDArray[np.float64], n: int, end_state: bool, flow_stop:
 @_parallel
 def loss_rows_parallel(features: NDArray[np.float64], n: int, end_state: bool, flow_stop: bool, bound: float,
                        end_stack: NDArray[np.float64], speed: NDArray[np.float64],
-                       common_end: NDArray[np.float64], common: NDArray[np.float64], grid: NDArray[np.float64],
-                       time_m: NDArray[np.float64], force_m: NDArray[np.float64], starts: NDArray[np.int64],
-                       out: NDArray[np.float64], block: int) -> None:
+                       common_end: NDArray[np.float64], common: NDArray[np.float64],
+                       grid: NDArray[np.float64], time_m: NDArray[np.float64], force_m: NDArray[np.float64],
+                       starts: NDArray[np.int64], out: NDArray[np.float64], block: int) -> None:
     """:func:`loss_rows` in blocks of ``block`` rows over numba's threads."""
     rows = features.shape[0]
     for b in prange((rows + block - 1) // block):

@@ -153,7 +153,8 @@ class CurveFeatures:
             from smcbayes.posterior._curve_kernel import measured_on_grid  # numba loads on first use
 
             flow_stop = self.spec.clip == "flow_stop"
-            ends = np.array([m.flow_stop_s if flow_stop else m.force.time_s[-1] for m in self.measured], float)
+            ends = np.array([m.flow_stop_s if flow_stop else m.force.time_s[-1] for m in self.measured],
+                            dtype=float)
             times = [np.asarray(m.force.time_s, dtype=float) for m in self.measured]
             forces = [np.asarray(m.force.values, dtype=float) for m in self.measured]
             common = np.empty((len(self.measured), self.grid.shape[0]))
@@ -172,8 +173,11 @@ class CurveFeatures:
         above 0) over the set speed."""
         from smcbayes.posterior._curve_kernel import loss_rows, loss_rows_parallel  # numba loads on first use
 
-        ends, common, times, forces, starts = self._measured_grids()
         features = np.ascontiguousarray(features, dtype=float)
+        if features.ndim != 2 or features.shape[1] != self.size:
+            # the compiled kernel would read the next row's values, or past the last one
+            raise ValueError(f"curve features of shape {features.shape}: {self.size} per row expected")
+        ends, common, times, forces, starts = self._measured_grids()
         out = np.empty(features.shape[0])
         args = (features, self.nodes, self.end_state, self.spec.clip == "flow_stop",
                 float(self.spec.contact_offset_mm), self._end_stack, self._speed, ends, common, self.grid,
@@ -314,12 +318,13 @@ class CurveEmulator:
 
     def _node_profile(self) -> Array:
         """The output variances' share of var log(F + 1 kN) at each node ``(K n,)``: output
-        variances @ basis^2, kept until the variances are set anew (the samplers' calls of
-        16 rows would otherwise spend a sixth of their time on it)."""
+        variances @ basis^2, kept while :attr:`scale2` and :attr:`variance_factor` are the
+        same arrays (they are replaced, never edited in place), as recomputing it would
+        dominate the samplers' calls of a few rows."""
         cached = self._profile
         if cached is None or cached[0] is not self.scale2 or cached[1] is not self.variance_factor:
-            cached = (self.scale2, self.variance_factor,
-                      self.output_variance[:self.components] @ (self.basis ** 2))
+            profile = self.output_variance[:self.components] @ (self.basis ** 2)
+            cached = (self.scale2, self.variance_factor, profile)
             self._profile = cached
         return cached[2]
 

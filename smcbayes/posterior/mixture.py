@@ -81,8 +81,8 @@ def _log_normal(x: Array, mean: Array, cov: Array) -> Array:
     inv = np.linalg.inv(chol)
     z = np.matmul(x[None, :, :] - mean[:, None, :], np.swapaxes(inv, 1, 2)).transpose(1, 0, 2)  # (N, K, d)
     logdet = np.sum(np.log(np.diagonal(chol, axis1=1, axis2=2)), axis=1)
-    # one pass per coordinate: numpy's reduction over a last axis of a few elements took
-    # four times as long, and the proposals' EM fits call this thousands of times a stage
+    # one pass per coordinate: numpy's reduction over a last axis of a few elements is
+    # several times slower, and the proposals' EM fits call this thousands of times a stage
     square = z[..., 0] * z[..., 0]
     for j in range(1, d):
         square += z[..., j] * z[..., j]

@@ -345,7 +345,8 @@ def _kernel_expected(case: dict[str, np.ndarray], end_state: bool, flow_stop: bo
 
 
 @pytest.mark.parametrize(("end_state", "flow_stop", "bound"),
-                         [(False, False, 0.0), (True, False, 0.0), (True, False, 0.2), (False, True, 0.0)])
+                         [(False, False, 0.0), (True, False, 0.0), (True, False, 0.2), (False, True, 0.0),
+                          (True, True, 0.2)])
 def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves(end_state: bool, flow_stop: bool,
                                                                          bound: float) -> None:
     from smcbayes.posterior._blocks import BLOCK
@@ -358,6 +359,10 @@ def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves(end_st
     # the window's usual end, and beyond the measured end too
     case["switch"][::3, 0] = 0.1
     case["features"][:, 2 * nodes] = case["switch"][:, 0]
+    # a switch at 0 is taken at 1e-9 s
+    zero = case["features"].copy()
+    zero[4, 2 * nodes + 1] = 0.0
+    case["switch"][4, 1] = 1e-9
     common = np.empty((2, 57))
     for k in range(2):
         measured_on_grid(case["ends"][k], case["grid"], case["time_m"][k], case["force_m"][k], common[k])
@@ -368,15 +373,18 @@ def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves(end_st
                case["grid"], case["times"], case["forces"], case["starts"], out, *extra)
         return out
 
-    out = run(loss_rows, case["features"])
+    out = run(loss_rows, zero)
     np.testing.assert_allclose(out, _kernel_expected(case, end_state, flow_stop, bound), rtol=1e-12)
     # shared out over threads: the same values
-    np.testing.assert_array_equal(run(loss_rows_parallel, case["features"], BLOCK), out)
-    # a row without a switch time has no loss, not an arbitrary one
+    np.testing.assert_array_equal(run(loss_rows_parallel, zero, BLOCK), out)
+    # a row without a switch time has no loss, not an arbitrary one, nor has one without an
+    # end height when the end state places the contact
     features = case["features"].copy()
     features[2, 2 * nodes + 1] = np.nan
+    features[5, 2 * nodes + 3] = np.nan
     out = run(loss_rows, features)
-    assert np.isnan(out[2]) and np.all(np.isfinite(np.delete(out, 2)))
+    lost = [2, 5] if end_state else [2]
+    assert np.all(np.isnan(out[lost])) and np.all(np.isfinite(np.delete(out, lost)))
     np.testing.assert_array_equal(run(loss_rows_parallel, features, BLOCK), out)
 
 

@@ -481,6 +481,30 @@ def test_the_features_give_the_loss_with_end_state_offsets_of_either_sign(run_di
     assert not np.allclose(features.loss(y), nominal.loss(y0))
 
 
+def test_the_features_give_the_loss_clipped_at_the_flow_stop(run_dir: Path) -> None:
+    """The synthetic run's trials given flow stops before their measured ends, the loss
+    clipped there: the features reproduce it, and it differs from the unclipped one."""
+    from smcbayes.simulation.objective import SimulatorObjective
+
+    problem = load_run(run_dir).problem
+    spec = problem.project.loss.model_copy(update={"clip": "flow_stop"})
+    measured = {cid: dataclasses.replace(m, flow_stop_s=0.7 * float(m.force.time_s[-1]))
+                for cid, m in problem.dataset.measurements.items()}
+    dataset = dataclasses.replace(problem.dataset, measurements=measured)
+    objective = SimulatorObjective(problem.simulator, dataset, problem.train_ids, spec)
+    clipped = dataclasses.replace(problem, project=problem.project.model_copy(update={"loss": spec}),
+                                  objective=objective)
+    theta = problem.space.from_unit(np.random.default_rng(4).random((6, problem.space.dim)))
+    features = CurveFeatures(clipped)
+    y, ok = features.of(clipped.runner().simulate(theta, features.ids))
+    assert ok.all()
+    np.testing.assert_allclose(features.loss(y), clipped.runner().loss(theta), rtol=1e-9)
+    assert not np.allclose(features.loss(y), CurveFeatures(problem).loss(y))
+    # features of another width are refused, not read past their rows
+    with pytest.raises(ValueError, match="per row expected"):
+        features.loss(y[:, :-1])
+
+
 def test_a_loss_the_curves_cannot_give_is_refused(run_dir: Path) -> None:
     problem = load_run(run_dir).problem
     profiled = problem.project.model_copy(update={"loss": LossSpec(contact="profile", contact_offset_mm=0.3)})
