@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from smcbayes.config import PosteriorSpec
+from smcbayes.config.settings import default_of
 from smcbayes.errors import SmcBayesWarning
 from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample, correct, weighted_quantile
 from smcbayes.posterior.curve_spread import curve_spread
@@ -151,7 +152,8 @@ def curve_chains(emulation: CurveEmulation, settings: PosteriorSpec,
     posterior, from the best training point."""
     emulator = emulation.emulator
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
-    if settings.steps > CHAIN_STEPS:
+    # the default steps serve the log-loss emulator's chains: only a choice of the user's is worth a word
+    if settings.steps > CHAIN_STEPS and settings.steps != default_of(PosteriorSpec, "steps"):
         logger.info("curve emulator: %d emcee steps, not %d: the chains only start the importance sampling",
                     CHAIN_STEPS, settings.steps)
     return [sample_chains(emulator, emulation.n_eff, rng, centre, 1.0, min(settings.steps, CHAIN_STEPS),

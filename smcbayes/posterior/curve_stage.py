@@ -229,8 +229,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         size = min(round_runs, budget - progress.spent)
         step = next_round(emulator, n_eff, size, progress.start, spec, rng, walkers)
         record = _take(progress, step, emulator, n_eff, simulate, rng, t0)
-        logger.info("curve emulator round %d: %d points, error %.2f nats at fresh posterior draws",
-                    progress.rounds, record["training_points"], progress.errors[-1])
+        logger.info("curve emulator round %d: %d points, %s", progress.rounds, record["training_points"],
+                    _round_status(progress, tolerance_nats, budget))
         if log is not None:
             log(record)
     return Learned(emulator, progress.x, progress.y,
@@ -257,6 +257,24 @@ def _take(progress: _Progress, step: Round, emulator: CurveEmulator, n_eff: floa
             "forward_runs": progress.spent, "error_nats": _finite(progress.errors[-1]),
             "quantile_shift": progress.shifts[-1], **_round_record(emulator, step),
             "seconds_fit_and_sampling": t1 - t0, "seconds_forward": time.perf_counter() - t1}
+
+
+def _round_status(progress: _Progress, tolerance_nats: float, budget: int) -> str:
+    """One log line: the last round's measures beside the bounds the stop asks of
+    :data:`VALIDATED_ROUNDS` rounds in a row (:meth:`_Progress.validated`; the spreads'
+    mean over the rounds it counts), and the active-learning runs spent of ``budget``, so
+    that a user watching a long learning sees what it still waits for."""
+    shift = progress.shifts[-1]
+    moved = ("posterior move not measured" if shift is None else
+             f"posterior moved {shift:.3f} of a parameter's range (at most {QUANTILE_SHIFT:g})")
+    # at the budget's end the stop counts the last rounds whenever they ran
+    since = 0 if progress.spent >= budget else progress.since
+    counted = progress.spreads[since:][-VALIDATED_ROUNDS:]
+    mean = (f", mean of the last {VALIDATED_ROUNDS} {np.mean(counted):.3f}"
+            if len(counted) == VALIDATED_ROUNDS else "")
+    return (f"{progress.spent:,} of {budget:,} active-learning runs; error {progress.errors[-1]:.2f} nats "
+            f"at fresh posterior draws (at most {tolerance_nats:g} to stop), {moved}, spread "
+            f"{progress.spreads[-1]:.3f}{mean} (at most {SPREAD_MAX:g} on average)")
 
 
 def _confirmed(progress: _Progress, final: FinalPosterior, rng: np.random.Generator, going_on: bool) -> bool:

@@ -21,6 +21,7 @@ from smcbayes.posterior.curve_stage import (
     _confirmed,
     _fresh_error,
     _Progress,
+    _round_status,
     _validated,
 )
 from smcbayes.posterior.spread import SPREAD_MAX
@@ -237,6 +238,28 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
     assert record["confirmations"][0]["spread"] == 1.5 * SPREAD_MAX
     assert record["confirmations"][1]["forward_runs"] == 240 and record["confirmations"][2]["spread"] is None
     assert all(c["seconds"] == 0.0 for c in record["confirmations"])
+
+
+def test_a_rounds_line_gives_the_measures_the_stop_reads_beside_its_bounds() -> None:
+    """The spreads' mean is over the rounds the stop counts: those since the last failed
+    confirmation, or at the budget's end the last ones whenever they ran."""
+    progress = _Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2), spent=160, rounds=4,
+                         since=1, errors=[3.0, 1.5, 0.8, 0.625], shifts=[None, 0.04, 0.02, 0.031],
+                         spreads=[0.5, 0.2, 0.1, 0.06])
+    line = _round_status(progress, 1.0, 400)
+    assert line.startswith("160 of 400 active-learning runs; error 0.62 nats at fresh posterior draws")
+    assert "(at most 1 to stop)" in line
+    assert f"posterior moved 0.031 of a parameter's range (at most {QUANTILE_SHIFT:g})" in line
+    mean = np.mean([0.2, 0.1, 0.06])
+    assert f"spread 0.060, mean of the last {VALIDATED_ROUNDS} {mean:.3f} (at most {SPREAD_MAX:g} on average)" in line
+    # two rounds since a failed confirmation: no mean the stop would read yet
+    progress.since = 2
+    assert "mean of the last" not in _round_status(progress, 1.0, 400)
+    # but at the budget's end the stop counts the last three whenever they ran
+    assert f"mean of the last {VALIDATED_ROUNDS} {mean:.3f}" in _round_status(progress, 1.0, 160)
+    # the first round has no earlier emulator to move from
+    progress.shifts[-1] = None
+    assert "posterior move not measured" in _round_status(progress, 1.0, 400)
 
 
 def test_at_the_budgets_end_a_new_round_that_fails_keeps_the_learning_unvalidated() -> None:

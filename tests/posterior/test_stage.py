@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import logging
 from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
@@ -808,6 +809,22 @@ def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
     assert seen == [25, 25 + ROUND_RUNS_CURVES] and len(learned.x) == seen[-1]
     assert [c["passed"] for c in record["confirmations"]] == [False, True]
     assert learned.final is not None and learned.final.max_shift == 0.5 * SPREAD_MAX
+
+
+def test_each_round_logs_its_measures_beside_the_bounds_of_the_stop(
+        run_dir: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """A user watching a long learning sees after each round the runs spent and the round's
+    error, move and spread beside the bounds the stop asks of them."""
+    with caplog.at_level(logging.INFO, logger="smcbayes.posterior.curve_stage"):
+        learned, _ = _scripted_learning(run_dir, monkeypatch, 200, [1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX])
+    lines = [r.getMessage() for r in caplog.records if "curve emulator round" in r.getMessage()]
+    record = learned.record
+    assert len(lines) == record["rounds"] == 1
+    assert f"round 1: {25 + ROUND_RUNS_CURVES} points, {ROUND_RUNS_CURVES} of 200 active-learning runs;" in lines[0]
+    assert f"error {record['last_errors_nats'][-1]:.2f} nats" in lines[0] and "at most 1 to stop" in lines[0]
+    # the first round has no earlier emulator to have moved from, and no three rounds to average
+    assert "posterior move not measured" in lines[0] and "mean of the last" not in lines[0]
+    assert f"spread {record['last_spreads'][-1]:.3f} (at most {SPREAD_MAX:g} on average)" in lines[0]
 
 
 def test_the_curve_emulator_learns_in_rounds_of_the_size_asked(run_dir: Path,
