@@ -12,7 +12,10 @@ stay accurate where the matrix-product form cancels: at two near-identical point
 form leaves a rounding error of order machine epsilon times the squared scaled norm.
 Many rows at once (:data:`smcbayes.posterior._blocks.PARALLEL_ROWS`) are shared out in
 blocks over numba's threads (:func:`matern52_rows_parallel`); each row's arithmetic is the
-same, so the result does not depend on the number of threads.
+same, so the result does not depend on the number of threads.  The fit's gradient in the
+log lengthscales (:func:`matern52_lengthscale_gradient`) sums a weight matrix times the
+correlation's derivatives over one triangle of the pairs, without forming the ``d``
+derivative matrices.
 """
 
 from __future__ import annotations
@@ -85,3 +88,36 @@ def matern52_self(sa: NDArray[np.float64], sat: NDArray[np.float64], out: NDArra
             value = (1.0 + s + s * s / 3.0) * math.exp(-s)
             out[i, j] = value
             out[j, i] = value
+
+
+@_jit
+def matern52_lengthscale_gradient(sa: NDArray[np.float64], sat: NDArray[np.float64], w: NDArray[np.float64],
+                                  out: NDArray[np.float64]) -> None:
+    """Write to ``out`` ``(d,)`` the sums over the pairs ``i < j`` of ``w[i, j]`` times the
+    derivative of the Matern-5/2 correlation of the scaled points ``sa`` ``(N, d)`` (``sat``
+    the same points transposed, ``(d, N)``) with respect to each log lengthscale: only the
+    upper triangle of ``w`` ``(N, N)`` is read, row by row.
+
+    With ``s = sqrt(5) r``, the correlation ``(1 + s + s^2 / 3) exp(-s)`` has derivative
+    ``(5 / 3) (1 + s) exp(-s) t_k^2`` in the log lengthscale ``k``, where ``t_k`` is the
+    pair's scaled difference in coordinate ``k``."""
+    n, d = sa.shape
+    g = np.empty(n)
+    t2 = np.empty((d, n))
+    out[:] = 0.0
+    for i in range(n - 1):
+        g[i + 1:] = 0.0
+        for k in range(d):
+            a = sa[i, k]
+            for j in range(i + 1, n):
+                t = a - sat[k, j]
+                t2[k, j] = t * t
+                g[j] += t * t
+        for j in range(i + 1, n):
+            s = math.sqrt(5.0 * g[j])
+            g[j] = w[i, j] * (5.0 / 3.0) * (1.0 + s) * math.exp(-s)
+        for k in range(d):
+            acc = 0.0
+            for j in range(i + 1, n):
+                acc += g[j] * t2[k, j]
+            out[k] += acc

@@ -331,6 +331,29 @@ def test_many_rows_share_the_correlation_out_over_threads_with_the_same_values()
     np.testing.assert_array_equal(few, serial[:BLOCK // 2])
 
 
+def test_the_correlation_fits_gradient_is_the_derivative_of_its_likelihood() -> None:
+    from smcbayes.posterior.curves import _concentrated_nll, fit_correlation
+
+    rng = np.random.default_rng(3)
+    x = rng.random((60, 3))
+    z = np.column_stack([np.sin(4 * x[:, 0]) + x[:, 1], np.cos(3 * x[:, 2]) * x[:, 0]])
+    z = z + 0.01 * rng.normal(size=z.shape)
+    z = (z - z.mean(axis=0)) / z.std(axis=0)
+    for params in (np.log([0.2, 0.7, 1.5, 1e-4]), np.log([1.0, 0.05, 3.0, 1e-7])):
+        value, grad = _concentrated_nll(params, x, z)
+        step = 1e-6
+        central = [(_concentrated_nll(params + e, x, z)[0] - _concentrated_nll(params - e, x, z)[0]) / (2 * step)
+                    for e in np.eye(len(params)) * step]
+        np.testing.assert_allclose(grad, central, rtol=1e-5, atol=1e-6)
+        assert np.isfinite(value)
+    # at the fitted correlation the gradient vanishes in every direction that is not held by a bound
+    fit = fit_correlation(x, z)
+    params = np.log(np.r_[fit.lengthscales, fit.nugget])
+    _, grad = _concentrated_nll(params, x, z)
+    free = (fit.lengthscales > 0.021) & (fit.lengthscales < 4.9)
+    assert np.all(np.abs(grad[:-1][free]) < 1e-2 * len(x))
+
+
 def _kernel_case(rng: np.random.Generator, rows: int, nodes: int, grid: np.ndarray) -> dict[str, np.ndarray]:
     """Two configurations' simulated features (forces, switch times, end heights) and
     measured curves of different lengths, packed as :func:`loss_rows` reads them."""
