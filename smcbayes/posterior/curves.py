@@ -257,7 +257,8 @@ def _concentrated_nll(params: Array, x: Array, z: Array) -> tuple[float, Array]:
     b = a * np.sqrt(n / q)
     # only the lower triangle of the inverse is written; that of W, read through its
     # C-ordered transpose, is all the gradient needs
-    w = inverse * j
+    w = inverse
+    w *= j
     w -= b @ b.T
     grad = np.empty_like(params)
     sa = np.ascontiguousarray(x / lengthscales)
