@@ -77,6 +77,10 @@ LENGTHSCALE_BOUNDS = (0.02, 5.0)
 """Lengthscale bounds in the unit cube: beyond a few cube widths the linear trend already
 describes a direction."""
 
+NUGGET_BOUNDS = (1e-9, 1e-1)
+"""Bounds of the correlation's nugget (a share of each output's variance); a jitter of 1e-8
+is added to the diagonal besides."""
+
 
 class CurveLossUnsupported(ConfigError):
     """The project's loss needs more of a simulation than the emulated force curves."""
@@ -275,7 +279,7 @@ def fit_correlation(x: Array, z: Array, start: _Correlation | None = None) -> _C
     z = z[:, z.std(axis=0) > 1e-12]
     z = z / z.std(axis=0) if z.shape[1] else np.zeros((len(x), 1))
     d = x.shape[1]
-    bounds = [tuple(np.log(LENGTHSCALE_BOUNDS))] * d + [(np.log(1e-9), np.log(1e-1))]
+    bounds = [tuple(np.log(LENGTHSCALE_BOUNDS))] * d + [tuple(np.log(NUGGET_BOUNDS))]
     best = None
     # one start from an earlier fit: a fit per round of the active learning, at half the cost
     starts = ([np.log(np.r_[start.lengthscales, max(start.nugget, 1e-9)])] if start is not None else

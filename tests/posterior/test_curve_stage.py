@@ -332,7 +332,12 @@ def test_many_rows_share_the_correlation_out_over_threads_with_the_same_values()
 
 
 def test_the_correlation_fits_gradient_is_the_derivative_of_its_likelihood() -> None:
-    from smcbayes.posterior.curves import LENGTHSCALE_BOUNDS, _concentrated_nll, fit_correlation
+    from smcbayes.posterior.curves import (
+        LENGTHSCALE_BOUNDS,
+        NUGGET_BOUNDS,
+        _concentrated_nll,
+        fit_correlation,
+    )
 
     rng = np.random.default_rng(3)
     x = rng.random((60, 3))
@@ -353,8 +358,8 @@ def test_the_correlation_fits_gradient_is_the_derivative_of_its_likelihood() -> 
     # direction a bound does not hold: a wrong gradient would stop it elsewhere
     fit = fit_correlation(x, z)
     params = np.log(np.r_[fit.lengthscales, fit.nugget])
-    low = np.log(np.r_[[LENGTHSCALE_BOUNDS[0]] * 3, 1e-9])
-    high = np.log(np.r_[[LENGTHSCALE_BOUNDS[1]] * 3, 1e-1])
+    low = np.log(np.r_[[LENGTHSCALE_BOUNDS[0]] * 3, NUGGET_BOUNDS[0]])
+    high = np.log(np.r_[[LENGTHSCALE_BOUNDS[1]] * 3, NUGGET_BOUNDS[1]])
     free = (params > low + 1e-3) & (params < high - 1e-3)
     assert np.count_nonzero(free) >= 3
     assert np.all(np.abs(central(params)[free]) < 1e-2)
