@@ -59,7 +59,9 @@ def _correction_paragraph(corr: dict[str, Any], r_hat: float) -> Paragraph:
     )
 
 
-def _diagnostics(post: dict[str, Any]) -> list:
+def _sampler_paragraphs(post: dict[str, Any]) -> list:
+    """The chains' stopping rule, R-hat and effective sample size, and with a correction
+    its weights' paragraph."""
     params = post.get("parameters") or []
     sampler = post.get("sampler") or []
     r_hat = max((_num(p.get("r_hat")) for p in params), default=float("nan"))
@@ -81,20 +83,26 @@ def _diagnostics(post: dict[str, Any]) -> list:
         # R-hat belongs to the emulator chains, the effective sample size to the weights
         chains = ("the emulator chains agree" if r_hat <= R_HAT_LIMIT
                   else "the emulator chains did not converge")
-        blocks: list = [
+        return [
             Paragraph(
                 f"{words} on the emulator (steps per chain: {steps}); the largest R-hat of its "
                 f"chains is {fmt(r_hat, 3)}: {chains}."
             ),
             _correction_paragraph(corr, r_hat),
         ]
-    else:
-        blocks = [
-            Paragraph(
-                f"{words} (steps per chain: {steps}); the largest R-hat is {fmt(r_hat, 3)} "
-                f"and the smallest effective sample size {fmt(ess, 3)}: {quality}."
-            )
-        ]
+    return [
+        Paragraph(
+            f"{words} (steps per chain: {steps}); the largest R-hat is {fmt(r_hat, 3)} "
+            f"and the smallest effective sample size {fmt(ess, 3)}: {quality}."
+        )
+    ]
+
+
+def _diagnostics(post: dict[str, Any]) -> list:
+    """The posterior's diagnostics: the sampler's (:func:`_sampler_paragraphs`), the
+    emulator check, its spread, the likelihood's effective points, the warnings and the
+    notes of the chains that started the importance sampling."""
+    blocks = _sampler_paragraphs(post)
     check = post.get("emulator_check") or {}
     if check:
         blocks.append(
