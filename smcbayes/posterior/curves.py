@@ -78,8 +78,12 @@ LENGTHSCALE_BOUNDS = (0.02, 5.0)
 describes a direction."""
 
 NUGGET_BOUNDS = (1e-9, 1e-1)
-"""Bounds of the correlation's nugget (a share of each output's variance); a jitter of 1e-8
+"""Bounds of the correlation's nugget (a share of each output's variance); :data:`JITTER`
 is added to the diagonal besides."""
+
+JITTER = 1e-8
+"""Added to the correlation's diagonal besides the nugget, so that a nugget at its lower
+bound still leaves the factorisation positive definite."""
 
 
 class CurveLossUnsupported(ConfigError):
@@ -243,7 +247,7 @@ def _concentrated_nll(params: Array, x: Array, z: Array) -> tuple[float, Array]:
     n, j = z.shape
     lengthscales, nugget = np.exp(params[:-1]), float(np.exp(params[-1]))
     r = matern52(x, None, lengthscales)
-    r[np.diag_indices_from(r)] += nugget + 1e-8
+    r[np.diag_indices_from(r)] += nugget + JITTER
     try:
         # the matrix is this call's own, finite and exactly symmetric: its transpose is the
         # Fortran-ordered array LAPACK factorises in place, without a copy or a scan of its
@@ -290,7 +294,7 @@ def fit_correlation(x: Array, z: Array, start: _Correlation | None = None) -> _C
         best = res if best is None or res.fun < best.fun else best
     ls, nug = np.exp(best.x[:-1]), float(np.exp(best.x[-1]))
     r = matern52(x, None, ls)
-    r[np.diag_indices_from(r)] += nug + 1e-8
+    r[np.diag_indices_from(r)] += nug + JITTER
     chol = np.linalg.cholesky(r)
     return _Correlation(ls, nug, chol)
 

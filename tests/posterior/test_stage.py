@@ -569,7 +569,7 @@ def test_the_emulator_calibrates_its_variance_by_leave_one_out_errors(run_dir: P
     refitted without each chosen row (same correlation and trend), computed here by brute
     force; too few chosen rows, or rows not in the data, leave the fit as it is."""
     from smcbayes.posterior.curve_spread import joint_outputs
-    from smcbayes.posterior.curves import CALIBRATION_BOUNDS, matern52
+    from smcbayes.posterior.curves import CALIBRATION_BOUNDS, JITTER, matern52
 
     features, u, y, _ = _rows(run_dir, 40, 8)
     emulator = CurveEmulator(features, u, y)
@@ -579,10 +579,10 @@ def test_the_emulator_calibrates_its_variance_by_leave_one_out_errors(run_dir: P
     z2 = []
     for i in chosen:
         rest = np.delete(np.arange(len(u)), i)
-        k_rest = matern52(u[rest], u[rest], ls) + (nugget + 1e-8) * np.eye(len(rest))
+        k_rest = matern52(u[rest], u[rest], ls) + (nugget + JITTER) * np.eye(len(rest))
         k_i = matern52(u[i:i + 1], u[rest], ls)[0]
         mean = k_i @ np.linalg.solve(k_rest, z[rest])
-        var = 1.0 + nugget + 1e-8 - k_i @ np.linalg.solve(k_rest, k_i)
+        var = 1.0 + nugget + JITTER - k_i @ np.linalg.solve(k_rest, k_i)
         z2.append((z[i] - mean) ** 2 / var / np.where(emulator.scale2 > 0, emulator.scale2, np.inf))
     expected = np.where(emulator.scale2 > 0, np.clip(np.mean(z2, axis=0), *CALIBRATION_BOUNDS), 1.0)
     _, before = emulator.predict(u[:3] + 0.01, variance=True)
