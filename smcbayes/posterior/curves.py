@@ -82,8 +82,9 @@ NUGGET_BOUNDS = (1e-9, 1e-1)
 is added to the diagonal besides."""
 
 JITTER = 1e-8
-"""Added to the correlation's diagonal besides the nugget, so that a nugget at its lower
-bound still leaves the factorisation positive definite."""
+"""Added to the correlation's diagonal besides the nugget: a margin that keeps the matrix
+numerically positive definite, and its Cholesky factorisation possible, with a nugget at
+its lower bound."""
 
 
 class CurveLossUnsupported(ConfigError):

@@ -60,8 +60,8 @@ def _correction_paragraph(corr: dict[str, Any], r_hat: float) -> Paragraph:
 
 
 def _sampler_paragraphs(post: dict[str, Any]) -> list:
-    """The chains' stopping rule, R-hat and effective sample size, and with a correction
-    its weights' paragraph."""
+    """The chains' stopping rule and largest R-hat, with their smallest effective sample
+    size; with an importance correction, the weights' paragraph instead of that size."""
     params = post.get("parameters") or []
     sampler = post.get("sampler") or []
     r_hat = max((_num(p.get("r_hat")) for p in params), default=float("nan"))
