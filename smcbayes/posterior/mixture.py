@@ -27,7 +27,8 @@ k-means++ choice of means (points drawn with probability proportional to w_i tim
 squared Mahalanobis distance to the nearest mean chosen so far), which reaches a distant
 region of small mass that a uniform choice would miss.  A large sample is first thinned,
 without bias, to a few thousand points (:func:`thin`), which keeps the fit to a fraction of
-a second as the importance sample grows.
+a second as the importance sample grows; the EM steps run in compiled kernels
+(:mod:`._mixture_kernel`).
 """
 
 from __future__ import annotations
@@ -166,18 +167,22 @@ def fit_mixture(x: Array, w: Array, components: int, rng: np.random.Generator,
     mean = _kmeans_pp(x, w, k, np.linalg.inv(glob), rng)
     k = mean.shape[0]
     mix = Mixture(np.full(k, 1.0 / k), mean, np.broadcast_to(glob, (k, d, d)).copy())
+    from smcbayes.posterior._mixture_kernel import e_step, scatter  # numba loads on first use
+
+    resp = np.empty((n, k))  # weighted responsibilities w_i r_ik
+    spread = np.empty((d, d, k))
     last = -np.inf
     for _ in range(iterations):
-        joint = mix.log_joint(x)
-        norm = logsumexp(joint, axis=1, keepdims=True)
-        loglik = float(w @ norm[:, 0])
-        resp = np.exp(joint - norm) * w[:, None]  # (N, K) weighted responsibilities
+        chol = np.linalg.cholesky(mix.cov)
+        const = (np.log(np.maximum(mix.weight, 1e-300)) - np.sum(np.log(np.diagonal(chol, axis1=1, axis2=2)), axis=1)
+                 - 0.5 * d * np.log(2.0 * np.pi))
+        loglik = e_step(x, w, np.ascontiguousarray(mix.mean.T),
+                        np.ascontiguousarray(np.linalg.inv(chol).transpose(1, 2, 0)), const, resp)
         alpha = np.maximum(resp.sum(axis=0), 1e-12)
         mean = (resp.T @ x) / alpha[:, None]
-        diff = x[None, :, :] - mean[:, None, :]  # (K, N, d)
-        scatter = np.matmul(np.swapaxes(diff * resp.T[:, :, None], 1, 2), diff) / alpha[:, None, None]
+        scatter(x, resp, np.ascontiguousarray(mean.T), spread)
         n_k = (alpha * ess)[:, None, None]
-        cov = (n_k * scatter + kappa * glob[None]) / (n_k + kappa) + 1e-9 * np.eye(d)
+        cov = (n_k * spread.transpose(2, 0, 1) / alpha[:, None, None] + kappa * glob[None]) / (n_k + kappa) + 1e-9 * np.eye(d)
         mix = Mixture(alpha / alpha.sum(), mean, cov)
         if loglik - last < tol:
             break

@@ -88,3 +88,27 @@ def test_thinning_weights_700_nats_below_their_sum_keeps_its_count_without_a_war
             xt, wt = thin(x, weights / weights.sum(), count, rng)
         assert 0.9 * count < xt.shape[0] < 1.1 * count
         np.testing.assert_allclose(wt @ xt / wt.sum(), weights @ x / weights.sum(), atol=0.02)
+
+
+def test_the_compiled_em_steps_give_the_responsibilities_and_scatter_of_the_formulas() -> None:
+    from smcbayes.posterior._mixture_kernel import e_step, scatter
+
+    rng = np.random.default_rng(5)
+    n, d, k = 400, 3, 4
+    x, w = rng.random((n, d)), rng.random(n)
+    w /= w.sum()
+    alpha, mean = rng.dirichlet(np.ones(k)), rng.random((k, d))
+    cov = np.array([a @ a.T / d + 0.01 * np.eye(d) for a in rng.normal(size=(k, d, d)) * 0.2])
+    chol = np.linalg.cholesky(cov)
+    const = np.log(alpha) - np.sum(np.log(np.diagonal(chol, axis1=1, axis2=2)), axis=1) - 0.5 * d * np.log(2 * np.pi)
+    resp = np.empty((n, k))
+    loglik = e_step(x, w, np.ascontiguousarray(mean.T), np.ascontiguousarray(np.linalg.inv(chol).transpose(1, 2, 0)),
+                    const, resp)
+    joint = np.log(alpha) + np.column_stack([multivariate_normal(m, c).logpdf(x) for m, c in zip(mean, cov, strict=True)])
+    norm = np.logaddexp.reduce(joint, axis=1)
+    np.testing.assert_allclose(loglik, w @ norm, rtol=1e-12)
+    np.testing.assert_allclose(resp, np.exp(joint - norm[:, None]) * w[:, None], rtol=1e-10, atol=1e-300)
+    out = np.empty((d, d, k))
+    scatter(x, resp, np.ascontiguousarray(mean.T), out)
+    diff = x[None, :, :] - mean[:, None, :]
+    np.testing.assert_allclose(out.transpose(2, 0, 1), np.einsum("kn,kna,knb->kab", resp.T, diff, diff), rtol=1e-12)
