@@ -318,7 +318,7 @@ def spread_chains(ctx: RunContext, surrogate: Any, n_eff: float, settings: Poste
     same autocorrelation rule as the GP mean's chains: the same seed on the same GP gives
     the same functions, so the measurement that ended the active learning can be repeated
     with chains fit to be pooled."""
-    def run(functions: int, chosen: int) -> list:
+    def run(functions: int, chosen: int) -> list[Chains]:
         return sample(ctx, surrogate, n_eff, settings.model_copy(update={"functions": functions, "seed": chosen}),
                       rng, "stretch")[1]
 

@@ -17,7 +17,7 @@ from typing import Any
 from smcbayes.errors import ConfigError
 from smcbayes.plotting import MEASURED, grid_shape, save, subplots
 from smcbayes.report.collect import RunFiles, load_run_files
-from smcbayes.report.document import Figure, Heading, Paragraph, Section, Table, fmt, pct
+from smcbayes.report.document import Block, Figure, Heading, Paragraph, Section, Table, fmt, pct
 from smcbayes.report.measured import load_measured, project_of, search_ranges
 from smcbayes.report.sections_diagnosis import truth_check
 from smcbayes.report.sections_stages import PRIOR_SHARE, interval_share
@@ -51,7 +51,7 @@ def _rmse_by_config(cal: dict[str, Any]) -> dict[str, tuple[str, float]]:
     return out
 
 
-def _fit_blocks(before: RunFiles, after: RunFiles) -> list:
+def _fit_blocks(before: RunFiles, after: RunFiles) -> list[Block]:
     rb, ra = _rmse_by_config(before.calibration), _rmse_by_config(after.calibration)
     rows = []
     for cid in dict.fromkeys([*rb, *ra]):
@@ -159,7 +159,7 @@ def _inside(p: dict[str, Any] | None, true: Any) -> bool | None:
     return None if lo != lo or hi != hi else lo <= t <= hi
 
 
-def _width_blocks(before: RunFiles, after: RunFiles) -> list:
+def _width_blocks(before: RunFiles, after: RunFiles) -> list[Block]:
     pb = {str(p.get("name")): p for p in (before.posterior or {}).get("parameters") or []}
     pa = {str(p.get("name")): p for p in (after.posterior or {}).get("parameters") or []}
     rb, ra = search_ranges(before.calibration), search_ranges(after.calibration)
@@ -209,7 +209,7 @@ def _width_blocks(before: RunFiles, after: RunFiles) -> list:
     return blocks
 
 
-def _band_blocks(before: RunFiles, after: RunFiles) -> list:
+def _band_blocks(before: RunFiles, after: RunFiles) -> list[Block]:
     bb = (before.posterior or {}).get("bands") or {}
     ba = (after.posterior or {}).get("bands") or {}
     if not (bb or ba):

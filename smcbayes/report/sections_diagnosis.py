@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 from smcbayes.report.collect import RunFiles
-from smcbayes.report.document import Bullets, Figure, Heading, Paragraph, Section, Table, fmt, pct
+from smcbayes.report.document import Block, Bullets, Figure, Heading, Paragraph, Section, Table, fmt, pct
 
 
 def _ranking(rows: list[dict[str, Any]], named: str | None) -> Table:
@@ -102,7 +102,7 @@ def truth_check(run: RunFiles, best: str | None) -> Paragraph | None:
     )
 
 
-def _selection(diag: dict[str, Any]) -> list:
+def _selection(diag: dict[str, Any]) -> list[Block]:
     """The forward selection's steps and the next command, or the single effect's next step
     for a summary written before effect sets were selected."""
     best = (diag.get("decision") or {}).get("best")

@@ -10,7 +10,7 @@ from typing import Any
 from smcbayes import __version__
 from smcbayes.errors import ParameterOnBoundWarning
 from smcbayes.report.collect import RunFiles, data_dir_of, sha256
-from smcbayes.report.document import Bullets, Code, Figure, Heading, Paragraph, Section, Table, fmt
+from smcbayes.report.document import Block, Bullets, Code, Figure, Heading, Paragraph, Section, Table, fmt
 
 
 def _config_rows(project: dict[str, Any], with_data: set[str]) -> tuple[tuple[str, ...], ...]:
@@ -31,7 +31,7 @@ def _config_rows(project: dict[str, Any], with_data: set[str]) -> tuple[tuple[st
     return tuple(rows)
 
 
-def _truth_blocks(truth: dict[str, Any]) -> list:
+def _truth_blocks(truth: dict[str, Any]) -> list[Block]:
     effects = truth.get("effects") or []
     noise = truth.get("noise") or {}
     on = ", ".join(effects) if effects else "no effect"

@@ -12,7 +12,7 @@ import numpy as np
 
 from smcbayes.posterior.spread import SPREAD_MAX, pooled_words, spread_words
 from smcbayes.report.collect import RunFiles
-from smcbayes.report.document import Bullets, Figure, Heading, Paragraph, Section, Table, fmt, pct
+from smcbayes.report.document import Block, Bullets, Figure, Heading, Paragraph, Section, Table, fmt, pct
 
 R_HAT_LIMIT = 1.05
 """R-hat above which the walkers are said to disagree (the posterior stage's own limit)."""
@@ -59,7 +59,7 @@ def _correction_paragraph(corr: dict[str, Any], r_hat: float) -> Paragraph:
     )
 
 
-def _sampler_paragraphs(post: dict[str, Any]) -> list:
+def _sampler_paragraphs(post: dict[str, Any]) -> list[Block]:
     """The chains' stopping rule and largest R-hat, with their smallest effective sample
     size; with an importance correction, the weights' paragraph instead of that size."""
     params = post.get("parameters") or []
@@ -98,7 +98,7 @@ def _sampler_paragraphs(post: dict[str, Any]) -> list:
     ]
 
 
-def _diagnostics(post: dict[str, Any]) -> list:
+def _diagnostics(post: dict[str, Any]) -> list[Block]:
     """The posterior's diagnostics: the sampler's (:func:`_sampler_paragraphs`), the
     emulator check, its spread, the likelihood's effective points, the warnings and the
     notes of the chains that started the importance sampling."""
@@ -193,7 +193,7 @@ def _active_words(post: dict[str, Any]) -> str:
             f"{fmt(active.get('rounds'))} rounds ({done})")
 
 
-def _verdict(post: dict[str, Any]) -> list:
+def _verdict(post: dict[str, Any]) -> list[Block]:
     """The stage's own verdict (``reliability``) first: unreliable with its reasons, and the
     notes on the posterior's shape (a bound, separate modes, a ridge) with what to do."""
     rel = post.get("reliability") or {}
@@ -317,7 +317,7 @@ def _posterior_table(
     return Table(POSTERIOR_HEADER, rows, caption="posterior summary", numeric=tuple(range(2, 11)))
 
 
-def _correlation_blocks(run: RunFiles, corr: dict[str, Any]) -> list:
+def _correlation_blocks(run: RunFiles, corr: dict[str, Any]) -> list[Block]:
     pairs = corr.get("strongest") or []
     blocks: list = [Heading("Correlations")]
     if pairs:
