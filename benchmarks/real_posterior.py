@@ -15,6 +15,15 @@ cache loading count.  Seeds run one after the other: two stages at once on 2 cor
 time each other.  The load average is printed beside each time, because other processes on
 a shared machine stretch wall time.
 
+With ``--reference-draws N`` the exact posterior is drawn once as well, on another fresh
+copy: the stage with the importance correction by the forward model (``--correct-draws N
+--seed R``, R from ``--reference-seed``; the built-in model's runs cost milliseconds), whose
+weighted sample is the reference.  Each seed's reported posterior is then compared with it
+as the accuracy benchmark compares with its exact posterior: the largest difference of a
+5/50/95 % quantile (share of the parameter's range; target 0.10), of a correlation (target
+0.15) and the MMTV (target 0.2), and whether a posterior called reliable missed them.  The
+reference is reused while the calibration, the draws and its seed are the same.
+
 Per seed: wall time, the verdict and its reasons, the emulator check (mean absolute error
 at 100 posterior draws, nats), the forward runs that shaped the posterior (``inference``)
 and those for bands and checks, the active learning's rounds and whether it was validated,
@@ -22,7 +31,8 @@ the reported posterior's spread (how far the emulator's sample functions move a 
 quantile, share of the range) and the stage's own time split.
 
     python benchmarks/real_posterior.py [--seeds 0,1,2] [--emulator curves] [--correct-draws 0]
-        [--round-runs N] [--workdir DIR] [--data-dir DIR] [--name real_posterior]
+        [--round-runs N] [--reference-draws N] [--reference-seed R] [--workdir DIR]
+        [--data-dir DIR] [--name real_posterior]
 
 Writes ``benchmarks/results/NAME.json``.  Needs ../shared/data/thesis-press next to the
 repository (``--data-dir``); without it, prints why and exits 0.
@@ -40,6 +50,8 @@ import sys
 import time
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -72,31 +84,79 @@ def calibrated(workdir: Path, project: Path, data_dir: Path, seed: int) -> tuple
     return run, time.perf_counter() - t0
 
 
+def posterior_command(calibration: Path, run: Path, options: list[str], log: Path) -> tuple[int, float]:
+    """``smcbayes posterior`` with ``options`` on a fresh copy ``run`` of ``calibration``, in a
+    fresh interpreter, its output to ``log``: the exit code and the wall time (s)."""
+    shutil.rmtree(run, ignore_errors=True)
+    # only the calibration's own earlier posterior is left out, not a folder of that name deeper down
+    shutil.copytree(calibration, run,
+                    ignore=lambda folder, names: ["posterior"] if Path(folder) == calibration else [])
+    cmd = [sys.executable, "-m", "smcbayes.cli", "posterior", str(run), *options]
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    t0 = time.perf_counter()
+    with log.open("w", encoding="utf-8") as fh:
+        proc = subprocess.run(cmd, stdout=fh, stderr=subprocess.STDOUT, check=False, env=env, cwd=ROOT)
+    return proc.returncode, time.perf_counter() - t0
+
+
 def run_stage(calibration: Path, workdir: Path, seed: int, args: argparse.Namespace) -> dict[str, Any]:
     """One seed's posterior stage on a fresh copy of ``calibration``, in a fresh interpreter;
     its output goes to ``workdir/seed-S.log``.  A failed stage gives a record with its exit
     code and the end of its log, so that the other seeds' records are still written."""
     run = workdir / f"seed-{seed}"
-    shutil.rmtree(run, ignore_errors=True)
-    # only the calibration's own earlier posterior is left out, not a folder of that name deeper down
-    shutil.copytree(calibration, run,
-                    ignore=lambda folder, names: ["posterior"] if Path(folder) == calibration else [])
-    cmd = [sys.executable, "-m", "smcbayes.cli", "posterior", str(run), "--emulator", args.emulator,
-           "--correct-draws", str(args.correct_draws), "--seed", str(seed)]
-    cmd += [] if args.round_runs is None else ["--round-runs", str(args.round_runs)]
-    env = {**os.environ, "MPLBACKEND": "Agg"}
+    options = ["--emulator", args.emulator, "--correct-draws", str(args.correct_draws), "--seed", str(seed)]
+    options += [] if args.round_runs is None else ["--round-runs", str(args.round_runs)]
     log = workdir / f"seed-{seed}.log"
     load_before = os.getloadavg()[0]
-    t0 = time.perf_counter()
-    with log.open("w", encoding="utf-8") as fh:
-        proc = subprocess.run(cmd, stdout=fh, stderr=subprocess.STDOUT, check=False, env=env, cwd=ROOT)
-    wall = time.perf_counter() - t0
-    if proc.returncode != 0:
+    code, wall = posterior_command(calibration, run, options, log)
+    if code != 0:
         tail = log.read_text(encoding="utf-8").splitlines()[-20:]
-        return {"seed": seed, "wall_s": wall, "returncode": proc.returncode, "log_tail": tail,
+        return {"seed": seed, "wall_s": wall, "returncode": code, "log_tail": tail,
                 "met": {"reliable": False, "check": False, "time": False}}
     summary = json.loads((run / "posterior" / "summary.json").read_text(encoding="utf-8"))
-    return record_of(summary, seed, wall, (load_before, os.getloadavg()[0]))
+    return {**record_of(summary, seed, wall, (load_before, os.getloadavg()[0])), "run": str(run)}
+
+
+def reference(calibration: Path, workdir: Path, args: argparse.Namespace) -> dict[str, Any] | None:
+    """The exact posterior (see the module docstring) in ``workdir/reference``, drawn unless
+    one of the same calibration, draws and seed is there; ``None`` without
+    ``--reference-draws``.  Returns its run directory, the correction's ESS and k-hat, its
+    forward runs and wall time (``None`` when reused)."""
+    if args.reference_draws <= 0:
+        return None
+    run, record = workdir / "reference", workdir / "reference.json"
+    settings = {"calibration": json.loads((workdir / "calibration.json").read_text()),
+                "draws": args.reference_draws, "seed": args.reference_seed}
+    summary_path = run / "posterior" / "summary.json"
+    wall = None
+    if not (summary_path.is_file() and record.is_file() and json.loads(record.read_text()) == settings):
+        record.unlink(missing_ok=True)
+        options = ["--correct-draws", str(args.reference_draws), "--seed", str(args.reference_seed)]
+        code, wall = posterior_command(calibration, run, options, workdir / "reference.log")
+        if code != 0:
+            raise SystemExit(f"the reference stage failed (exit code {code}); see {workdir / 'reference.log'}")
+        record.write_text(json.dumps(settings, indent=2) + "\n")
+    summary = json.loads(summary_path.read_text(encoding="utf-8"))
+    corr = summary.get("correction") or {}
+    return {"run": str(run), "wall_s": wall, "ess": corr.get("ess"), "k_hat": corr.get("k_hat"),
+            "forward_runs": corr.get("evaluations"), "draws": args.reference_draws, "seed": args.reference_seed}
+
+
+def against_reference(rec: dict[str, Any], ref: dict[str, Any]) -> dict[str, Any]:
+    """How far a seed's reported posterior lies from the reference (quantiles and
+    correlations as the accuracy benchmark measures them, MMTV)."""
+    from _posterior_common import posterior_samples
+    from posterior_accuracy import Q_TARGET, R_TARGET, compare
+
+    exact = posterior_samples(Path(ref["run"]))["weighted"]
+    drawn = posterior_samples(Path(rec["run"]))["reported"]
+    names = [str(k) for k in range(drawn.shape[1])]
+    c = compare(names, exact, drawn, np.zeros(drawn.shape[1]))
+    met = bool(c["quantiles_met"] and c["correlations_met"] and c["mmtv"] < 0.2)
+    return {"max_quantile_diff": c["max_quantile_diff"], "max_correlation_diff": c["max_correlation_diff"],
+            "mmtv": c["mmtv"], "met": met, "targets": {"quantiles": Q_TARGET, "correlations": R_TARGET, "mmtv": 0.2},
+            "quantiles_unit": {"reference": [p["exact_q05_q50_q95_unit"] for p in c["parameters"]],
+                               "reported": [p["emulated_q05_q50_q95_unit"] for p in c["parameters"]]}}
 
 
 def record_of(summary: dict[str, Any], seed: int, wall_s: float, load: tuple[float, float]) -> dict[str, Any]:
@@ -136,6 +196,11 @@ def print_record(rec: dict[str, Any]) -> None:
           f"{rec['active_learning_runs']} in {rec['rounds']} rounds, "
           f"{'validated' if rec['validated'] else 'not validated'}), {rec['checks_and_bands_runs']} for "
           "checks and bands")
+    against = rec.get("reference")
+    if against is not None:
+        print(f"  against the exact posterior: quantiles {against['max_quantile_diff']:.3f}, correlations "
+              f"{against['max_correlation_diff']:.3f}, MMTV {against['mmtv']:.3f}"
+              + ("" if against["met"] else " (targets missed" + (", though reliable)" if rec["reliable"] else ")")))
     missed = [k for k, ok in rec["met"].items() if not ok]
     if missed:
         print("  MISSED: " + ", ".join(missed))
@@ -168,6 +233,10 @@ def parse() -> argparse.Namespace:
                     help="forward-model correction draws (0: none, as for an expensive simulator)")
     ap.add_argument("--round-runs", type=int, default=None,
                     help="forward runs per active-learning round (default: the stage's)")
+    ap.add_argument("--reference-draws", type=int, default=0,
+                    help="draws of the exact posterior's importance correction by the forward model that each "
+                    "seed is compared with (0: no reference; 40000 take about 5 minutes on the nine trials)")
+    ap.add_argument("--reference-seed", type=int, default=0, help="seed of the reference stage")
     ap.add_argument("--workdir", default=None, help="default: benchmarks/results/NAME/work")
     ap.add_argument("--data-dir", default=str(DATA))
     ap.add_argument("--project", default=str(PROJECT))
@@ -185,15 +254,29 @@ def main() -> int:
     calibration, calibration_s = calibrated(workdir, Path(args.project), Path(args.data_dir),
                                             args.calibration_seed)
     print(f"calibration: {'reused' if calibration_s is None else f'{calibration_s:.0f} s'} ({calibration})")
+    exact = reference(calibration, workdir, args)
+    if exact is not None:
+        made = "reused" if exact["wall_s"] is None else f"{exact['wall_s']:.0f} s"
+        print(f"reference: {made}, {exact['forward_runs']} forward runs, importance ESS {exact['ess']:.0f}, "
+              f"k-hat {exact['k_hat']:.2f} ({exact['run']})")
     records = []
     for seed in args.seeds:
-        records.append(run_stage(calibration, workdir, seed, args))
-        print_record(records[-1])
+        rec = run_stage(calibration, workdir, seed, args)
+        if exact is not None and "returncode" not in rec:
+            rec["reference"] = against_reference(rec, exact)
+        records.append(rec)
+        print_record(rec)
     met = {k: sum(r["met"][k] for r in records) for k in ("reliable", "check", "time")}
     print(f"targets (each seed: reliable, check <= {TARGET_CHECK_NATS:g} nat, <= {TARGET_S:.0f} s): "
           + ", ".join(f"{k} {v} of {len(records)}" for k, v in met.items()))
+    if exact is not None:
+        compared = [r for r in records if "reference" in r]
+        print(f"against the exact posterior: {sum(r['reference']['met'] for r in compared)} of {len(compared)} "
+              f"within the targets; reliable yet outside them: "
+              f"{sum(r['reliable'] and not r['reference']['met'] for r in compared)}")
     out = {"settings": vars(args), "cpu_count": os.cpu_count(), "calibration_s": calibration_s,
-           "targets": {"wall_s": TARGET_S, "check_nats": TARGET_CHECK_NATS}, "seeds": records, "met": met}
+           "targets": {"wall_s": TARGET_S, "check_nats": TARGET_CHECK_NATS}, "reference": exact,
+           "seeds": records, "met": met}
     path = RESULTS / f"{args.name}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=2, default=float) + "\n", encoding="utf-8")

@@ -340,7 +340,8 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     info["active_learning"] = {**emulated.active, "start_points": emulated.start_points}
     info["emulator_threads"] = threads
     _count_runs(info["forward_evaluations"], emulated.active["evaluations"], 2 * ctx.space.dim + 1)
-    info["reliability"] = assess(info, ctx.space, ctx.summary.get("best_loss_kN2"), ctx.noise_free)
+    info["reliability"] = assess(info, ctx.space, ctx.summary.get("best_loss_kN2"), ctx.noise_free,
+                                 cheap=ctx.problem.fast)
     info["reliable"] = info["reliability"]["reliable"]
     if not info["reliable"]:
         warnings.warn("the posterior is unreliable: " + "; ".join(info["reliability"]["reasons"]),

@@ -459,6 +459,12 @@ def test_reliability_names_each_failed_diagnostic() -> None:
     assert "noise-free" in assess(good, space, 1e-12)["reasons"][0]
     converged = {"parameters": narrow, "emulator_check": {"mean_abs_error": 0.4}}
     assert assess(converged, space, 10.0)["reliable"]
+    # a reliable emulated posterior of a cheap simulator says how to compare it with the exact one,
+    # not one that the correction shaped, nor one that is unreliable anyway
+    assert "--correct-draws" in assess(converged, space, 10.0, cheap=True)["notes"][-1]
+    corrected = {**good, "forward_evaluations": {"correction": 9000}}
+    assert assess(corrected, space, 10.0, cheap=True)["notes"] == []
+    assert assess(emulator_only, space, 10.0, cheap=True)["notes"] == []
     spread = {"max_quantile_shift": 0.25, "per_parameter": {"n": 0.05, "m": 0.25}}
     reasons = assess({**converged, "emulator_spread": spread}, space, 10.0)["reasons"]
     assert len(reasons) == 1 and "quantile of m moves by 0.25" in reasons[0] and "raise --refine" in reasons[0]
