@@ -38,7 +38,7 @@ def corner_plot(space: ParameterSpace, theta: Array, path: Path,
                         quantiles=[0.05, 0.5, 0.95], show_titles=True, title_fmt=".3g",
                         title_kwargs={"fontsize": 8}, label_kwargs={"fontsize": 8},
                         # the density's cells as one image per panel: as vector paths they made an
-                        # SVG of several MB that took seconds to write and to open
+                        # SVG of about 3 MB that took seconds to write and to open
                         pcolor_kwargs={"rasterized": True})
     return save(fig, path)
 

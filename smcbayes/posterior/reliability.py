@@ -37,8 +37,9 @@ VANISHING_LOSS_KN2 = 1e-8
 """A best loss below this (kN^2) is a curve reproduced to round-off: noise-free data."""
 UNSEEN_NOTE = ("the emulator's checks look only where its posterior lies, so a region it wrongly "
                "rates as poor goes unseen (on the measured thesis trials every seed missed a tail "
-               "holding 6-9 % of the exact posterior); the built-in model is cheap: smcbayes posterior "
-               "RUN --correct-draws 40000 draws the exact posterior to compare (a few minutes)")
+               "holding 6-9 % of the corrected posterior); the built-in model is cheap: on a copy of "
+               "the run directory, smcbayes posterior COPY --correct-draws 60000 draws the posterior "
+               "corrected by the forward model to compare (minutes; its verdict says whether it settled)")
 """The note on a reliable posterior of the emulator alone where the simulator is cheap."""
 NOISE_FREE_REASON = ("the training curves are noise-free simulator output: the loss vanishes at the "
                      "truth, so the likelihood is a spike there and the posterior is degenerate "
@@ -108,8 +109,9 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
                    "longer (--steps)")
     check = (info.get("emulator_check") or {}).get("mean_abs_error", math.nan)
     if not check <= CHECK_MAX_NATS:
-        out.append(f"the emulator is {check:.2g} nats off at posterior draws (> {CHECK_MAX_NATS}) and "
-                   "nothing corrects it; use the correction (--correct-draws) or --refine")
+        # a check of 1.02 would read "1 nats off (> 1.0)" in two digits
+        out.append(f"the emulator is {_past(check, CHECK_MAX_NATS)} nats off at posterior draws "
+                   f"(> {CHECK_MAX_NATS}) and nothing corrects it; use the correction (--correct-draws) or --refine")
     # a validated active learning stops at the same point with a larger budget, unless only
     # the budget's end let it stop: by counting rounds from before a failed confirmation, or
     # by confirming at all after its last allowed failed confirmation

@@ -179,7 +179,7 @@ def _width_blocks(before: RunFiles, after: RunFiles) -> list[Block]:
             _interval(pa.get(name)), pct(interval_share(pa[name], ra)) if name in pa else "-",
             fmt(truth.get(name)), {True: "yes", False: "no", None: "-"}[hit],
         ))
-    blocks: list = [
+    blocks: list[Block] = [
         Heading("Posterior width"),
         Table(("parameter", "search range", "90 % interval before", "share of range before",
                "90 % interval after", "share of range after", "true value",

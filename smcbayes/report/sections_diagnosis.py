@@ -122,7 +122,7 @@ def _selection(diag: dict[str, Any]) -> list[Block]:
     if left_out:
         lines += (f"not tried: {', '.join(map(str, left_out))} (alone, their parameters could not move "
                   "the curves along the gap and the held-out loss changed by less than 1 %)",)
-    blocks: list = []
+    blocks: list[Block] = []
     if lines:
         blocks += [Paragraph(f"Forward selection from {best}:"), Bullets(lines)]
     flags = " ".join(f"--effect {e}" for e in chosen)

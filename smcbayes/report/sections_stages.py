@@ -195,13 +195,14 @@ def _active_words(post: dict[str, Any]) -> str:
 
 def _verdict(post: dict[str, Any]) -> list[Block]:
     """The stage's own verdict (``reliability``) first: unreliable with its reasons, and the
-    notes on the posterior's shape (a bound, separate modes, a ridge) with what to do."""
+    notes on the posterior's shape (a bound, separate modes, a ridge) or on what its checks
+    cannot see, with what to do."""
     rel = post.get("reliability") or {}
     if not rel:
         return []
     reasons = [str(r) for r in rel.get("reasons") or []]
     if rel.get("reliable"):
-        blocks: list = [Paragraph("Verdict: the posterior's own diagnostics pass; its numbers can "
+        blocks: list[Block] = [Paragraph("Verdict: the posterior's own diagnostics pass; its numbers can "
                                   "be used.")]
     else:
         blocks = [Paragraph("Verdict: the posterior is unreliable; treat its numbers as "
@@ -319,7 +320,7 @@ def _posterior_table(
 
 def _correlation_blocks(run: RunFiles, corr: dict[str, Any]) -> list[Block]:
     pairs = corr.get("strongest") or []
-    blocks: list = [Heading("Correlations")]
+    blocks: list[Block] = [Heading("Correlations")]
     if pairs:
         blocks.append(Bullets(tuple(_pair_words(p) for p in pairs)))
     else:

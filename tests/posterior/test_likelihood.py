@@ -455,6 +455,9 @@ def test_reliability_names_each_failed_diagnostic() -> None:
                      "emulator_check": {"mean_abs_error": 3.0}}
     reasons = assess(emulator_only, space, 10.0)["reasons"]
     assert len(reasons) == 2 and "R-hat 1.20" in reasons[0] and "3 nats" in reasons[1]
+    # just past the bound, the check is not printed as the bound itself
+    just = {"parameters": narrow, "emulator_check": {"mean_abs_error": 1.02}}
+    assert "1.0200 nats off" in assess(just, space, 10.0)["reasons"][0]
     assert "is the prior" in assess({**good, "parameters": wide}, space, 10.0)["reasons"][0]
     assert "noise-free" in assess(good, space, 1e-12)["reasons"][0]
     converged = {"parameters": narrow, "emulator_check": {"mean_abs_error": 0.4}}
@@ -462,6 +465,10 @@ def test_reliability_names_each_failed_diagnostic() -> None:
     # a reliable emulated posterior of a cheap simulator says how to compare it with the exact one,
     # not one that the correction shaped, nor one that is unreliable anyway
     assert "--correct-draws" in assess(converged, space, 10.0, cheap=True)["notes"][-1]
+    # the curve emulator's own importance sample is no correction by the forward model
+    sampled = {**converged, "correction": {"enabled": True, "target": "emulator", "k_hat": 0.2, "ess": 5000,
+                                           "settled": True}, "forward_evaluations": {"correction": 0}}
+    assert "--correct-draws" in assess(sampled, space, 10.0, cheap=True)["notes"][-1]
     corrected = {**good, "forward_evaluations": {"correction": 9000}}
     assert assess(corrected, space, 10.0, cheap=True)["notes"] == []
     assert assess(emulator_only, space, 10.0, cheap=True)["notes"] == []
