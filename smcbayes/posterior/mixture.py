@@ -174,15 +174,16 @@ def fit_mixture(x: Array, w: Array, components: int, rng: np.random.Generator,
     last = -np.inf
     for _ in range(iterations):
         chol = np.linalg.cholesky(mix.cov)
-        const = (np.log(np.maximum(mix.weight, 1e-300)) - np.sum(np.log(np.diagonal(chol, axis1=1, axis2=2)), axis=1)
-                 - 0.5 * d * np.log(2.0 * np.pi))
+        log_det = np.sum(np.log(np.diagonal(chol, axis1=1, axis2=2)), axis=1)
+        const = np.log(np.maximum(mix.weight, 1e-300)) - log_det - 0.5 * d * np.log(2.0 * np.pi)
         loglik = e_step(x, w, np.ascontiguousarray(mix.mean.T),
                         np.ascontiguousarray(np.linalg.inv(chol).transpose(1, 2, 0)), const, resp)
         alpha = np.maximum(resp.sum(axis=0), 1e-12)
         mean = (resp.T @ x) / alpha[:, None]
         scatter(x, resp, np.ascontiguousarray(mean.T), spread)
         n_k = (alpha * ess)[:, None, None]
-        cov = (n_k * spread.transpose(2, 0, 1) / alpha[:, None, None] + kappa * glob[None]) / (n_k + kappa) + 1e-9 * np.eye(d)
+        cov = ((n_k * spread.transpose(2, 0, 1) / alpha[:, None, None] + kappa * glob[None]) / (n_k + kappa)
+               + 1e-9 * np.eye(d))
         mix = Mixture(alpha / alpha.sum(), mean, cov)
         if loglik - last < tol:
             break

@@ -111,7 +111,8 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
     if not check <= CHECK_MAX_NATS:
         # a check of 1.02 would read "1 nats off (> 1.0)" in two digits
         out.append(f"the emulator is {_past(check, CHECK_MAX_NATS)} nats off at posterior draws "
-                   f"(> {CHECK_MAX_NATS}) and nothing corrects it; use the correction (--correct-draws) or --refine")
+                   f"(> {CHECK_MAX_NATS}) and nothing corrects it; use the correction (--correct-draws) "
+                   "or --refine")
     # a validated active learning stops at the same point with a larger budget, unless only
     # the budget's end let it stop: by counting rounds from before a failed confirmation, or
     # by confirming at all after its last allowed failed confirmation
