@@ -138,7 +138,8 @@ def reference(calibration: Path, workdir: Path, args: argparse.Namespace) -> dic
         options = ["--correct-draws", str(args.reference_draws), "--seed", str(args.reference_seed)]
         code, wall = posterior_command(calibration, run, options, workdir / "reference.log")
         if code != 0:
-            raise SystemExit(f"the reference stage failed (exit code {code}); see {workdir / 'reference.log'}")
+            log = workdir / "reference.log"
+            raise SystemExit(f"the reference stage failed (exit code {code}); see {log}")
         record.write_text(json.dumps(settings, indent=2) + "\n")
     summary = json.loads(summary_path.read_text(encoding="utf-8"))
     corr = summary.get("correction") or {}
@@ -162,9 +163,11 @@ def against_reference(rec: dict[str, Any], ref: dict[str, Any]) -> dict[str, Any
     c = compare(names, exact, drawn, np.zeros(drawn.shape[1]))
     met = bool(c["quantiles_met"] and c["correlations_met"] and c["mmtv"] < 0.2)
     return {"max_quantile_diff": c["max_quantile_diff"], "max_correlation_diff": c["max_correlation_diff"],
-            "mmtv": c["mmtv"], "met": met, "targets": {"quantiles": Q_TARGET, "correlations": R_TARGET, "mmtv": 0.2},
+            "mmtv": c["mmtv"], "met": met,
+            "targets": {"quantiles": Q_TARGET, "correlations": R_TARGET, "mmtv": 0.2},
             "quantiles_unit": {p["name"]: {"reference": p["exact_q05_q50_q95_unit"],
-                                           "reported": p["emulated_q05_q50_q95_unit"]} for p in c["parameters"]}}
+                                           "reported": p["emulated_q05_q50_q95_unit"]}
+                               for p in c["parameters"]}}
 
 
 def record_of(summary: dict[str, Any], seed: int, wall_s: float, load: tuple[float, float]) -> dict[str, Any]:
@@ -208,7 +211,8 @@ def print_record(rec: dict[str, Any]) -> None:
     if against is not None:
         print(f"  against the reference: quantiles {against['max_quantile_diff']:.3f}, correlations "
               f"{against['max_correlation_diff']:.3f}, MMTV {against['mmtv']:.3f}"
-              + ("" if against["met"] else " (targets missed" + (", though reliable)" if rec["reliable"] else ")")))
+              + ("" if against["met"] else
+                 " (targets missed" + (", though reliable)" if rec["reliable"] else ")")))
     missed = [k for k, ok in rec["met"].items() if not ok]
     if missed:
         print("  MISSED: " + ", ".join(missed))
@@ -242,9 +246,9 @@ def parse() -> argparse.Namespace:
     ap.add_argument("--round-runs", type=int, default=None,
                     help="forward runs per active-learning round (default: the stage's)")
     ap.add_argument("--reference-draws", type=int, default=0,
-                    help="draws of the importance correction by the forward model whose posterior each seed is "
-                    "compared with (0: no reference; 40000 take about 5 minutes on the nine trials, and "
-                    "did not settle there)")
+                    help="draws of the importance correction by the forward model whose posterior each "
+                    "seed is compared with (0: no reference; 40000 take about 5 minutes on the nine "
+                    "trials, and did not settle there)")
     ap.add_argument("--reference-seed", type=int, default=0, help="seed of the reference stage")
     ap.add_argument("--workdir", default=None, help="default: benchmarks/results/NAME/work")
     ap.add_argument("--data-dir", default=str(DATA))
