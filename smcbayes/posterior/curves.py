@@ -287,7 +287,8 @@ def fit_correlation(x: Array, z: Array, start: _Correlation | None = None) -> _C
     bounds = [tuple(np.log(LENGTHSCALE_BOUNDS))] * d + [tuple(np.log(NUGGET_BOUNDS))]
     best = None
     # one start from an earlier fit: a fit per round of the active learning, at half the cost
-    starts = ([np.log(np.r_[start.lengthscales, max(start.nugget, NUGGET_BOUNDS[0])])] if start is not None else
+    starts = ([np.log(np.r_[start.lengthscales, max(start.nugget, NUGGET_BOUNDS[0])])]
+              if start is not None else
               [np.array([np.log(ls)] * d + [np.log(nug)]) for ls, nug in ((0.3, 1e-4), (1.0, 1e-6))])
     for x0 in starts:
         res = minimize(_concentrated_nll, np.clip(x0, *np.array(bounds).T), args=(x, z), method="L-BFGS-B",

@@ -202,8 +202,8 @@ def _verdict(post: dict[str, Any]) -> list[Block]:
         return []
     reasons = [str(r) for r in rel.get("reasons") or []]
     if rel.get("reliable"):
-        blocks: list[Block] = [Paragraph("Verdict: the posterior's own diagnostics pass; its numbers can "
-                                  "be used.")]
+        blocks: list[Block] = [Paragraph("Verdict: the posterior's own diagnostics pass; its numbers "
+                                         "can be used.")]
     else:
         blocks = [Paragraph("Verdict: the posterior is unreliable; treat its numbers as "
                             "indicative. Reasons:", tone="warning"),
