@@ -42,7 +42,15 @@ the posterior lives: on the measured thesis trials an emulator of 60 calibration
 runs exploring, read 0.10-0.15 after 400-800 runs."""
 
 ROUND_STEPS = 1000
-"""Most emcee steps of a round's tempered sampling."""
+"""Most emcee steps of the first round's tempered sampling, whose walkers start at the best
+training point."""
+
+WARM_STEPS = 250
+"""emcee steps of a later round's tempered sampling: its walkers go on from where the last
+round's stopped, already spread over a tempered posterior that a round's new runs only
+nudge, so they need no way in.  The sampling only picks the exploration's few runs and a
+share of the importance sampling's first proposal, and its emulator calls are a third of a
+round's time at a thousand steps."""
 
 ROUND_DRAWS = 20000
 """Most proposal draws of a round's importance sample of the emulated posterior (it stops
@@ -66,6 +74,8 @@ class Round:
             round's mean error (:func:`~smcbayes.posterior.curve_aim.targeted`).
         aim: what ``refine.jsonl`` keeps of the aiming
             (:func:`~smcbayes.posterior.curve_aim.targeted`).
+        walkers: where the tempered sampling's walkers stopped ``(walkers, d)``; the next
+            round's go on from there.
     """
 
     new: Array
@@ -74,10 +84,11 @@ class Round:
     spread: float
     error_weight: Array
     aim: dict[str, float] = field(default_factory=dict)
+    walkers: Array | None = None
 
 
 def next_round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec: CorrectionSettings,
-               rng: np.random.Generator, walkers: int) -> Round:
+               rng: np.random.Generator, walkers: int, tempered: Array | None = None) -> Round:
     """The next batch of ``size`` rows: all but a share :data:`EXPLORATION` (fewer when the
     posterior rests on fewer support points) drawn from the emulated posterior, sampled by
     importance (:data:`ROUND_DRAWS` emulator evaluations; its first proposal fitted to the
@@ -88,12 +99,15 @@ def next_round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, s
     :data:`~smcbayes.posterior.curve_sample.ROUND_ESS`) and pooled with the posteriors of GP
     sample functions on a support of its points, leaning to where they disagree and to the
     quantiles they move (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest from the
-    tempered posterior of the optimistic loss (emcee)."""
+    tempered posterior of the optimistic loss (emcee, :data:`ROUND_STEPS` steps from the best
+    training point or, given the last round's walkers ``tempered`` ``(walkers, d)``,
+    :data:`WARM_STEPS` from there; the round keeps where they stopped)."""
     d = emulator.x.shape[1]
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
+    chains = sample_chains(emulator, n_eff, rng, centre, TEMPER, ROUND_STEPS if tempered is None else WARM_STEPS,
+                           walkers, optimistic=True, start=tempered)
     # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
-    wide = np.unique(sample_chains(emulator, n_eff, rng, centre, TEMPER, ROUND_STEPS, walkers,
-                                   optimistic=True).samples.reshape(-1, d), axis=0)
+    wide = np.unique(chains.samples.reshape(-1, d), axis=0)
     # after the first round mostly the last round's posterior: the tempered draws alone,
     # twice as wide in every direction, make a first proposal that wastes most of its draws
     # in seven dimensions
@@ -117,4 +131,4 @@ def next_round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, s
     drawn = len(rows)
     new = np.vstack([sample.unit[posteriors.rows[rows]],
                      wide[rng.choice(len(wide), size - drawn, replace=size - drawn > len(wide))]])
-    return Round(new, drawn, sample, spread["max_quantile_shift"], error_weight, aim)
+    return Round(new, drawn, sample, spread["max_quantile_shift"], error_weight, aim, chains.last)

@@ -53,6 +53,12 @@ CHAIN_STEPS = 3000
 """Most emcee steps of the final chains, which only start the importance sampling (of the
 emulator, or the forward model's correction): the reported posterior is the weighted one."""
 
+WARM_CHAIN_STEPS = 1000
+"""Most emcee steps of the final chains when their walkers start at draws of a close
+emulated posterior (a confirmation's, from the last round's sample): they need no way in
+from the best training point, and they only start the importance sampling, whose first
+proposal also takes those draws."""
+
 ROUND_ESS = 200
 """Least importance ESS of an active-learning round's sample whose quantile shift can
 validate the round: with a few heavy draws both weightings of the shift sit on the same
@@ -137,27 +143,37 @@ class FinalPosterior:
 
 def sample_chains(emulator: CurveEmulator, n_eff: float, rng: np.random.Generator, centre: Array,
                   temper: float = 1.0, steps: int = CHAIN_STEPS, walkers: int = 32,
-                  variance: bool = EXPECTED_LOSS, label: str = "", optimistic: bool = False) -> Chains:
-    """emcee chains (differential evolution, from ``centre`` ``(d,)``) of the emulated
-    posterior, tempered by ``temper``, of the loss ``variance`` and ``optimistic`` ask for
+                  variance: bool = EXPECTED_LOSS, label: str = "", optimistic: bool = False,
+                  start: Array | None = None) -> Chains:
+    """emcee chains (differential evolution, from ``centre`` ``(d,)``, or from the walkers'
+    positions ``start`` ``(walkers, d)``) of the emulated posterior, tempered by ``temper``,
+    of the loss ``variance`` and ``optimistic`` ask for
     (:meth:`~smcbayes.posterior.curves.CurveEmulator.loss`)."""
     settings = SamplerSettings(walkers=walkers, max_steps=steps, min_steps=min(500, steps), moves="de")
     return run_ensemble(log_posterior(emulator, n_eff, temper, variance, optimistic), emulator.x.shape[1],
-                        settings, rng, centre, label)
+                        settings, rng, centre, label, start)
 
 
-def curve_chains(emulation: CurveEmulation, settings: PosteriorSpec,
-                 rng: np.random.Generator) -> list[Chains]:
-    """The emcee chains (one ensemble, at most :data:`CHAIN_STEPS` steps) of the emulated
-    posterior, from the best training point."""
+def curve_chains(emulation: CurveEmulation, settings: PosteriorSpec, rng: np.random.Generator,
+                 start: Array | None = None) -> list[Chains]:
+    """The emcee chains (one ensemble) of the emulated posterior: from the best training
+    point, at most :data:`CHAIN_STEPS` steps, or, given draws ``start`` ``(S, d)`` of an
+    emulated posterior close to this one, from as many of them as there are walkers, at
+    most :data:`WARM_CHAIN_STEPS` steps."""
     emulator = emulation.emulator
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
     # the default steps serve the log-loss emulator's chains: only a choice of the user's is worth a word
     if settings.steps > CHAIN_STEPS and settings.steps != default_of(PosteriorSpec, "steps"):
         logger.info("curve emulator: %d emcee steps, not %d: the chains only start the importance sampling",
                     CHAIN_STEPS, settings.steps)
-    return [sample_chains(emulator, emulation.n_eff, rng, centre, 1.0, min(settings.steps, CHAIN_STEPS),
-                          settings.walkers, variance=EXPECTED_LOSS, label=" (curve emulator)")]
+    steps = min(settings.steps, CHAIN_STEPS)
+    walkers = max(settings.walkers, 2 * emulator.x.shape[1] + 2)
+    at = None
+    if start is not None and len(start) >= walkers:
+        at = start[rng.choice(len(start), walkers, replace=False)]
+        steps = min(steps, WARM_CHAIN_STEPS)
+    return [sample_chains(emulator, emulation.n_eff, rng, centre, 1.0, steps, walkers,
+                          variance=EXPECTED_LOSS, label=" (curve emulator)", start=at)]
 
 
 def batched(log_prob: Callable[[Array], Array]) -> Callable[[Array], Array]:
@@ -211,22 +227,27 @@ def sample_emulator(emulator: CurveEmulator, n_eff: float, start: Array, spec: C
 
 
 def importance_sample(emulation: CurveEmulation, chains: list[Chains], settings: PosteriorSpec,
-                      rng: np.random.Generator) -> ImportanceSample:
-    """The reported emulated posterior: :func:`sample_emulator` from the emcee draws."""
+                      rng: np.random.Generator, extra: Array | None = None) -> ImportanceSample:
+    """The reported emulated posterior: :func:`sample_emulator` from the emcee draws and
+    the draws ``extra`` ``(S, d)``, if any."""
     d = emulation.emulator.x.shape[1]
-    start = np.concatenate([c.samples.reshape(-1, d) for c in chains])
+    start = np.concatenate([c.samples.reshape(-1, d) for c in chains]
+                           + ([] if extra is None else [np.asarray(extra, dtype=float)]))
     return sample_emulator(emulation.emulator, emulation.n_eff, start, settings.correction, rng)
 
 
 def final_posterior(emulation: CurveEmulation, settings: PosteriorSpec, names: Sequence[str],
-                    rng: np.random.Generator, spread: bool = True) -> FinalPosterior:
-    """The reported posterior of the curve emulator: the emcee chains, the importance sample
-    from their draws and, with ``spread``, the sample functions' spread around it and the
-    pooled sample (:func:`~smcbayes.posterior.curve_spread.curve_spread`; ``names`` are the
-    free parameters')."""
+                    rng: np.random.Generator, spread: bool = True,
+                    start: Array | None = None) -> FinalPosterior:
+    """The reported posterior of the curve emulator: the emcee chains (from draws ``start``
+    ``(S, d)`` of a close emulated posterior, if given, :func:`curve_chains`), the importance
+    sample from their draws and ``start``'s and, with ``spread``, the sample functions'
+    spread around it and the pooled sample
+    (:func:`~smcbayes.posterior.curve_spread.curve_spread`; ``names`` are the free
+    parameters')."""
     t0 = time.perf_counter()
-    chains = curve_chains(emulation, settings, rng)
-    sample = importance_sample(emulation, chains, settings, rng)
+    chains = curve_chains(emulation, settings, rng, start)
+    sample = importance_sample(emulation, chains, settings, rng, start)
     t1 = time.perf_counter()
     measured, pooled = (curve_spread(emulation.emulator, emulation.n_eff, sample, names, rng) if spread
                         else (None, None))

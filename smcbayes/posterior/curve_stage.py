@@ -86,6 +86,8 @@ class Learned:
         record: the record of the active learning (see :func:`learn`).
         final: the last emulator's reported posterior, when a confirmation drew it
             (``None`` otherwise).
+        draws: draws ``(S, d)`` of the last round's emulated posterior (``None`` when no
+            round ran), from which the reported posterior's sampling can start.
     """
 
     emulator: CurveEmulator
@@ -93,6 +95,7 @@ class Learned:
     y: Array
     record: dict[str, Any]
     final: FinalPosterior | None
+    draws: Array | None = None
 
 
 @dataclass
@@ -106,6 +109,7 @@ class _Progress:
         before: the log posterior of the emulator the last round sampled.
         late: the last validation counted rounds from before the last failed confirmation,
             which only the budget's end allows.
+        tempered: where the last round's tempered walkers stopped ``(walkers, d)``.
     """
 
     x: Array
@@ -121,6 +125,7 @@ class _Progress:
     confirmations: list[dict[str, Any]] = field(default_factory=list)
     before: Callable[[Array], Array] | None = None
     late: bool = False
+    tempered: Array | None = None
 
     def validated(self, tolerance_nats: float, ended: bool = False) -> bool:
         """The rounds since the last failed confirmation validate the emulator
@@ -128,6 +133,12 @@ class _Progress:
         :data:`VALIDATED_ROUNDS` rounds count whether they ran before or after it."""
         k = 0 if ended else self.since
         return _validated(self.errors[k:], self.shifts[k:], tolerance_nats, self.spreads[k:])
+
+    @property
+    def draws(self) -> Array | None:
+        """Draws of the last round's emulated posterior (or of the last failed
+        confirmation's); ``None`` before the first round."""
+        return self.start if self.rounds else None
 
     def failed(self) -> int:
         """How many confirmations failed."""
@@ -148,7 +159,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
           x: Array, y: Array, n_eff: float, budget: int, tolerance_nats: float, rng: np.random.Generator,
           log: Callable[[dict[str, Any]], None] | None = None, walkers: int = 32,
           spec: CorrectionSettings | None = None,
-          confirm: Callable[[CurveEmulator], FinalPosterior] | None = None,
+          confirm: Callable[[CurveEmulator, Array | None], FinalPosterior] | None = None,
           round_runs: int = ROUND_RUNS_CURVES) -> Learned:
     """Active learning until validated (and confirmed) or ``budget`` further runs are spent.
 
@@ -180,7 +191,9 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         tolerance_nats: the out-of-sample error that validates a round.
         log: receives one record per round.
         spec: settings of the rounds' importance sampling (the correction's by default).
-        confirm: draws an emulator's reported posterior (no forward run).
+        confirm: draws an emulator's reported posterior (no forward run), given draws
+            ``(S, d)`` of the last round's emulated posterior to start from (``None``
+            before the first round).
         round_runs: forward runs per round (one batch through the executor; the last
             round takes what is left of ``budget``).
 
@@ -220,21 +233,22 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         converged = (validated or progress.late) and asks
         if converged and confirm is not None:
             t_confirm = time.perf_counter()
-            final = confirm(emulator)
+            final = confirm(emulator, progress.draws)
             converged = _confirmed(progress, final, rng, progress.spent < budget)
             # the confirmation's own time is in its record, not in the next round's
             t0 += time.perf_counter() - t_confirm
         if converged or progress.spent >= budget:
             break
         size = min(round_runs, budget - progress.spent)
-        step = next_round(emulator, n_eff, size, progress.start, spec, rng, walkers)
+        step = next_round(emulator, n_eff, size, progress.start, spec, rng, walkers, progress.tempered)
         record = _take(progress, step, emulator, n_eff, simulate, rng, t0)
         logger.info("curve emulator round %d: %d points, %s", progress.rounds, record["training_points"],
                     _round_status(progress, tolerance_nats, budget))
         if log is not None:
             log(record)
     return Learned(emulator, progress.x, progress.y,
-                   {**progress.record(converged), "variance_factor": _factor_range(emulator)}, final)
+                   {**progress.record(converged), "variance_factor": _factor_range(emulator)}, final,
+                   progress.draws)
 
 
 def _take(progress: _Progress, step: Round, emulator: CurveEmulator, n_eff: float,
@@ -247,6 +261,7 @@ def _take(progress: _Progress, step: Round, emulator: CurveEmulator, n_eff: floa
     progress.spreads.append(step.spread)
     progress.before = log_posterior(emulator, n_eff, variance=EXPECTED_LOSS)
     progress.start = step.sample.resample(3 * START_ROWS // 4, rng)
+    progress.tempered = step.walkers
     t1 = time.perf_counter()
     y_new, ok = simulate(step.new)
     progress.spent, progress.rounds = progress.spent + len(step.new), progress.rounds + 1
@@ -403,9 +418,9 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
 
     reported = settings.correct_draws == 0
 
-    def final(emulator: CurveEmulator) -> FinalPosterior:
+    def final(emulator: CurveEmulator, draws: Array | None = None) -> FinalPosterior:
         return final_posterior(CurveEmulation(emulator, n_eff), settings, space.free_names, rng,
-                               spread=not ctx.noise_free)
+                               spread=not ctx.noise_free, start=draws)
 
     # a noise-free likelihood is degenerate: no spread to confirm (it does not learn either)
     learned = learn(simulate, features, start[ok], y0[ok], n_eff, int(settings.refine),
@@ -420,7 +435,7 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
                                 for c in learned.record["confirmations"]]}
     posterior = learned.final
     if posterior is None:
-        posterior = final(learned.emulator) if reported else None
+        posterior = final(learned.emulator, learned.draws) if reported else None
     elif len(active["confirmations"]) > 1 and active["confirmations"][-1]["passed"]:
         posterior = _measured_again(posterior, CurveEmulation(learned.emulator, n_eff), space.free_names, rng)
     data = (learned.x, np.log(features.loss(learned.y)))

@@ -64,6 +64,8 @@ class Chains:
         tau: integrated autocorrelation time per parameter (steps), ``(d,)``.
         steps, burn, thin: steps run, discarded and the thinning interval.
         converged: the stopping rule was met before ``max_steps``.
+        last: the walkers' positions after the last step ``(walkers, d)``, from which a
+            later ensemble can go on (``None`` where not kept).
     """
 
     samples: Array
@@ -74,13 +76,21 @@ class Chains:
     burn: int
     thin: int
     converged: bool
+    last: Array | None = None
 
 
 def _start(log_prob: Callable[[Array], Array], d: int, walkers: int, rng: np.random.Generator,
-           centre: Array | None) -> Array:
-    """Initial walkers: a small ball around ``centre`` (or uniform), all of finite density."""
-    base = np.full(d, 0.5) if centre is None else np.clip(centre, 0.02, 0.98)
-    pos = np.clip(base + 0.02 * rng.standard_normal((walkers, d)), 1e-6, 1 - 1e-6)
+           centre: Array | None, at: Array | None = None) -> Array:
+    """Initial walkers: the positions ``at`` ``(walkers, d)`` if given, else a small ball
+    around ``centre`` (or uniform); a walker of non-finite density is redrawn uniformly."""
+    if at is not None:
+        at = np.asarray(at, dtype=float)
+        if at.shape != (walkers, d):
+            raise ValueError(f"the walkers' start has shape {at.shape}, not ({walkers}, {d})")
+        pos = np.clip(at, 1e-6, 1 - 1e-6)
+    else:
+        base = np.full(d, 0.5) if centre is None else np.clip(centre, 0.02, 0.98)
+        pos = np.clip(base + 0.02 * rng.standard_normal((walkers, d)), 1e-6, 1 - 1e-6)
     bad = ~np.isfinite(log_prob(pos))
     if np.any(bad):
         pos[bad] = rng.random((int(bad.sum()), d))
@@ -88,7 +98,8 @@ def _start(log_prob: Callable[[Array], Array], d: int, walkers: int, rng: np.ran
 
 
 def run_ensemble(log_prob: Callable[[Array], Array], d: int, settings: SamplerSettings,
-                 rng: np.random.Generator, centre: Array | None = None, label: str = "") -> Chains:
+                 rng: np.random.Generator, centre: Array | None = None, label: str = "",
+                 start: Array | None = None) -> Chains:
     """Sample ``log_prob`` (vectorised over walkers) on the unit cube with emcee.
 
     Stops when the chain is longer than ``tau_factor`` autocorrelation times and the
@@ -106,6 +117,8 @@ def run_ensemble(log_prob: Callable[[Array], Array], d: int, settings: SamplerSe
         centre: start of the walkers ``(d,)`` (a small ball around it), or None: the
             cube's centre.
         label: appended to the progress description, e.g. ``" (component 2/4)"``.
+        start: the walkers' start ``(walkers, d)`` instead of the ball around ``centre``,
+            e.g. an earlier ensemble's :attr:`Chains.last` or draws of the target.
     """
     walkers = max(settings.walkers, 2 * d + 2)
     moves = None
@@ -114,7 +127,7 @@ def run_ensemble(log_prob: Callable[[Array], Array], d: int, settings: SamplerSe
     sampler = emcee.EnsembleSampler(walkers, d, log_prob, vectorize=True, moves=moves)
     # emcee draws its moves from its own RandomState: seed it from our generator
     sampler.random_state = np.random.RandomState(int(rng.integers(2**31 - 1))).get_state()
-    state = _start(log_prob, d, walkers, rng, centre)
+    state = _start(log_prob, d, walkers, rng, centre, start)
     old_tau, converged = np.inf, False
     with Progress(settings.max_steps, f"sampling{label}", "step") as bar:
         while sampler.iteration < settings.max_steps:
@@ -138,4 +151,5 @@ def run_ensemble(log_prob: Callable[[Array], Array], d: int, settings: SamplerSe
     burn = int(min(2 * np.max(tau), sampler.iteration // 2))
     thin = max(1, int(np.min(tau) / 2))
     return Chains(sampler.get_chain(discard=burn, thin=thin), sampler.get_log_prob(discard=burn, thin=thin),
-                  sampler.acceptance_fraction.copy(), tau, sampler.iteration, burn, thin, converged)
+                  sampler.acceptance_fraction.copy(), tau, sampler.iteration, burn, thin, converged,
+                  sampler.get_last_sample().coords.copy())

@@ -483,3 +483,32 @@ def test_the_spread_over_several_supports_is_the_level_of_all_their_functions() 
     # the noise is the larger of the two supports' own
     noise = [function_spread([s], sample, ["x"])["sampling_noise"]["x"] for s in (moved, still)]
     assert both["sampling_noise"]["x"] == max(noise)
+
+
+def test_the_final_chains_start_at_draws_of_a_close_posterior_and_run_fewer_steps(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Given draws of the last round's posterior, the final chains' walkers are distinct
+    rows of them and run at most :data:`WARM_CHAIN_STEPS` steps; without, they start at the
+    best training point and may run :data:`CHAIN_STEPS`."""
+    from smcbayes.config import PosteriorSpec
+    from smcbayes.posterior import curve_sample
+
+    seen: list[dict[str, object]] = []
+    monkeypatch.setattr(curve_sample, "sample_chains",
+                        lambda emulator, n_eff, rng, centre, temper, steps, walkers, **kw: seen.append(
+                            {"centre": centre, "steps": steps, "walkers": walkers, **kw}))
+    x = np.array([[0.2, 0.2], [0.6, 0.4], [0.9, 0.9]])
+    features = SimpleNamespace(loss=lambda y: y[:, 0])
+    emulation = curve_sample.CurveEmulation(SimpleNamespace(x=x, y=np.array([[3.0], [1.0], [2.0]]),
+                                                            features=features), 4.0)
+    settings = PosteriorSpec()
+    draws = np.random.default_rng(0).random((100, 2))
+    curve_sample.curve_chains(emulation, settings, np.random.default_rng(1))
+    curve_sample.curve_chains(emulation, settings, np.random.default_rng(1), draws)
+    cold, warm = seen
+    assert cold["start"] is None and np.array_equal(cold["centre"], x[1])
+    assert cold["steps"] == min(settings.steps, curve_sample.CHAIN_STEPS)
+    assert warm["steps"] == min(settings.steps, curve_sample.WARM_CHAIN_STEPS) < cold["steps"]
+    rows = warm["start"]
+    assert rows.shape == (settings.walkers, 2) and len(np.unique(rows, axis=0)) == settings.walkers
+    assert all(any(np.array_equal(r, d) for d in draws) for r in rows)

@@ -305,6 +305,26 @@ def test_same_seed_same_chains(moves: str) -> None:
     np.testing.assert_array_equal(a.samples, b.samples)
 
 
+def test_the_walkers_go_on_from_the_positions_given_and_leave_their_last() -> None:
+    """Walkers started at given positions stay near them for a step (differential
+    evolution moves along their differences), and the chains keep where they stopped; a
+    start of the wrong shape is refused."""
+    def log_prob(u: np.ndarray) -> np.ndarray:
+        return -0.5 * np.sum(((u - 0.3) / 0.1) ** 2, axis=1)
+
+    rng = np.random.default_rng(4)
+    at = 0.9 + 0.01 * rng.standard_normal((8, 2))
+    one = SamplerSettings(walkers=8, max_steps=1, min_steps=2, check_every=1)
+    chains = run_ensemble(log_prob, 2, one, rng, start=at)
+    assert chains.last is not None and chains.last.shape == (8, 2)
+    assert np.all(np.abs(chains.last - 0.9) < 0.06)
+    longer = SamplerSettings(walkers=8, max_steps=2000, min_steps=500)
+    on = run_ensemble(log_prob, 2, longer, rng, start=chains.last)
+    np.testing.assert_allclose(on.samples.reshape(-1, 2).mean(0), 0.3, atol=0.03)
+    with pytest.raises(ValueError, match=r"shape \(7, 2\), not \(8, 2\)"):
+        run_ensemble(log_prob, 2, one, rng, start=at[:7])
+
+
 def test_sampler_rejects_unknown_moves() -> None:
     with pytest.raises(ValueError, match="unknown emcee moves 'walk'"):
         SamplerSettings(moves="walk")  # type: ignore[arg-type]

@@ -784,7 +784,7 @@ def _scripted_learning(run_dir: Path, monkeypatch: pytest.MonkeyPatch, budget: i
                             0.0, 500.0, 0, target="emulator")
     spreads, seen = iter(readings), []
 
-    def confirm(emulator: CurveEmulator) -> FinalPosterior:
+    def confirm(emulator: CurveEmulator, draws: np.ndarray | None = None) -> FinalPosterior:
         seen.append(len(emulator.x))
         return FinalPosterior([], flat, {"max_quantile_shift": next(spreads)}, None,
                               {"sampling": 0.0, "spread": 0.0})
@@ -809,6 +809,30 @@ def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
     assert seen == [25, 25 + ROUND_RUNS_CURVES] and len(learned.x) == seen[-1]
     assert [c["passed"] for c in record["confirmations"]] == [False, True]
     assert learned.final is not None and learned.final.max_shift == 0.5 * SPREAD_MAX
+
+
+def test_each_rounds_tempered_walkers_go_on_from_where_the_last_rounds_stopped(
+        run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The first round's tempered sampling starts at the best training point; each later
+    one goes on from the walkers the round before left, and the learning hands on draws of
+    its last round's posterior for the reported posterior's sampling to start from."""
+    import smcbayes.posterior.curve_stage as curve_stage
+    from smcbayes.posterior.curve_sample import START_ROWS
+
+    calls: list[tuple[np.ndarray | None, np.ndarray | None]] = []
+    real = curve_stage.next_round
+
+    def spy(*args: Any) -> curve_round.Round:
+        step = real(*args)
+        calls.append((args[-1], step.walkers))
+        return step
+
+    monkeypatch.setattr(curve_stage, "next_round", spy)
+    learned, _ = _scripted_learning(run_dir, monkeypatch, 3 * ROUND_RUNS_CURVES, [], validated=lambda *args: False)
+    assert learned.record["rounds"] == len(calls) == 3 and calls[0][0] is None
+    for (given, _), (_, left) in zip(calls[1:], calls[:-1], strict=True):
+        assert given is left and left is not None and left.shape == (16, learned.x.shape[1])
+    assert learned.draws is not None and learned.draws.shape == (3 * START_ROWS // 4, learned.x.shape[1])
 
 
 def test_each_round_logs_its_measures_beside_the_bounds_of_the_stop(
@@ -905,7 +929,7 @@ def test_a_confirmation_that_passes_is_the_posterior_drawn_after_the_learning(
     after = final(plain.emulator, rng)
     rng = np.random.default_rng(7)
     confirmed = curve_stage.learn(simulate, features, u, y, 4.0, 40, 1.0, rng, walkers=16,
-                                  confirm=lambda emulator: final(emulator, rng))
+                                  confirm=lambda emulator, draws: final(emulator, rng))
     assert plain.final is None and confirmed.final is not None
     assert plain.record["rounds"] == confirmed.record["rounds"] == 0 and confirmed.record["converged"]
     np.testing.assert_array_equal(confirmed.final.sample.unit, after.sample.unit)
