@@ -104,8 +104,9 @@ def next_round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, s
     :data:`WARM_STEPS` from there; the round keeps where they stopped)."""
     d = emulator.x.shape[1]
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
-    chains = sample_chains(emulator, n_eff, rng, centre, TEMPER, ROUND_STEPS if tempered is None else WARM_STEPS,
-                           walkers, optimistic=True, start=tempered)
+    steps = ROUND_STEPS if tempered is None else WARM_STEPS
+    chains = sample_chains(emulator, n_eff, rng, centre, TEMPER, steps, walkers, optimistic=True,
+                           start=tempered)
     # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
     wide = np.unique(chains.samples.reshape(-1, d), axis=0)
     # after the first round mostly the last round's posterior: the tempered draws alone,

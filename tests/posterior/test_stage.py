@@ -828,7 +828,8 @@ def test_each_rounds_tempered_walkers_go_on_from_where_the_last_rounds_stopped(
         return step
 
     monkeypatch.setattr(curve_stage, "next_round", spy)
-    learned, _ = _scripted_learning(run_dir, monkeypatch, 3 * ROUND_RUNS_CURVES, [], validated=lambda *args: False)
+    learned, _ = _scripted_learning(run_dir, monkeypatch, 3 * ROUND_RUNS_CURVES, [],
+                                    validated=lambda *args: False)
     assert learned.record["rounds"] == len(calls) == 3 and calls[0][0] is None
     for (given, _), (_, left) in zip(calls[1:], calls[:-1], strict=True):
         assert given is left and left is not None and left.shape == (16, learned.x.shape[1])
