@@ -11,8 +11,9 @@ sampling on the emulator (the correction's algorithm, no forward run): emcee cha
 at the best point under-sample a flat arm of the accuracy benchmark's first case (1.2 % of
 the mass where the exact posterior has 6.5 %), and a stopping rule judged on them stopped
 early and called a posterior reliable that was 0.34 off in a correlation.  The tempered
-posterior, which only has to be reached, not weighed, is sampled by emcee.
-:mod:`smcbayes.posterior.curve_stage` decides from the rounds when the learning stops.
+posterior, which only has to be reached, not weighed, is sampled by emcee, whose walkers go
+on from round to round.  :mod:`smcbayes.posterior.curve_stage` decides from the rounds when
+the learning stops.
 """
 
 from __future__ import annotations
@@ -74,8 +75,8 @@ class Round:
             round's mean error (:func:`~smcbayes.posterior.curve_aim.targeted`).
         aim: what ``refine.jsonl`` keeps of the aiming
             (:func:`~smcbayes.posterior.curve_aim.targeted`).
-        walkers: where the tempered sampling's walkers stopped ``(walkers, d)``; the next
-            round's go on from there.
+        tempered: where the tempered sampling's walkers stopped ``(W, d)`` (W the
+            ensemble's walkers); the next round's go on from there.
     """
 
     new: Array
@@ -84,7 +85,7 @@ class Round:
     spread: float
     error_weight: Array
     aim: dict[str, float] = field(default_factory=dict)
-    walkers: Array | None = None
+    tempered: Array | None = None
 
 
 def next_round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec: CorrectionSettings,
@@ -100,7 +101,7 @@ def next_round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, s
     sample functions on a support of its points, leaning to where they disagree and to the
     quantiles they move (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest from the
     tempered posterior of the optimistic loss (emcee, :data:`ROUND_STEPS` steps from the best
-    training point or, given the last round's walkers ``tempered`` ``(walkers, d)``,
+    training point or, given the last round's walkers ``tempered`` ``(W, d)``,
     :data:`WARM_STEPS` from there; the round keeps where they stopped)."""
     d = emulator.x.shape[1]
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]

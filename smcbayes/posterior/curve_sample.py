@@ -5,7 +5,9 @@ sample with the posteriors of GP sample functions (:mod:`smcbayes.posterior.curv
 and how far the emulated posterior moved between two emulators (:func:`quantile_shift`).
 
 The emulated likelihood is that of the expected loss (:data:`EXPECTED_LOSS`).  The emcee
-chains, started at the best point, under-sample a flat arm of the posterior: on the accuracy
+chains start at the best point, or, after the active learning's rounds, at draws of the last
+round's posterior, which then join their draws in the importance sampling's first proposal.
+Started at the best point they under-sample a flat arm of the posterior: on the accuracy
 benchmark's first case they put 1.2 % of the mass where the emulated posterior, sampled by
 importance, puts 9-10 % and the exact one 6.5 %; the importance sampler's proposals, fitted
 to the tempered posterior, spread into it.
@@ -30,7 +32,7 @@ from smcbayes.errors import SmcBayesWarning
 from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample, correct, weighted_quantile
 from smcbayes.posterior.curve_spread import curve_spread
 from smcbayes.posterior.curves import CurveEmulator, log_posterior
-from smcbayes.posterior.sampler import Chains, SamplerSettings, run_ensemble
+from smcbayes.posterior.sampler import Chains, SamplerSettings, ensemble_size, run_ensemble
 from smcbayes.posterior.threads import thread_map
 
 logger = logging.getLogger(__name__)
@@ -146,8 +148,9 @@ def sample_chains(emulator: CurveEmulator, n_eff: float, rng: np.random.Generato
                   variance: bool = EXPECTED_LOSS, label: str = "", optimistic: bool = False,
                   start: Array | None = None) -> Chains:
     """emcee chains (differential evolution, from ``centre`` ``(d,)``, or from the walkers'
-    positions ``start`` ``(walkers, d)``) of the emulated posterior, tempered by ``temper``,
-    of the loss ``variance`` and ``optimistic`` ask for
+    distinct positions ``start`` ``(W, d)``, W the ensemble's walkers,
+    :func:`~smcbayes.posterior.sampler.ensemble_size`) of the emulated posterior, tempered
+    by ``temper``, of the loss ``variance`` and ``optimistic`` ask for
     (:meth:`~smcbayes.posterior.curves.CurveEmulator.loss`)."""
     settings = SamplerSettings(walkers=walkers, max_steps=steps, min_steps=min(500, steps), moves="de")
     return run_ensemble(log_posterior(emulator, n_eff, temper, variance, optimistic), emulator.x.shape[1],
@@ -158,21 +161,24 @@ def curve_chains(emulation: CurveEmulation, settings: PosteriorSpec, rng: np.ran
                  start: Array | None = None) -> list[Chains]:
     """The emcee chains (one ensemble) of the emulated posterior: from the best training
     point, at most :data:`CHAIN_STEPS` steps, or, given draws ``start`` ``(S, d)`` of an
-    emulated posterior close to this one, from as many of them as there are walkers, at
-    most :data:`WARM_CHAIN_STEPS` steps."""
+    emulated posterior close to this one with at least as many distinct rows as there are
+    walkers, from as many of those rows, at most :data:`WARM_CHAIN_STEPS` steps."""
     emulator = emulation.emulator
+    d = emulator.x.shape[1]
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
+    walkers = ensemble_size(settings.walkers, d)
+    # resampled draws repeat their heavy points, and two walkers may not share one
+    rows = None if start is None else np.unique(np.asarray(start, dtype=float).reshape(-1, d), axis=0)
+    at = None if rows is None or len(rows) < walkers else rows[rng.choice(len(rows), walkers, replace=False)]
+    if rows is not None and at is None:
+        logger.info("curve emulator: %d distinct draws to start %d walkers at; the chains start at the "
+                    "best training point", len(rows), walkers)
+    cap = CHAIN_STEPS if at is None else WARM_CHAIN_STEPS
     # the default steps serve the log-loss emulator's chains: only a choice of the user's is worth a word
-    if settings.steps > CHAIN_STEPS and settings.steps != default_of(PosteriorSpec, "steps"):
+    if settings.steps > cap and settings.steps != default_of(PosteriorSpec, "steps"):
         logger.info("curve emulator: %d emcee steps, not %d: the chains only start the importance sampling",
-                    CHAIN_STEPS, settings.steps)
-    steps = min(settings.steps, CHAIN_STEPS)
-    walkers = max(settings.walkers, 2 * emulator.x.shape[1] + 2)
-    at = None
-    if start is not None and len(start) >= walkers:
-        at = start[rng.choice(len(start), walkers, replace=False)]
-        steps = min(steps, WARM_CHAIN_STEPS)
-    return [sample_chains(emulator, emulation.n_eff, rng, centre, 1.0, steps, walkers,
+                    cap, settings.steps)
+    return [sample_chains(emulator, emulation.n_eff, rng, centre, 1.0, min(settings.steps, cap), walkers,
                           variance=EXPECTED_LOSS, label=" (curve emulator)", start=at)]
 
 

@@ -100,8 +100,8 @@ class Learned:
 
 @dataclass
 class _Progress:
-    """The active learning so far: the data, each round's measures (one entry per round)
-    and where the next round's importance sampling starts.
+    """The active learning so far: the data, each round's measures (one entry per round),
+    where the next round's importance sampling starts and where its tempered walkers go on.
 
     Attributes:
         since: the first round that counts towards a validation (the one after the last
@@ -109,7 +109,8 @@ class _Progress:
         before: the log posterior of the emulator the last round sampled.
         late: the last validation counted rounds from before the last failed confirmation,
             which only the budget's end allows.
-        tempered: where the last round's tempered walkers stopped ``(walkers, d)``.
+        tempered: where the last round's tempered walkers stopped ``(W, d)``, W the
+            ensemble's walkers.
     """
 
     x: Array
@@ -136,8 +137,8 @@ class _Progress:
 
     @property
     def draws(self) -> Array | None:
-        """Draws of the last round's emulated posterior (or of the last failed
-        confirmation's); ``None`` before the first round."""
+        """Draws ``(S, d)`` of the last round's emulated posterior (or of the last failed
+        confirmation's; resampled, so heavy points repeat); ``None`` before the first round."""
         return self.start if self.rounds else None
 
     def failed(self) -> int:
@@ -198,21 +199,21 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
             round takes what is left of ``budget``).
 
     Returns:
-        The last emulator, its data, its reported posterior if a confirmation drew it, and
-        the record of the active learning (``evaluations``, ``converged``, ``rounds``,
-        ``error_nats`` (the worst of the last rounds' errors), ``quantile_shift`` (the last
-        round's), ``last_errors_nats`` and ``last_quantile_shifts`` (those of the last
-        :data:`VALIDATED_ROUNDS` rounds; ``None`` for a round with nothing to compare, or a
-        sample too thin to tell), ``last_spreads`` (those of the last
-        :data:`VALIDATED_ROUNDS` rounds), ``confirmations`` (after how many ``rounds`` and
-        ``forward_runs`` each was drawn, its ``spread``, whether it ``passed`` and its
-        ``seconds``), ``validated_at_budget_end`` (the last validation counted rounds from
-        before a failed confirmation, which only the budget's end allows) and
+        The last emulator, its data, its reported posterior if a confirmation drew it, draws of
+        the last round's posterior (``None`` when no round ran), and the record of the active
+        learning (``evaluations``, ``converged``, ``rounds``, ``error_nats`` (the worst of the
+        last rounds' errors), ``quantile_shift`` (the last round's), ``last_errors_nats`` and
+        ``last_quantile_shifts`` (those of the last :data:`VALIDATED_ROUNDS` rounds; ``None``
+        for a round with nothing to compare, or a sample too thin to tell), ``last_spreads``
+        (those of the last :data:`VALIDATED_ROUNDS` rounds), ``confirmations`` (after how many
+        ``rounds`` and ``forward_runs`` each was drawn, its ``spread``, whether it ``passed``
+        and its ``seconds``), ``validated_at_budget_end`` (the last validation counted rounds
+        from before a failed confirmation, which only the budget's end allows) and
         ``variance_factor`` (the last emulator's calibration of its output variances,
         :meth:`~smcbayes.posterior.curves.CurveEmulator.calibrate`: rows used and range;
         ``None`` when nothing calibrated them)).  The first round has no earlier emulator to
-        compare with, so the emulator can be validated after ``VALIDATED_ROUNDS + 1`` rounds
-        at the earliest.
+        compare with, so the emulator can be validated after ``VALIDATED_ROUNDS + 1`` rounds at
+        the earliest.
     """
     spec = spec or CorrectionSettings()
     progress = _Progress(x, y, x[np.argsort(features.loss(y))[:walkers]])
@@ -240,7 +241,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         if converged or progress.spent >= budget:
             break
         size = min(round_runs, budget - progress.spent)
-        step = next_round(emulator, n_eff, size, progress.start, spec, rng, walkers, progress.tempered)
+        step = next_round(emulator, n_eff, size, progress.start, spec, rng, walkers,
+                          tempered=progress.tempered)
         record = _take(progress, step, emulator, n_eff, simulate, rng, t0)
         logger.info("curve emulator round %d: %d points, %s", progress.rounds, record["training_points"],
                     _round_status(progress, tolerance_nats, budget))
@@ -261,7 +263,7 @@ def _take(progress: _Progress, step: Round, emulator: CurveEmulator, n_eff: floa
     progress.spreads.append(step.spread)
     progress.before = log_posterior(emulator, n_eff, variance=EXPECTED_LOSS)
     progress.start = step.sample.resample(3 * START_ROWS // 4, rng)
-    progress.tempered = step.walkers
+    progress.tempered = step.tempered
     t1 = time.perf_counter()
     y_new, ok = simulate(step.new)
     progress.spent, progress.rounds = progress.spent + len(step.new), progress.rounds + 1

@@ -64,8 +64,8 @@ class Chains:
         tau: integrated autocorrelation time per parameter (steps), ``(d,)``.
         steps, burn, thin: steps run, discarded and the thinning interval.
         converged: the stopping rule was met before ``max_steps``.
-        last: the walkers' positions after the last step ``(walkers, d)``, from which a
-            later ensemble can go on (``None`` where not kept).
+        last: the walkers' positions after the last step ``(W, d)`` (W the ensemble's
+            walkers), from which a later ensemble can go on (``None`` where not kept).
     """
 
     samples: Array
@@ -79,15 +79,24 @@ class Chains:
     last: Array | None = None
 
 
+def ensemble_size(walkers: int, d: int) -> int:
+    """The walkers an ensemble of ``walkers`` asked for runs in ``d`` dimensions: at least
+    ``2 d + 2``."""
+    return max(walkers, 2 * d + 2)
+
+
 def _start(log_prob: Callable[[Array], Array], d: int, walkers: int, rng: np.random.Generator,
            centre: Array | None, at: Array | None = None) -> Array:
-    """Initial walkers: the positions ``at`` ``(walkers, d)`` if given, else a small ball
-    around ``centre`` (or uniform); a walker of non-finite density is redrawn uniformly."""
+    """Initial walkers ``(walkers, d)``: the distinct positions ``at`` if given, else a small
+    ball around ``centre`` (or uniform); a walker of non-finite density is redrawn uniformly."""
     if at is not None:
         at = np.asarray(at, dtype=float)
         if at.shape != (walkers, d):
             raise ValueError(f"the walkers' start has shape {at.shape}, not ({walkers}, {d})")
         pos = np.clip(at, 1e-6, 1 - 1e-6)
+        # two walkers at one point give the snooker move a zero direction, and emcee a NaN
+        if len(np.unique(pos, axis=0)) < walkers:
+            raise ValueError("the walkers' start repeats a position; each walker needs its own")
     else:
         base = np.full(d, 0.5) if centre is None else np.clip(centre, 0.02, 0.98)
         pos = np.clip(base + 0.02 * rng.standard_normal((walkers, d)), 1e-6, 1 - 1e-6)
@@ -117,10 +126,11 @@ def run_ensemble(log_prob: Callable[[Array], Array], d: int, settings: SamplerSe
         centre: start of the walkers ``(d,)`` (a small ball around it), or None: the
             cube's centre.
         label: appended to the progress description, e.g. ``" (component 2/4)"``.
-        start: the walkers' start ``(walkers, d)`` instead of the ball around ``centre``,
-            e.g. an earlier ensemble's :attr:`Chains.last` or draws of the target.
+        start: the walkers' start ``(W, d)`` instead of the ball around ``centre`` (W the
+            ensemble's walkers, at least ``2 d + 2``; distinct rows), e.g. an earlier
+            ensemble's :attr:`Chains.last` or draws of the target.
     """
-    walkers = max(settings.walkers, 2 * d + 2)
+    walkers = ensemble_size(settings.walkers, d)
     moves = None
     if settings.moves == "de":
         moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]

@@ -487,9 +487,10 @@ def test_the_spread_over_several_supports_is_the_level_of_all_their_functions() 
 
 def test_the_final_chains_start_at_draws_of_a_close_posterior_and_run_fewer_steps(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """Given draws of the last round's posterior, the final chains' walkers are distinct
-    rows of them and run at most :data:`WARM_CHAIN_STEPS` steps; without, they start at the
-    best training point and may run :data:`CHAIN_STEPS`."""
+    """Given draws of the last round's posterior (resampled, so repeated), the final chains'
+    walkers are distinct rows of them and run at most :data:`WARM_CHAIN_STEPS` steps;
+    without, or with fewer distinct rows than walkers, they start at the best training
+    point and may run :data:`CHAIN_STEPS`."""
     from smcbayes.config import PosteriorSpec
     from smcbayes.posterior import curve_sample
 
@@ -502,13 +503,16 @@ def test_the_final_chains_start_at_draws_of_a_close_posterior_and_run_fewer_step
     emulation = curve_sample.CurveEmulation(SimpleNamespace(x=x, y=np.array([[3.0], [1.0], [2.0]]),
                                                             features=features), 4.0)
     settings = PosteriorSpec()
-    draws = np.random.default_rng(0).random((100, 2))
+    distinct = np.random.default_rng(0).random((40, 2))
     curve_sample.curve_chains(emulation, settings, np.random.default_rng(1))
-    curve_sample.curve_chains(emulation, settings, np.random.default_rng(1), draws)
-    cold, warm = seen
-    assert cold["start"] is None and np.array_equal(cold["centre"], x[1])
-    assert cold["steps"] == min(settings.steps, curve_sample.CHAIN_STEPS)
+    curve_sample.curve_chains(emulation, settings, np.random.default_rng(1), np.repeat(distinct, 3, axis=0))
+    repeated = np.repeat(distinct[:20], 5, axis=0)
+    curve_sample.curve_chains(emulation, settings, np.random.default_rng(1), repeated)
+    cold, warm, few = seen
+    for start in (cold, few):
+        assert start["start"] is None and np.array_equal(start["centre"], x[1])
+        assert start["steps"] == min(settings.steps, curve_sample.CHAIN_STEPS)
     assert warm["steps"] == min(settings.steps, curve_sample.WARM_CHAIN_STEPS) < cold["steps"]
     rows = warm["start"]
     assert rows.shape == (settings.walkers, 2) and len(np.unique(rows, axis=0)) == settings.walkers
-    assert all(any(np.array_equal(r, d) for d in draws) for r in rows)
+    assert all(any(np.array_equal(r, d) for d in distinct) for r in rows)

@@ -307,22 +307,27 @@ def test_same_seed_same_chains(moves: str) -> None:
 
 def test_the_walkers_go_on_from_the_positions_given_and_leave_their_last() -> None:
     """Walkers started at given positions stay near them for a step (differential
-    evolution moves along their differences), and the chains keep where they stopped; a
-    start of the wrong shape is refused."""
+    evolution moves along their differences), the chains keep where they stopped, the same
+    seed gives the same chains, and a start of the wrong shape or with two walkers at one
+    point is refused."""
     def log_prob(u: np.ndarray) -> np.ndarray:
         return -0.5 * np.sum(((u - 0.3) / 0.1) ** 2, axis=1)
 
-    rng = np.random.default_rng(4)
-    at = 0.9 + 0.01 * rng.standard_normal((8, 2))
+    at = 0.9 + 0.01 * np.random.default_rng(4).standard_normal((8, 2))
     one = SamplerSettings(walkers=8, max_steps=1, min_steps=2, check_every=1)
-    chains = run_ensemble(log_prob, 2, one, rng, start=at)
+    chains = run_ensemble(log_prob, 2, one, np.random.default_rng(5), start=at)
     assert chains.last is not None and chains.last.shape == (8, 2)
+    np.testing.assert_array_equal(chains.last, chains.samples[-1])
     assert np.all(np.abs(chains.last - 0.9) < 0.06)
     longer = SamplerSettings(walkers=8, max_steps=2000, min_steps=500)
-    on = run_ensemble(log_prob, 2, longer, rng, start=chains.last)
+    on = run_ensemble(log_prob, 2, longer, np.random.default_rng(6), start=chains.last)
     np.testing.assert_allclose(on.samples.reshape(-1, 2).mean(0), 0.3, atol=0.03)
+    again = run_ensemble(log_prob, 2, longer, np.random.default_rng(6), start=chains.last)
+    np.testing.assert_array_equal(on.samples, again.samples)
     with pytest.raises(ValueError, match=r"shape \(7, 2\), not \(8, 2\)"):
-        run_ensemble(log_prob, 2, one, rng, start=at[:7])
+        run_ensemble(log_prob, 2, one, np.random.default_rng(5), start=at[:7])
+    with pytest.raises(ValueError, match="repeats a position"):
+        run_ensemble(log_prob, 2, one, np.random.default_rng(5), start=np.vstack([at[:7], at[:1]]))
 
 
 def test_sampler_rejects_unknown_moves() -> None:

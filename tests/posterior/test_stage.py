@@ -766,11 +766,12 @@ def test_the_reported_emulator_sample_aims_past_the_target_it_is_settled_at(
 
 def _scripted_learning(run_dir: Path, monkeypatch: pytest.MonkeyPatch, budget: int, readings: list[float],
                        round_runs: int = ROUND_RUNS_CURVES, validated: Callable[..., bool] | None = None,
-                       ) -> tuple[Learned, list[int]]:
+                       given: list[np.ndarray | None] | None = None) -> tuple[Learned, list[int]]:
     """The curve emulator's active learning from 25 points in rounds of ``round_runs`` with
     the validation stubbed (``validated`` of the rounds' errors, shifts, tolerance and
     spreads; by default every round validates) and confirmations that read the spreads
-    ``readings`` in turn: what it learned and the training points each confirmation saw."""
+    ``readings`` in turn: what it learned and the training points each confirmation saw
+    (the draws each was given to start from are appended to ``given``)."""
     import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.curve_sample import FinalPosterior
 
@@ -786,6 +787,8 @@ def _scripted_learning(run_dir: Path, monkeypatch: pytest.MonkeyPatch, budget: i
 
     def confirm(emulator: CurveEmulator, draws: np.ndarray | None = None) -> FinalPosterior:
         seen.append(len(emulator.x))
+        if given is not None:
+            given.append(draws)
         return FinalPosterior([], flat, {"max_quantile_shift": next(spreads)}, None,
                               {"sampling": 0.0, "spread": 0.0})
 
@@ -813,27 +816,39 @@ def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
 
 def test_each_rounds_tempered_walkers_go_on_from_where_the_last_rounds_stopped(
         run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The first round's tempered sampling starts at the best training point; each later
-    one goes on from the walkers the round before left, and the learning hands on draws of
-    its last round's posterior for the reported posterior's sampling to start from."""
+    """The first round's tempered sampling starts at the best training point and runs up to
+    :data:`ROUND_STEPS` steps; each later one goes on from the walkers the round before
+    left, for :data:`WARM_STEPS`; a confirmation gets draws of the last round's posterior to
+    start its sampling from, and so does the reported posterior after the learning."""
     import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.curve_sample import START_ROWS
 
     calls: list[tuple[np.ndarray | None, np.ndarray | None]] = []
-    real = curve_stage.next_round
+    steps: list[int] = []
+    real_round, real_chains = curve_stage.next_round, curve_round.sample_chains
 
-    def spy(*args: Any) -> curve_round.Round:
-        step = real(*args)
-        calls.append((args[-1], step.walkers))
+    def spy(*args: Any, **kwargs: Any) -> curve_round.Round:
+        step = real_round(*args, **kwargs)
+        calls.append((kwargs["tempered"], step.tempered))
         return step
 
+    def chains(*args: Any, **kwargs: Any) -> Any:
+        steps.append(args[5])
+        return real_chains(*args, **kwargs)
+
     monkeypatch.setattr(curve_stage, "next_round", spy)
-    learned, _ = _scripted_learning(run_dir, monkeypatch, 3 * ROUND_RUNS_CURVES, [],
-                                    validated=lambda *args: False)
+    monkeypatch.setattr(curve_round, "sample_chains", chains)
+    given: list[np.ndarray | None] = []
+    # the rounds validate from the third on; the first confirmation passes
+    learned, _ = _scripted_learning(run_dir, monkeypatch, 4 * ROUND_RUNS_CURVES, [0.5 * SPREAD_MAX],
+                                    validated=lambda errors, *args: len(errors) >= 3, given=given)
+    d = learned.x.shape[1]
     assert learned.record["rounds"] == len(calls) == 3 and calls[0][0] is None
-    for (given, _), (_, left) in zip(calls[1:], calls[:-1], strict=True):
-        assert given is left and left is not None and left.shape == (16, learned.x.shape[1])
-    assert learned.draws is not None and learned.draws.shape == (3 * START_ROWS // 4, learned.x.shape[1])
+    assert steps == [curve_round.ROUND_STEPS, curve_round.WARM_STEPS, curve_round.WARM_STEPS]
+    for (handed, _), (_, left) in zip(calls[1:], calls[:-1], strict=True):
+        assert handed is left and left is not None and left.shape == (16, d)
+    assert len(given) == 1 and given[0] is not None and given[0].shape == (3 * START_ROWS // 4, d)
+    assert learned.draws is given[0]
 
 
 def test_each_round_logs_its_measures_beside_the_bounds_of_the_stop(
@@ -922,15 +937,17 @@ def test_a_confirmation_that_passes_is_the_posterior_drawn_after_the_learning(
     def simulate(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return features.of(ctx.runner.simulate(ctx.space.from_unit(rows), features.ids))
 
-    def final(emulator: CurveEmulator, rng: np.random.Generator) -> curve_sample.FinalPosterior:
-        return curve_sample.final_posterior(curve_sample.CurveEmulation(emulator, 4.0), settings, names, rng)
+    def final(emulator: CurveEmulator, rng: np.random.Generator,
+              draws: np.ndarray | None = None) -> curve_sample.FinalPosterior:
+        return curve_sample.final_posterior(curve_sample.CurveEmulation(emulator, 4.0), settings, names, rng,
+                                            start=draws)
 
     rng = np.random.default_rng(7)
     plain = curve_stage.learn(simulate, features, u, y, 4.0, 40, 1.0, rng, walkers=16)
     after = final(plain.emulator, rng)
     rng = np.random.default_rng(7)
     confirmed = curve_stage.learn(simulate, features, u, y, 4.0, 40, 1.0, rng, walkers=16,
-                                  confirm=lambda emulator, draws: final(emulator, rng))
+                                  confirm=lambda emulator, draws: final(emulator, rng, draws))
     assert plain.final is None and confirmed.final is not None
     assert plain.record["rounds"] == confirmed.record["rounds"] == 0 and confirmed.record["converged"]
     np.testing.assert_array_equal(confirmed.final.sample.unit, after.sample.unit)
