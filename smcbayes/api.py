@@ -69,7 +69,13 @@ class PosteriorResult:
     summary: dict[str, Any]
 
     def table(self) -> dict[str, dict[str, float]]:
-        """Per parameter: mean, sd, 5/50/95 % quantiles, R-hat and ESS."""
+        """Per parameter: mean, sd, 5/50/95 % quantiles, R-hat and ESS.
+
+        An importance-weighted posterior (the emulated posterior sampled by importance, or
+        one corrected by the forward model) has no R-hat (NaN) and the importance ESS; the
+        R-hat of the emcee chains that seeded its proposal is in
+        ``summary["emulator_parameters"]``.
+        """
         keys = ("mean", "sd", "q05", "q50", "q95", "r_hat", "ess")
         return {p["name"]: {k: p[k] for k in keys} for p in self.summary["parameters"]}
 

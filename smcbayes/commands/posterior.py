@@ -71,13 +71,19 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _r_hat_cell(r_hat: float | None) -> str:
+    """R-hat in three decimals, '-' where there is none: in an importance-weighted table (NaN,
+    or null once read from ``summary.json``) no chain made the sample."""
+    return "-" if r_hat is None or r_hat != r_hat else f"{r_hat:.3f}"
+
+
 def print_summary(info: dict[str, Any]) -> None:
     """The summary table, strongest correlations, emulator check, coverage and warnings."""
     print(f"{'parameter':<24}{'mean':>11}{'sd':>11}{'5%':>11}{'50%':>11}{'95%':>11}{'R-hat':>8}{'ESS':>8}")
     for s in info["parameters"]:
         name = f"{s['name']} ({s['unit']})" if s["unit"] != "-" else s["name"]
         print(f"{name:<24}" + "".join(f"{s[k]:>11.4g}" for k in ("mean", "sd", "q05", "q50", "q95"))
-              + f"{s['r_hat']:>8.3f}{s['ess']:>8.0f}")
+              + f"{_r_hat_cell(s.get('r_hat')):>8}{s['ess']:>8.0f}")
     for pair in info["correlation"]["strongest"]:
         print(f"correlated: {pair['a']} - {pair['b']}: r = {pair['r']:+.2f}")
     corr = info.get("correction") or {}

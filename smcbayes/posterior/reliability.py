@@ -80,6 +80,18 @@ def _emulator_sample_reasons(corr: Mapping[str, Any]) -> list[str]:
     return []
 
 
+def _chains_r_hat(info: Mapping[str, Any]) -> float:
+    """The largest R-hat of the emcee chains of a posterior summary ``info``, NaN if none.
+
+    Read from the chains' own table (``emulator_parameters``): an importance-weighted
+    ``parameters`` table has none (null).  A summary without that table (written by hand,
+    or before the stage kept it) has its chains' R-hat in ``parameters``.
+    """
+    rows = info.get("emulator_parameters") or info.get("parameters") or []
+    values = (p.get("r_hat") for p in rows)
+    return max((math.nan if v is None else v for v in values), default=math.nan)
+
+
 def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
     corr = info.get("correction") or {}
     emulated = corr.get("target") == "emulator"
@@ -102,7 +114,7 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
     active = info.get("active_learning") or {}
     if active.get("enabled") and not active.get("converged"):
         out.append(_budget_reason(active))
-    r_hat = max((p.get("r_hat", math.nan) for p in info.get("parameters") or []), default=math.nan)
+    r_hat = _chains_r_hat(info)
     # an importance sample of the emulated posterior is judged by its weights, not the chains'
     if not emulated and not r_hat <= R_HAT_MAX:
         out.append(f"the emulator chains did not converge (R-hat {r_hat:.2f} > {R_HAT_MAX}); run "

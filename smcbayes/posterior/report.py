@@ -59,12 +59,14 @@ def extrapolation_warning(cid: str, why: Sequence[str], source: str) -> str:
 
 
 def write_table(path: Path, rows: list) -> None:
-    """The posterior summary as CSV."""
+    """The posterior summary as CSV; a NaN (the R-hat of an importance-weighted sample) is
+    an empty cell."""
     with path.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(["parameter", "unit", "mean", "sd", "q05", "q50", "q95", "r_hat", "ess"])
         for s in rows:
-            w.writerow([s.name, s.unit] + [f"{v:.6g}" for v in (s.mean, s.sd, s.q05, s.q50, s.q95, s.r_hat, s.ess)])
+            values = (s.mean, s.sd, s.q05, s.q50, s.q95, s.r_hat, s.ess)
+            w.writerow([s.name, s.unit] + ["" if v != v else f"{v:.6g}" for v in values])
 
 
 def write_band_curves(bands: Mapping[str, Band], folder: Path) -> None:
@@ -107,8 +109,8 @@ def _tables(ctx: RunContext, chains: list, corrected: Any, rng: np.random.Genera
     if corrected is None:
         out.update(table=raw, corr=out["raw_corr"], unit=flat, resampled=None)
         return out
-    r_hat = np.array([s.r_hat for s in raw])
-    table = summarise_weighted(space, corrected.unit, corrected.weights, r_hat, corrected.ess)
+    # no R-hat: the chains only seeded the proposal, their own R-hat stays in ``raw``
+    table = summarise_weighted(space, corrected.unit, corrected.weights, corrected.ess)
     keep = corrected.weights > 0
     corr = correlations(space, space.from_unit(corrected.unit[keep]), weights=corrected.weights[keep])
     resampled = corrected.resample(max(4000, corrected.unit.shape[0]), rng)
@@ -181,7 +183,8 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     With ``corrected`` (an importance-corrected sample) the reported posterior (table,
     correlations, NetCDF ``posterior`` group, corner plot, predictive bands) is the
     corrected one and the emulator's is kept alongside (``emulator_parameters``,
-    ``emulator_correlation``, ``summary_emulator.csv``, NetCDF ``emulator_posterior``).
+    ``emulator_correlation``, ``summary_emulator.csv``, NetCDF ``emulator_posterior``); the
+    corrected table's R-hat is NaN (``null`` in JSON), the chains' is in the emulator's table.
     """
     space = ctx.space
     t = _tables(ctx, chains, corrected, rng)

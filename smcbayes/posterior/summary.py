@@ -34,7 +34,11 @@ ESS_WARN = 200.0
 
 @dataclass(frozen=True)
 class ParameterSummary:
-    """Posterior summary of one parameter (user units; quantiles 5/50/95 %)."""
+    """Posterior summary of one parameter (user units; quantiles 5/50/95 %).
+
+    ``r_hat`` is that of emcee chains, NaN for an importance-weighted sample; ``ess`` is
+    then the importance ESS.
+    """
 
     name: str
     unit: str
@@ -154,14 +158,17 @@ def summarise(space: ParameterSpace, chains: Sequence[Chains]) -> list[Parameter
     return out
 
 
-def summarise_weighted(space: ParameterSpace, unit: Array, weights: Array, r_hat: Array,
+def summarise_weighted(space: ParameterSpace, unit: Array, weights: Array,
                        ess: float) -> list[ParameterSummary]:
     """Summary of a weighted sample (the importance-corrected posterior).
+
+    Its R-hat is NaN: no chain made the sample, whose reliability its Pareto k-hat and
+    importance ESS judge (the R-hat of the chains that seeded the proposal belongs to
+    their own summary, :func:`summarise`).
 
     Args:
         unit: points in the unit cube, ``(N, d)``.
         weights: normalised importance weights, ``(N,)``.
-        r_hat: R-hat of the emulator chains that seeded the proposal, ``(d,)``.
         ess: importance effective sample size (the same for every parameter).
     """
     theta = space.from_unit(unit)
@@ -169,8 +176,9 @@ def summarise_weighted(space: ParameterSpace, unit: Array, weights: Array, r_hat
     out = []
     for j, p in enumerate(space.free):
         q = weighted_quantile(theta[:, j], weights, [0.05, 0.5, 0.95])
+        # the one NaN object: a NaN equals only itself, so equal tables still compare equal
         out.append(ParameterSummary(p.name, p.unit, float(mean[j]), float(sd[j]), float(q[0]), float(q[1]),
-                                    float(q[2]), float(r_hat[j]), float(ess)))
+                                    float(q[2]), np.nan, float(ess)))
     return out
 
 

@@ -61,10 +61,15 @@ def _correction_paragraph(corr: dict[str, Any], r_hat: float) -> Paragraph:
 
 def _sampler_paragraphs(post: dict[str, Any]) -> list[Block]:
     """The chains' stopping rule and largest R-hat, with their smallest effective sample
-    size; with an importance correction, the weights' paragraph instead of that size."""
+    size; with an importance correction, the weights' paragraph instead of that size.
+
+    The R-hat is read from the chains' own table (``emulator_parameters``), as an
+    importance-weighted ``parameters`` table has none; a summary without that table has
+    the chains' R-hat in ``parameters``."""
     params = post.get("parameters") or []
     sampler = post.get("sampler") or []
-    r_hat = max((_num(p.get("r_hat")) for p in params), default=float("nan"))
+    chain_rows = post.get("emulator_parameters") or params
+    r_hat = max((_num(p.get("r_hat")) for p in chain_rows), default=float("nan"))
     ess = min((_num(p.get("ess")) for p in params), default=float("nan"))
     converged = bool(sampler) and all(s.get("converged") for s in sampler)
     steps = ", ".join(str(s.get("steps", "-")) for s in sampler) or "-"

@@ -28,3 +28,18 @@ def test_the_curve_emulator_line_counts_the_validations_its_reported_posterior_d
     line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("curve emulator:"))
     assert line.endswith("not validated (budget spent), 2 validation(s) not confirmed by the reported "
                          "posterior's spread")
+
+
+def test_the_table_prints_no_r_hat_for_an_importance_weighted_posterior(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """'-' in the R-hat column for an importance-weighted table (NaN in the stage's summary,
+    null once read from ``summary.json``), the chains' R-hat where they are the posterior."""
+    row = {"unit": "-", "mean": 0.4, "sd": 0.05, "q05": 0.3, "q50": 0.4, "q95": 0.5, "ess": 2500.0}
+    info = {**_info([], True), "parameters": [{**row, "name": "n", "r_hat": float("nan")},
+                                              {**row, "name": "m", "r_hat": None},
+                                              {**row, "name": "k", "r_hat": 1.0123}]}
+    print_summary(info)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split()[-2:] == ["R-hat", "ESS"]
+    cells = {line.split()[0]: line.split()[-2:] for line in lines[1:4]}
+    assert cells == {"n": ["-", "2500"], "m": ["-", "2500"], "k": ["1.012", "2500"]}

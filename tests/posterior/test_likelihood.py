@@ -515,6 +515,39 @@ def test_reliability_names_each_failed_diagnostic() -> None:
     assert "before the emulator was validated" in reason and "2.5 nats" in reason
 
 
+def test_reliability_reads_the_chains_r_hat_from_their_own_table() -> None:
+    """An importance-weighted table has no R-hat (null in ``summary.json``): the chains'
+    is read from ``emulator_parameters``, and every verdict is the one given when the table
+    carried the chains' R-hat."""
+    from smcbayes.config import build_project
+    from smcbayes.forward.model import ForwardModel
+    from smcbayes.posterior.reliability import assess
+
+    raw = {"name": "t", "configuration": [{"id": "a", "charge": {"shape": "bar", "coverage_pct": 60.0},
+                                           "press": {"speed_mm_s": 0.5}}]}
+    space = ForwardModel(build_project(raw, "<t>", Path("."))).space
+    rows = [{"name": p.name, "q05": p.lower + 0.4 * (p.upper - p.lower),
+             "q95": p.lower + 0.5 * (p.upper - p.lower), "r_hat": 1.2} for p in space.free]
+    weighted = [{**r, "r_hat": None} for r in rows]
+    check = {"emulator_check": {"mean_abs_error": 0.4}}
+    sampled = {"enabled": True, "target": "emulator", "k_hat": 0.2, "ess": 5000, "settled": True}
+    forward = {"enabled": True, "target": "forward model", "k_hat": 0.2, "ess": 2500, "settled": True}
+    # the chains are the reported posterior: their R-hat is in both tables
+    chains_only = {"parameters": rows, "emulator_parameters": rows, **check}
+    reasons = assess(chains_only, space, 10.0)["reasons"]
+    assert len(reasons) == 1 and "chains did not converge (R-hat 1.20 > 1.05)" in reasons[0]
+    # the same chains, their table as read back: still flagged (a null would hide them)
+    hidden = {"parameters": weighted, "emulator_parameters": rows, **check}
+    assert assess(hidden, space, 10.0) == assess(chains_only, space, 10.0)
+    for corr in (sampled, forward, {**forward, "settled": False, "ess_target": 2000.0}):
+        before = assess({"parameters": rows, "correction": corr, **check}, space, 10.0)
+        now = assess({"parameters": weighted, "emulator_parameters": rows, "correction": corr, **check},
+                     space, 10.0)
+        assert now == before
+    assert assess({"parameters": weighted, "emulator_parameters": rows, "correction": sampled, **check},
+                  space, 10.0)["reliable"]
+
+
 def test_sample_functions_are_fixed_by_their_seed() -> None:
     """The spread's second measurement relies on it: the same GP and seed give the same
     sample functions, another seed others."""

@@ -3,12 +3,17 @@ summaries, correlations, warnings and the InferenceData layout, against hand com
 
 from __future__ import annotations
 
+import csv
+import json
+from dataclasses import asdict
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from smcbayes.forward.parameters import BASE_PARAMETERS, ParameterSpace
+from smcbayes.posterior.report import _tables, write_table
 from smcbayes.posterior.sampler import Chains
 from smcbayes.posterior.summary import (
     ParameterSummary,
@@ -20,6 +25,7 @@ from smcbayes.posterior.summary import (
     to_inference_data,
     warnings_for,
 )
+from smcbayes.run.runlog import write_json
 
 # n (linear, 0.2-0.6) and tau_c (log, 0.005-1 MPa) free
 SPACE = ParameterSpace(BASE_PARAMETERS, {"tau_star_Pa": 1e4, "B_Pa_s": 1e4, "m": 1.5})
@@ -112,7 +118,7 @@ def test_summarise_weighted_hand_computed() -> None:
     """Weighted mean/sd and midpoint-rule quantiles on four points."""
     unit = np.array([[0.0, 0.5], [0.25, 0.5], [0.5, 0.5], [1.0, 0.5]])
     w = np.array([0.1, 0.2, 0.3, 0.4])
-    out = summarise_weighted(SPACE, unit, w, np.array([1.01, 1.2]), 123.0)
+    out = summarise_weighted(SPACE, unit, w, 123.0)
     n = 0.2 + 0.4 * unit[:, 0]  # 0.2, 0.3, 0.4, 0.6
     mean = float(w @ n)
     assert out[0].mean == pytest.approx(mean)
@@ -124,18 +130,47 @@ def test_summarise_weighted_hand_computed() -> None:
     # tau_c at unit 0.5 of log10 0.005..1: the geometric midpoint, no spread
     assert out[1].mean == pytest.approx(np.sqrt(0.005 * 1.0))
     assert out[1].sd == pytest.approx(0.0, abs=1e-12)
-    assert (out[0].r_hat, out[1].r_hat, out[0].ess, out[1].ess) == (1.01, 1.2, 123.0, 123.0)
+    # no chain made the weighted sample: no R-hat, the importance ESS for every parameter
+    assert np.isnan(out[0].r_hat) and np.isnan(out[1].r_hat) and (out[0].ess, out[1].ess) == (123.0, 123.0)
 
 
 def test_summarise_weighted_equal_weights_is_the_plain_summary() -> None:
     rng = np.random.default_rng(4)
     unit = rng.random((3000, 2))
-    out = summarise_weighted(SPACE, unit, np.full(3000, 1 / 3000), np.ones(2), 3000.0)
+    out = summarise_weighted(SPACE, unit, np.full(3000, 1 / 3000), 3000.0)
     theta = SPACE.from_unit(unit)
     for j in range(2):
         assert out[j].mean == pytest.approx(theta[:, j].mean())
         assert out[j].sd == pytest.approx(theta[:, j].std())
         assert out[j].q50 == pytest.approx(np.median(theta[:, j]), rel=1e-3)
+
+
+def test_a_weighted_table_has_no_r_hat_in_csv_and_json_and_the_chains_keep_theirs(tmp_path: Path) -> None:
+    """The reported table of an importance sample: R-hat NaN, an empty CSV cell and null in
+    ``summary.json``; the chains' table keeps theirs; without importance weights the
+    chains' table is the reported one, R-hat included."""
+    rng = np.random.default_rng(8)
+    comps = [chains(iid(rng, 300, 8))]
+    unit = rng.random((500, 2))
+    sample = SimpleNamespace(unit=unit, weights=np.full(500, 1 / 500), ess=480.0,
+                             resample=lambda n, g: unit[g.integers(0, 500, n)])
+    t = _tables(SimpleNamespace(space=SPACE), comps, sample, rng)
+    assert all(np.isnan(s.r_hat) and s.ess == 480.0 for s in t["table"])
+    assert all(1.0 <= s.r_hat < 1.05 for s in t["raw"])
+    write_table(tmp_path / "summary.csv", t["table"])
+    write_table(tmp_path / "summary_emulator.csv", t["raw"])
+    rows = list(csv.DictReader((tmp_path / "summary.csv").open(encoding="utf-8")))
+    assert [(r["parameter"], r["r_hat"], r["ess"]) for r in rows] == [("n", "", "480"), ("tau_c_MPa", "", "480")]
+    raw_rows = list(csv.DictReader((tmp_path / "summary_emulator.csv").open(encoding="utf-8")))
+    assert [float(r["r_hat"]) for r in raw_rows] == pytest.approx([s.r_hat for s in t["raw"]], rel=1e-5)
+    write_json(tmp_path / "summary.json", {"parameters": [asdict(s) for s in t["table"]],
+                                           "emulator_parameters": [asdict(s) for s in t["raw"]]})
+    text = (tmp_path / "summary.json").read_text(encoding="utf-8")
+    info = json.loads(text)
+    assert "NaN" not in text and [p["r_hat"] for p in info["parameters"]] == [None, None]
+    assert [p["r_hat"] for p in info["emulator_parameters"]] == [s.r_hat for s in t["raw"]]
+    plain = _tables(SimpleNamespace(space=SPACE), comps, None, rng)
+    assert plain["table"] is plain["raw"] and all(np.isfinite(s.r_hat) for s in plain["table"])
 
 
 def test_correlations_are_computed_in_sampled_coordinates() -> None:

@@ -23,15 +23,16 @@ GOOD_WEIGHTS = {"enabled": True, "evaluations": 671, "k_hat": 0.06, "ess": 512.0
                 "reliable": True, "settled": True}
 
 
-def report_text(tmp_path: Path, params: list[dict], correction: dict | None) -> str:
-    """Markdown report of a fake run with a posterior of ``params``."""
+def report_text(tmp_path: Path, params: list[dict], correction: dict | None,
+                extra: dict | None = None) -> str:
+    """Markdown report of a fake run with a posterior of ``params`` (and ``extra`` keys)."""
     run = tmp_path / "run"
     (run / "posterior").mkdir(parents=True)
     (run / "config.json").write_text(json.dumps({"project": PROJECT}), encoding="utf-8")
     summary = {"best_loss_kN2": 12.5, "best_params": {}, "best_errors_kN2": {"bar-03": 12.5},
                "search_box": BOX, "settings": {"seed": 0}}
     (run / "summary.json").write_text(json.dumps(summary), encoding="utf-8")
-    post = {"parameters": params, **({"correction": correction} if correction else {})}
+    post = {"parameters": params, **({"correction": correction} if correction else {}), **(extra or {})}
     (run / "posterior" / "summary.json").write_text(json.dumps(post), encoding="utf-8")
     write_report(run, formats=("md",))
     return (run / "report.md").read_text(encoding="utf-8")
@@ -54,6 +55,28 @@ def test_high_r_hat_with_good_weights_says_what_holds(tmp_path: Path) -> None:
     assert "can be trusted" not in text
     assert ("the corrected posterior rests on the importance weights (k-hat 0.06), the emulator "
             "chains did not converge (R-hat 1.19)") in text
+
+
+@pytest.mark.parametrize(("r_hat", "words"), [(1.01, "the emulator chains agree"),
+                                               (1.19, "the emulator chains did not converge")])
+def test_a_weighted_table_shows_no_r_hat_and_the_words_keep_the_chains(
+        tmp_path: Path, r_hat: float, words: str) -> None:
+    """An importance-weighted table's R-hat is null: its cell reads '-', and the sentences
+    on the chains take their R-hat from the chains' own table, as when the table carried it."""
+    weighted = [dict(p, r_hat=None, ess=512.0) for p in NARROW]
+    chains = [dict(p, r_hat=r_hat, ess=900.0) for p in NARROW]
+    text = report_text(tmp_path, weighted, GOOD_WEIGHTS, {"emulator_parameters": chains})
+    header = next(line for line in text.splitlines() if line.startswith("| parameter |"))
+    column = [c.strip() for c in header.strip("|").split("|")].index("R-hat")
+    for name in ("n", "B_Pa_s"):
+        row = next(line for line in text.splitlines() if line.startswith(f"| {name} |"))
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[column] == "-" and cells[column + 1] == "512"
+    assert f"the largest R-hat of its chains is {r_hat}: {words}." in text
+    # the sentences are those of a summary whose table carried the chains' R-hat
+    old = report_text(tmp_path / "old", [dict(p, ess=512.0) for p in chains], GOOD_WEIGHTS)
+    assert [ln for ln in old.splitlines() if "R-hat" in ln and not ln.startswith("|")] == \
+        [ln for ln in text.splitlines() if "R-hat" in ln and not ln.startswith("|")]
 
 
 @pytest.mark.parametrize("k_hat", [0.75, 0.95])
