@@ -11,8 +11,10 @@ and draws the spread again ``--draws`` times for each count of ``--supports``, w
 and torch on one thread as in the stage.  The importance sample stays fixed, so its own
 noise is not in these figures; reading k of every count starts from the seed 1000 + k, so
 the counts are paired (a larger count's first supports are a smaller one's).  Per count:
-mean, standard deviation, range, the share of readings above 0.10 and the seconds a
-reading takes; with the stage's verdict, runs and own reading and the load average.
+mean, standard deviation, range, the share of readings above 0.10, each reading's own
+bootstrap standard error over its supports (which the standard deviation checks) and the
+seconds a reading takes; with the stage's verdict, runs and own reading and the load
+average.
 
     python benchmarks/spread_noise.py [--seed 0] [--draws 10] [--supports 4,12]
         [--workdir DIR] [--data-dir DIR] [--name spread_noise]
@@ -74,15 +76,19 @@ def readings(state: dict[str, Any], supports: int, draws: int) -> dict[str, Any]
     from smcbayes.surrogate.gp import gp_session
 
     values: list[float] = []
+    errors: list[float | None] = []
     t0 = time.perf_counter()
     with gp_session():  # one BLAS and torch thread, as in the stage
         for k in range(draws):
             spread, _ = curve_spread(state["emulator"], state["n_eff"], state["sample"], state["names"],
                                      np.random.default_rng(1000 + k), supports=supports)
             values.append(float(spread["max_quantile_shift"]))
+            errors.append(spread.get("max_quantile_shift_se"))
     v = np.array(values)
+    known = [e for e in errors if e is not None]
     return {"supports": supports, "readings": values, "mean": float(v.mean()),
             "sd": float(v.std(ddof=1)), "min": float(v.min()), "max": float(v.max()),
+            "standard_errors": errors, "mean_standard_error": float(np.mean(known)) if known else None,
             "share_above_0.10": float(np.mean(v > 0.10)),
             "seconds_per_reading": (time.perf_counter() - t0) / draws}
 
@@ -118,8 +124,10 @@ def main() -> int:
           f"{stage['active_learning_runs']} runs, the stage's own reading {stage_reading}")
     rows = [readings(state, n, args.draws) for n in args.supports]
     for r in rows:
+        se = r["mean_standard_error"]
         print(f"{r['supports']:3d} supports: mean {r['mean']:.4f}, sd {r['sd']:.4f}, "
               f"{r['min']:.3f}-{r['max']:.3f}, above 0.10 in {r['share_above_0.10']:.0%}, "
+              f"each reading's own standard error {'n/a' if se is None else f'{se:.4f}'} on average, "
               f"{r['seconds_per_reading']:.1f} s a reading")
     out = {"settings": vars(args), "stage": stage, "cpu_count": os.cpu_count(),
            "load_average_before_after": [load, os.getloadavg()[0]], "counts": rows}

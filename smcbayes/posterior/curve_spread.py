@@ -69,6 +69,15 @@ called it unreliable, ten further draws on the same importance sample gave 0.059
 four (sd 0.011) and 0.062-0.081 on twelve (sd 0.007).  A support costs 1.5-3 s on these
 emulators."""
 
+SPREAD_RESAMPLES = 200
+"""Resamples of the supports (with replacement) whose spreads give the spread's standard
+error (Efron & Tibshirani 1993, "An Introduction to the Bootstrap", ch. 6): the supports,
+each a fresh draw of points and functions, are the reading's independent units."""
+
+SPREAD_RESAMPLE_SEED = 20240607
+"""Seed of the supports' resampling: its own generator, so that the standard error leaves
+the stage's random stream, and with it every later draw, as it was."""
+
 SUPPORT_POINTS = 1500
 """Draws of the support (with repeats) on which the sample functions are drawn jointly."""
 
@@ -237,6 +246,25 @@ def spread_and_pool(posteriors: Sequence[FunctionPosteriors], sample: Importance
     return spread, dataclasses.replace(sample, log_weight=log_weight, ess=ess_of(log_weight))
 
 
+def _level_shifts(moves: Array) -> Array:
+    """Per parameter ``(d,)``, the largest over its 5/50/95 % quantiles of the move that
+    :data:`SHIFT_LEVEL` of the functions' ``moves`` ``(F, 3, d)`` stay within."""
+    return np.max(np.quantile(moves, SHIFT_LEVEL, axis=0), axis=0)
+
+
+def spread_standard_error(moves: Sequence[Array]) -> float | None:
+    """Bootstrap standard error of the spread (the largest of :func:`_level_shifts`) over the
+    supports, given each support's functions' moves ``(F, 3, d)``: the spread of
+    :data:`SPREAD_RESAMPLES` resamples of the supports with replacement; ``None`` for one
+    support, whose reading has nothing to be compared with."""
+    if len(moves) < 2:
+        return None
+    rng = np.random.default_rng(SPREAD_RESAMPLE_SEED)
+    picks = rng.integers(0, len(moves), size=(SPREAD_RESAMPLES, len(moves)))
+    spreads = [np.max(_level_shifts(np.concatenate([moves[k] for k in pick]))) for pick in picks]
+    return float(np.std(spreads, ddof=1))
+
+
 def function_spread(posteriors: Sequence[FunctionPosteriors], sample: ImportanceSample,
                     names: Sequence[str]) -> dict[str, Any]:
     """The spread of the functions' ``posteriors`` (one per support) around the mean's
@@ -245,7 +273,8 @@ def function_spread(posteriors: Sequence[FunctionPosteriors], sample: Importance
     support that one function in ten exceeds (``shift_level``; not net of any noise;
     ``sampling_noise`` is the largest of the supports' own, against the whole sample), with
     each function's ESS on its support, the ``supports`` and their distinct points
-    together (``support_points``)."""
+    together (``support_points``), and the spread's standard error over the supports
+    (``max_quantile_shift_se``, :func:`spread_standard_error`; ``None`` for one)."""
     moves: list[Array] = []
     noise = np.zeros(sample.unit.shape[1])
     whole = _quantiles(sample.unit, np.exp(sample.log_weight))
@@ -260,12 +289,13 @@ def function_spread(posteriors: Sequence[FunctionPosteriors], sample: Importance
         # on the common support the support's own subsampling cancels (as in the rounds'
         # quantile shift); its noise against the whole sample is reported, not subtracted
         noise = np.maximum(noise, np.max(np.abs(ref - whole), axis=0))
-        moves += list(moved)
-    shifts = np.max(np.quantile(np.array(moves), SHIFT_LEVEL, axis=0), axis=0)
-    return {"functions": len(moves), "steps": 0, "supports": len(posteriors),
+        moves.append(moved)
+    shifts = _level_shifts(np.concatenate(moves))
+    return {"functions": sum(len(m) for m in moves), "steps": 0, "supports": len(posteriors),
             "support_points": int(len(np.unique(np.concatenate([support.rows for support in posteriors])))),
             "shift_level": SHIFT_LEVEL,
             "max_quantile_shift": float(np.max(shifts)),
+            "max_quantile_shift_se": spread_standard_error(moves),
             "per_parameter": {n: float(v) for n, v in zip(names, shifts, strict=True)},
             "sampling_noise": {n: float(v) for n, v in zip(names, noise, strict=True)},
             "function_ess": [ess_of(lw) for support in posteriors for lw in support.log_functions]}

@@ -84,8 +84,10 @@ def spread_words(spread: dict[str, Any]) -> str:
     move of all but a share ``1 - shift_level`` of its functions) in words, for the
     terminal and the report."""
     level, count = spread.get("shift_level", 1.0), spread.get("functions") or 0
-    shift = spread.get("max_quantile_shift")
+    shift, se = spread.get("max_quantile_shift"), spread.get("max_quantile_shift_se")
     amount = "n/a" if shift is None else f"{shift:.2f}"
+    if shift is not None and se is not None:
+        amount = f"{shift:.3f} (standard error {se:.3f} over its {spread.get('supports')} supports)"
     # the log-loss emulator's spread is net of its chains' noise; the curve emulator's
     # functions share the mean's points, so there is none to take off
     noise = " beyond the chains' own noise" if spread.get("steps") else ""

@@ -14,7 +14,7 @@ from smcbayes.posterior.correct import ImportanceSample
 from smcbayes.posterior.curve_aim import AIMED, TARGETED, aimed, draws, lift, targeted
 from smcbayes.posterior.curve_round import Round
 from smcbayes.posterior.curve_sample import START_ROWS, FinalPosterior, quantile_shift
-from smcbayes.posterior.curve_spread import FunctionPosteriors, function_spread
+from smcbayes.posterior.curve_spread import FunctionPosteriors, function_spread, spread_standard_error
 from smcbayes.posterior.curve_stage import (
     QUANTILE_SHIFT,
     VALIDATED_ROUNDS,
@@ -483,6 +483,50 @@ def test_the_spread_over_several_supports_is_the_level_of_all_their_functions() 
     # the noise is the larger of the two supports' own
     noise = [function_spread([s], sample, ["x"])["sampling_noise"]["x"] for s in (moved, still)]
     assert both["sampling_noise"]["x"] == max(noise)
+
+
+def test_the_spreads_standard_error_is_that_of_the_level_over_resampled_supports() -> None:
+    """The bootstrap over supports: none for one support, zero for supports that agree, and
+    for independent supports close to the standard deviation of independent readings."""
+    rng = np.random.default_rng(11)
+    assert spread_standard_error([rng.random((32, 3, 2))]) is None
+    same = rng.random((32, 3, 2))
+    assert spread_standard_error([same, same.copy(), same.copy()]) < 1e-12  # interpolation rounding
+
+    def support() -> np.ndarray:
+        # moves of 32 functions, half-normal with scale 0.05 in one quantile, 0 elsewhere
+        out = np.zeros((32, 3, 2))
+        out[:, 0, 0] = np.abs(rng.normal(0.0, 0.05, 32))
+        return out
+
+    def reading(moves: list[np.ndarray]) -> float:
+        return float(np.max(np.quantile(np.concatenate(moves), 0.9, axis=0)))
+
+    readings = [[support() for _ in range(12)] for _ in range(300)]
+    sd = np.std([reading(r) for r in readings], ddof=1)
+    errors = [spread_standard_error(r) for r in readings[:40]]
+    assert 0.6 * sd < np.mean(errors) < 1.5 * sd, (np.mean(errors), sd)
+    # the same moves give the same error: its resampling has its own seed
+    assert spread_standard_error(readings[0]) == errors[0]
+
+
+def test_the_spread_records_its_standard_error_over_several_supports() -> None:
+    sample = _sample(0.5)
+    rng = np.random.default_rng(5)
+
+    def support(shift: float) -> FunctionPosteriors:
+        rows = np.sort(rng.choice(len(sample.unit), 8000, replace=False))
+        log_mean = sample.log_weight[rows] - np.logaddexp.reduce(sample.log_weight[rows])
+        x = sample.unit[rows, 0]
+        lik = np.array([norm.logpdf(x, 0.5 + shift * k / 9, 0.1) - norm.logpdf(x, 0.5, 0.1) for k in range(10)])
+        log_f = np.array([lw - np.logaddexp.reduce(lw) for lw in log_mean + lik])
+        return FunctionPosteriors(rows, log_mean, log_f, lik)
+
+    one = function_spread([support(0.1)], sample, ["x"])
+    assert one["max_quantile_shift_se"] is None
+    alike = function_spread([support(0.1) for _ in range(4)], sample, ["x"])
+    unlike = function_spread([support(0.1), support(0.0), support(0.2), support(0.05)], sample, ["x"])
+    assert 0.0 <= alike["max_quantile_shift_se"] < 0.01 < unlike["max_quantile_shift_se"], (alike, unlike)
 
 
 def test_the_final_chains_start_at_draws_of_a_close_posterior_and_run_fewer_steps(

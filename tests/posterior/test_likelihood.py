@@ -548,6 +548,40 @@ def test_reliability_reads_the_chains_r_hat_from_their_own_table() -> None:
                   space, 10.0)["reliable"]
 
 
+def test_a_spread_just_within_its_bound_by_its_standard_error_is_a_marginal_pass() -> None:
+    """A reliable posterior whose spread passes within two standard errors of its bound gets
+    a note (the verdict stands); a clear pass, a spread without a standard error (one
+    support, or the log-loss emulator's) and a failed spread get none."""
+    from smcbayes.config import build_project
+    from smcbayes.forward.model import ForwardModel
+    from smcbayes.posterior.reliability import assess
+    from smcbayes.posterior.spread import spread_words
+
+    raw = {"name": "t", "configuration": [{"id": "a", "charge": {"shape": "bar", "coverage_pct": 60.0},
+                                           "press": {"speed_mm_s": 0.5}}]}
+    space = ForwardModel(build_project(raw, "<t>", Path("."))).space
+    narrow = [{"name": p.name, "q05": p.lower + 0.4 * (p.upper - p.lower),
+               "q95": p.lower + 0.5 * (p.upper - p.lower), "r_hat": 1.01} for p in space.free]
+    base = {"parameters": narrow, "emulator_check": {"mean_abs_error": 0.4}}
+
+    def notes(shift: float, se: float | None) -> dict:
+        spread = {"max_quantile_shift": shift, "max_quantile_shift_se": se, "supports": 12,
+                  "per_parameter": {narrow[0]["name"]: shift}}
+        return assess({**base, "emulator_spread": spread}, space, 10.0)
+
+    marginal = notes(0.096, 0.006)
+    assert marginal["reliable"] and len(marginal["notes"]) == 1
+    assert "marginal pass" in marginal["notes"][0] and "0.096" in marginal["notes"][0]
+    assert "0.006" in marginal["notes"][0]
+    assert notes(0.080, 0.006)["notes"] == [] and notes(0.096, None)["notes"] == []
+    failed = notes(0.104, 0.006)
+    assert not failed["reliable"] and failed["notes"] == []
+    words = spread_words({"max_quantile_shift": 0.0831, "max_quantile_shift_se": 0.0064, "supports": 12,
+                          "functions": 384, "shift_level": 0.9})
+    assert "at most 0.083 (standard error 0.006 over its 12 supports)" in words
+    assert "at most 0.08 of" in spread_words({"max_quantile_shift": 0.0831, "functions": 32, "shift_level": 0.9})
+
+
 def test_sample_functions_are_fixed_by_their_seed() -> None:
     """The spread's second measurement relies on it: the same GP and seed give the same
     sample functions, another seed others."""
