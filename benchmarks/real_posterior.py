@@ -31,7 +31,8 @@ Per seed: wall time, the verdict and its reasons, the emulator check (mean absol
 at 100 posterior draws, nats), the forward runs that shaped the posterior (``inference``)
 and those for bands and checks, the active learning's rounds and whether it was validated,
 the reported posterior's spread (how far the emulator's sample functions move a 5/50/95 %
-quantile, share of the range) and the stage's own time split.
+quantile, share of the range) with its standard error and the note on a marginal pass, and
+the stage's own time split.
 
     python benchmarks/real_posterior.py [--seeds 0,1,2] [--emulator curves] [--correct-draws 0]
         [--round-runs N] [--reference-draws N] [--reference-seed R] [--workdir DIR]
@@ -183,7 +184,8 @@ def record_of(summary: dict[str, Any], seed: int, wall_s: float, load: tuple[flo
            "inference_runs": runs.get("inference"), "active_learning_runs": learning.get("evaluations"),
            "checks_and_bands_runs": runs.get("checks_and_bands"),
            "rounds": learning.get("rounds"), "validated": learning.get("converged"),
-           "spread": spread.get("max_quantile_shift"), "stage_seconds": summary.get("stage_seconds")}
+           "spread": spread.get("max_quantile_shift"), "spread_se": spread.get("max_quantile_shift_se"),
+           "notes": reliability.get("notes", []), "stage_seconds": summary.get("stage_seconds")}
     rec["met"] = {"reliable": rec["reliable"],
                   "check": rec["check_mean_abs_error_nats"] is not None
                   and rec["check_mean_abs_error_nats"] <= TARGET_CHECK_NATS,
@@ -203,7 +205,8 @@ def print_record(rec: dict[str, Any]) -> None:
     verdict = "reliable" if rec["reliable"] else "unreliable"
     print(f"seed {rec['seed']}: {rec['wall_s']:.0f} s (load {rec['load_average_before_after'][0]:.1f}), "
           f"{verdict}, check {fmt(rec['check_mean_abs_error_nats'], '.2f')} nats, spread "
-          f"{fmt(rec['spread'], '.3f')}, {rec['inference_runs']} runs shaped it (active learning "
+          f"{fmt(rec['spread'], '.3f')} (standard error {fmt(rec.get('spread_se'), '.3f')}), "
+          f"{rec['inference_runs']} runs shaped it (active learning "
           f"{rec['active_learning_runs']} in {rec['rounds']} rounds, "
           f"{'validated' if rec['validated'] else 'not validated'}), {rec['checks_and_bands_runs']} for "
           "checks and bands")
@@ -218,6 +221,9 @@ def print_record(rec: dict[str, Any]) -> None:
         print("  MISSED: " + ", ".join(missed))
     for reason in rec["reasons"]:
         print(f"  - {reason}")
+    for note in rec.get("notes", []):
+        if note.startswith("a marginal pass"):
+            print(f"  note: {note}")
 
 
 def seed_list(text: str) -> list[int]:
