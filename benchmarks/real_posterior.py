@@ -173,6 +173,8 @@ def against_reference(rec: dict[str, Any], ref: dict[str, Any]) -> dict[str, Any
 
 def record_of(summary: dict[str, Any], seed: int, wall_s: float, load: tuple[float, float]) -> dict[str, Any]:
     """What the benchmark keeps of one stage's ``posterior/summary.json``."""
+    from smcbayes.posterior.reliability import marginal_spread_note
+
     check = summary.get("emulator_check") or {}
     runs = summary.get("forward_evaluations") or {}
     learning = summary.get("active_learning") or {}
@@ -185,7 +187,8 @@ def record_of(summary: dict[str, Any], seed: int, wall_s: float, load: tuple[flo
            "checks_and_bands_runs": runs.get("checks_and_bands"),
            "rounds": learning.get("rounds"), "validated": learning.get("converged"),
            "spread": spread.get("max_quantile_shift"), "spread_se": spread.get("max_quantile_shift_se"),
-           "notes": reliability.get("notes", []), "stage_seconds": summary.get("stage_seconds")}
+           "marginal_note": marginal_spread_note(spread), "notes": reliability.get("notes", []),
+           "stage_seconds": summary.get("stage_seconds")}
     rec["met"] = {"reliable": rec["reliable"],
                   "check": rec["check_mean_abs_error_nats"] is not None
                   and rec["check_mean_abs_error_nats"] <= TARGET_CHECK_NATS,
@@ -221,9 +224,8 @@ def print_record(rec: dict[str, Any]) -> None:
         print("  MISSED: " + ", ".join(missed))
     for reason in rec["reasons"]:
         print(f"  - {reason}")
-    for note in rec.get("notes", []):
-        if note.startswith("a marginal pass"):
-            print(f"  note: {note}")
+    if rec.get("marginal_note"):
+        print(f"  note: {rec['marginal_note']}")
 
 
 def seed_list(text: str) -> list[int]:

@@ -72,8 +72,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _r_hat_cell(r_hat: float | None) -> str:
-    """R-hat in three decimals, '-' where there is none: in an importance-weighted table (NaN,
-    or null once read from ``summary.json``) no chain made the sample."""
+    """R-hat in three decimals (the column's fixed width; the report's ``fmt`` gives
+    significant digits), '-' where there is none: in an importance-weighted table (NaN, or
+    null once read from ``summary.json``) no chain made the sample."""
     return "-" if r_hat is None or r_hat != r_hat else f"{r_hat:.3f}"
 
 

@@ -248,15 +248,18 @@ def spread_and_pool(posteriors: Sequence[FunctionPosteriors], sample: Importance
 
 def _level_shifts(moves: Array) -> Array:
     """Per parameter ``(d,)``, the largest over its 5/50/95 % quantiles of the move that
-    :data:`SHIFT_LEVEL` of the functions' ``moves`` ``(F, 3, d)`` stay within."""
+    :data:`SHIFT_LEVEL` of the functions' ``moves`` ``(F, 3, d)`` stay within (shares of
+    the parameter's range)."""
     return np.max(np.quantile(moves, SHIFT_LEVEL, axis=0), axis=0)
 
 
 def spread_standard_error(moves: Sequence[Array]) -> float | None:
-    """Bootstrap standard error of the spread (the largest of :func:`_level_shifts`) over the
-    supports, given each support's functions' moves ``(F, 3, d)``: the spread of
-    :data:`SPREAD_RESAMPLES` resamples of the supports with replacement; ``None`` for one
-    support, whose reading has nothing to be compared with."""
+    """Bootstrap standard error of the spread (the largest of :func:`_level_shifts`, a share
+    of a parameter's range) over the supports, given each support's functions' moves
+    ``(F, 3, d)``: the standard deviation of the spreads of :data:`SPREAD_RESAMPLES`
+    resamples of the supports with replacement; ``None`` for one support, whose reading
+    has nothing to be compared with.  It covers the draw of the supports only, for the
+    emulator and importance sample given."""
     if len(moves) < 2:
         return None
     rng = np.random.default_rng(SPREAD_RESAMPLE_SEED)
@@ -268,7 +271,8 @@ def spread_standard_error(moves: Sequence[Array]) -> float | None:
 def function_spread(posteriors: Sequence[FunctionPosteriors], sample: ImportanceSample,
                     names: Sequence[str]) -> dict[str, Any]:
     """The spread of the functions' ``posteriors`` (one per support) around the mean's
-    ``sample``, in the keys :func:`smcbayes.posterior.spread.emulator_spread` records: per
+    ``sample``, in the keys :func:`smcbayes.posterior.spread.emulator_spread` records (and
+    a standard error, which that one has not): per
     parameter, the move of a quantile against the mean's posterior on the function's own
     support that one function in ten exceeds (``shift_level``; not net of any noise;
     ``sampling_noise`` is the largest of the supports' own, against the whole sample), with

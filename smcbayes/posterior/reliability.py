@@ -43,11 +43,11 @@ UNSEEN_NOTE = ("the emulator's checks look only where its posterior lies, so a r
 """The note on a reliable posterior of the emulator alone where the simulator is cheap."""
 MARGIN_SE = 3.0
 """A spread within this many of its standard errors below :data:`SPREAD_MAX` is a marginal
-pass.  Three, not two: the bootstrap over the supports runs low.  On the final emulator and
-importance sample of one run on the nine measured thesis trials, ten readings on twelve
-supports had a standard deviation of 0.013 where their bootstrap standard errors averaged
-0.008 (0.017 against 0.012 on four supports), so three of them are about two of a fresh
-reading's, which would then exceed the bound in a few per cent of draws or more."""
+pass.  Three, not two, as the bootstrap over the supports ran low on the one run where it
+was checked: on the final emulator and importance sample of a run on the nine measured
+thesis trials, ten readings on twelve supports had a standard deviation of 0.013 where
+their bootstrap standard errors averaged 0.008 (0.017 against 0.012 on four supports,
+sharing supports with those).  Three of them are then about two of a fresh reading's."""
 NOISE_FREE_REASON = ("the training curves are noise-free simulator output: the loss vanishes at the "
                      "truth, so the likelihood is a spike there and the posterior is degenerate "
                      "(only the calibrated point means something); calibrate against measured or "
@@ -87,16 +87,20 @@ def _emulator_sample_reasons(corr: Mapping[str, Any]) -> list[str]:
     return []
 
 
-def _chains_r_hat(info: Mapping[str, Any]) -> float:
-    """The largest R-hat of the emcee chains of a posterior summary ``info``, NaN if none.
+def chains_r_hat(info: Mapping[str, Any]) -> float:
+    """The largest R-hat of the emcee chains of a posterior summary ``info``; NaN when there
+    is none or when any parameter's is missing or NaN (so that it reads as not converged,
+    whatever the parameters' order).
 
     Read from the chains' own table (``emulator_parameters``): an importance-weighted
     ``parameters`` table has none (null).  A summary without that table (written by hand,
     or before the stage kept it) has its chains' R-hat in ``parameters``.
     """
     rows = info.get("emulator_parameters") or info.get("parameters") or []
-    values = (p.get("r_hat") for p in rows)
-    return max((math.nan if v is None else v for v in values), default=math.nan)
+    values = [p.get("r_hat") for p in rows]
+    if not values or any(v is None or not math.isfinite(v) for v in values):
+        return math.nan
+    return float(max(values))
 
 
 def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
@@ -121,7 +125,7 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
     active = info.get("active_learning") or {}
     if active.get("enabled") and not active.get("converged"):
         out.append(_budget_reason(active))
-    r_hat = _chains_r_hat(info)
+    r_hat = chains_r_hat(info)
     # an importance sample of the emulated posterior is judged by its weights, not the chains'
     if not emulated and not r_hat <= R_HAT_MAX:
         out.append(f"the emulator chains did not converge (R-hat {r_hat:.2f} > {R_HAT_MAX}); run "
@@ -149,7 +153,8 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
         out.append(f"the emulator's own uncertainty moves the posterior: with {which} instead of its mean "
                    f"a 5/50/95 % quantile of {worst} moves by "
                    f"{_past(spread['max_quantile_shift'], SPREAD_MAX)} of its range or more "
-                   f"(> {SPREAD_MAX}), so a tail or an arm of the posterior is not pinned down yet; {remedy}")
+                   f"(> {SPREAD_MAX}{_standard_error(spread)}), so a tail or an arm of the posterior is not "
+                   f"pinned down yet; {remedy}")
     thin = _thin_functions(spread or {})
     if thin:
         remedy = ("lower refine_tolerance_nats in the project's [posterior] table" if same_point
@@ -159,16 +164,34 @@ def _sampling_reasons(info: Mapping[str, Any]) -> list[str]:
     return out
 
 
-def _marginal_spread(spread: Mapping[str, Any]) -> str:
-    """A note when the spread passes :data:`SPREAD_MAX` by less than :data:`MARGIN_SE` of its
-    standard error over the supports (the curve emulator's reported spread); empty otherwise."""
+def _standard_error(spread: Mapping[str, Any]) -> str:
+    """``"; standard error 0.008"`` for a spread record with one, else empty."""
+    se = spread.get("max_quantile_shift_se")
+    return "" if se is None else f"; standard error {se:.3f}"
+
+
+MARGINAL_PASS = "a marginal pass"
+"""How :func:`marginal_spread_note` begins."""
+
+
+def marginal_spread_note(spread: Mapping[str, Any]) -> str:
+    """A note when the spread ``spread`` (an ``emulator_spread`` record) passes
+    :data:`SPREAD_MAX` by less than :data:`MARGIN_SE` of its standard error over the
+    supports (the curve emulator's reported spread has one); empty otherwise.
+
+    The standard error covers only the draw of the supports, for the emulator and importance
+    sample the stage ended with; another seed also learns another emulator."""
     shift, se = spread.get("max_quantile_shift"), spread.get("max_quantile_shift_se")
     if shift is None or se is None or not shift <= SPREAD_MAX < shift + MARGIN_SE * se:
         return ""
-    return (f"a marginal pass: the emulator's spread, {shift:.3f} of a parameter's range, lies within "
-            f"{MARGIN_SE:g} standard errors ({se:.3f} each, over its supports) of its bound {SPREAD_MAX}, "
-            "so the same run with another seed may be called unreliable; read the tail quantiles "
-            "with that in mind")
+    per = spread.get("per_parameter") or {}
+    worst = max(per, key=per.get) if per else None
+    which, read = (f" of {worst}", f"{worst}'s quantiles") if worst else ("", "the quantiles")
+    return (f"{MARGINAL_PASS}: the emulator's spread, the move of a 5/50/95 % quantile{which} by "
+            f"{shift:.3f} of its range, lies within {MARGIN_SE:g} standard errors ({se:.3f} each, over its "
+            f"supports) of its bound {SPREAD_MAX}; another draw of its supports may read it above the "
+            f"bound, and another seed, learning another emulator, varies more; read {read} with this "
+            "in mind")
 
 
 def _thin_functions(spread: dict[str, Any]) -> str:
@@ -254,7 +277,7 @@ def assess(info: Mapping[str, Any], space: ParameterSpace, best_loss_kN2: float 
         # the failed sampling diagnostics follow from the spike: their remedies would mislead
         reasons = [NOISE_FREE_REASON]
     notes = list(info.get("shape") or [])
-    marginal = _marginal_spread(info.get("emulator_spread") or {})
+    marginal = marginal_spread_note(info.get("emulator_spread") or {})
     if marginal and not reasons:
         notes.append(marginal)
     if cheap and not reasons and not (info.get("forward_evaluations") or {}).get("correction"):

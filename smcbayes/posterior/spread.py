@@ -81,18 +81,20 @@ def pooled_words(spread: dict[str, Any]) -> str:
 
 def spread_words(spread: dict[str, Any]) -> str:
     """A spread record (:func:`emulator_spread`, or the curve emulator's, which bounds the
-    move of all but a share ``1 - shift_level`` of its functions) in words, for the
-    terminal and the report."""
+    move of all but a share ``1 - shift_level`` of its functions and has a standard error
+    over its supports) in words, for the terminal and the report."""
     level, count = spread.get("shift_level", 1.0), spread.get("functions") or 0
     shift, se = spread.get("max_quantile_shift"), spread.get("max_quantile_shift_se")
     amount = "n/a" if shift is None else f"{shift:.2f}"
+    error = ""
     if shift is not None and se is not None:
-        amount = f"{shift:.3f} (standard error {se:.3f} over its {spread.get('supports')} supports)"
+        amount = f"{shift:.3f}"
+        error = f" (standard error {se:.3f} over its {spread.get('supports')} supports)"
     # the log-loss emulator's spread is net of its chains' noise; the curve emulator's
     # functions share the mean's points, so there is none to take off
     noise = " beyond the chains' own noise" if spread.get("steps") else ""
     if level >= 1.0:
         return (f"the posteriors of {count} GP sample functions move a 5/50/95 % quantile by up to "
-                f"{amount} of its range{noise}")
+                f"{amount} of its range{noise}{error}")
     return (f"for each parameter and 5/50/95 % quantile, all but {share_words(spread)} of {count} GP "
-            f"sample functions' posteriors move it by at most {amount} of its range{noise}")
+            f"sample functions' posteriors move it by at most {amount} of its range{noise}{error}")

@@ -140,14 +140,16 @@ def summarise(space: ParameterSpace, chains: Sequence[Chains]) -> list[Parameter
     unit, _ = stack_components(chains)
     d = unit.shape[2]
     theta = space.from_unit(unit.reshape(-1, d))
-    rhat = np.zeros(d)
+    # from -inf, so that a component's NaN (chains that never moved) stays NaN, not converged
+    rhat = np.full(d, -np.inf)
     ess = np.zeros(d)
     # per component, on the (equal-length) draws that make the pooled summary
     bounds = np.cumsum([0] + [c.samples.shape[1] for c in chains])
     for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
         arr = unit[lo:hi]  # (walkers, draws, d)
         for j in range(d):
-            rhat[j] = max(rhat[j], float(az.rhat(arr[..., j])))
+            value = float(az.rhat(arr[..., j]))
+            rhat[j] = np.nan if np.isnan(value) or np.isnan(rhat[j]) else max(rhat[j], value)
             ess[j] += float(az.ess(arr[..., j]))
     out = []
     for j, p in enumerate(space.free):
@@ -176,7 +178,8 @@ def summarise_weighted(space: ParameterSpace, unit: Array, weights: Array,
     out = []
     for j, p in enumerate(space.free):
         q = weighted_quantile(theta[:, j], weights, [0.05, 0.5, 0.95])
-        # the one NaN object: a NaN equals only itself, so equal tables still compare equal
+        # the one shared NaN object: a dataclass compares its fields as a tuple, which checks
+        # identity before equality, so equal tables still compare equal (nan == nan is False)
         out.append(ParameterSummary(p.name, p.unit, float(mean[j]), float(sd[j]), float(q[0]), float(q[1]),
                                     float(q[2]), np.nan, float(ess)))
     return out

@@ -13,101 +13,20 @@ import numpy as np
 from smcbayes.posterior.spread import SPREAD_MAX, pooled_words, spread_words
 from smcbayes.report.collect import RunFiles
 from smcbayes.report.document import Block, Bullets, Figure, Heading, Paragraph, Section, Table, fmt, pct
+from smcbayes.report.sampling_words import num as _num
+from smcbayes.report.sampling_words import sampler_paragraphs
 
-R_HAT_LIMIT = 1.05
-"""R-hat above which the walkers are said to disagree (the posterior stage's own limit)."""
-K_HAT_LIMIT = 0.7
-"""Pareto k-hat above which importance weights are unreliable."""
 PRIOR_SHARE = 0.8
 """Share of the search range above which a 90 % interval says the data hardly moved the
 prior; when every parameter is above it, the posterior is essentially the prior."""
 
 
-def _num(x: Any) -> float:
-    return float(x) if isinstance(x, (int, float)) and x == x else float("nan")
-
-
-def _correction_paragraph(corr: dict[str, Any], r_hat: float) -> Paragraph:
-    """Plain words on the importance correction of the emulated posterior.
-
-    Args:
-        corr: the ``correction`` block of the posterior summary.
-        r_hat: the largest R-hat of the emulator chains (the correction's proposal).
-    """
-    k_hat = _num(corr.get("k_hat"))
-    weights_ok = bool(corr.get("reliable") and corr.get("settled")) and k_hat <= K_HAT_LIMIT
-    if weights_ok and r_hat <= R_HAT_LIMIT:
-        verdict = "the weights are reliable and the corrected posterior can be trusted"
-    elif weights_ok:
-        # the proposal came from chains that disagree; only the weights vouch for the result
-        verdict = (f"the corrected posterior rests on the importance weights (k-hat "
-                   f"{fmt(k_hat, 2)}), the emulator chains did not converge (R-hat "
-                   f"{fmt(r_hat, 3)}), so a part of the posterior the proposal never reached "
-                   "would go unseen")
-    elif k_hat > K_HAT_LIMIT:
-        verdict = ("the weights are unreliable (k-hat above 0.7): the proposal misses part of "
-                   "the posterior, so treat the numbers as indicative")
-    else:
-        verdict = ("the correction did not settle within its draws: treat the numbers as "
-                   "indicative")
-    return Paragraph(
-        f"The emulated posterior was corrected by importance sampling with the forward model: "
-        f"{fmt(corr.get('evaluations'))} forward runs, Pareto k-hat {fmt(k_hat, 2)}, importance "
-        f"effective sample size {fmt(corr.get('ess'), 3)}; {verdict}. The table and figures "
-        "show the corrected posterior.",
-        tone="normal" if weights_ok else "warning",
-    )
-
-
-def _sampler_paragraphs(post: dict[str, Any]) -> list[Block]:
-    """The chains' stopping rule and largest R-hat, with their smallest effective sample
-    size; with an importance correction, the weights' paragraph instead of that size.
-
-    The R-hat is read from the chains' own table (``emulator_parameters``), as an
-    importance-weighted ``parameters`` table has none; a summary without that table has
-    the chains' R-hat in ``parameters``."""
-    params = post.get("parameters") or []
-    sampler = post.get("sampler") or []
-    chain_rows = post.get("emulator_parameters") or params
-    r_hat = max((_num(p.get("r_hat")) for p in chain_rows), default=float("nan"))
-    ess = min((_num(p.get("ess")) for p in params), default=float("nan"))
-    converged = bool(sampler) and all(s.get("converged") for s in sampler)
-    steps = ", ".join(str(s.get("steps", "-")) for s in sampler) or "-"
-    words = (
-        "The chains met the autocorrelation stopping rule"
-        if converged
-        else "The chains stopped at the step limit before the autocorrelation stopping rule was met"
-    )
-    quality = (
-        "the walkers agree"
-        if r_hat <= R_HAT_LIMIT
-        else "the walkers do not yet agree, so treat the numbers as indicative"
-    )
-    corr = post.get("correction") or {}
-    if corr.get("enabled"):
-        # R-hat belongs to the emulator chains, the effective sample size to the weights
-        chains = ("the emulator chains agree" if r_hat <= R_HAT_LIMIT
-                  else "the emulator chains did not converge")
-        return [
-            Paragraph(
-                f"{words} on the emulator (steps per chain: {steps}); the largest R-hat of its "
-                f"chains is {fmt(r_hat, 3)}: {chains}."
-            ),
-            _correction_paragraph(corr, r_hat),
-        ]
-    return [
-        Paragraph(
-            f"{words} (steps per chain: {steps}); the largest R-hat is {fmt(r_hat, 3)} "
-            f"and the smallest effective sample size {fmt(ess, 3)}: {quality}."
-        )
-    ]
-
-
 def _diagnostics(post: dict[str, Any]) -> list[Block]:
-    """The posterior's diagnostics: the sampler's (:func:`_sampler_paragraphs`), the
-    emulator check, its spread, the likelihood's effective points, the warnings and the
-    notes of the chains that started the importance sampling."""
-    blocks = _sampler_paragraphs(post)
+    """The posterior's diagnostics: the sampler's
+    (:func:`~smcbayes.report.sampling_words.sampler_paragraphs`), the emulator check, its
+    spread, the likelihood's effective points, the warnings and the notes of the chains that
+    started the importance sampling."""
+    blocks = sampler_paragraphs(post)
     check = post.get("emulator_check") or {}
     if check:
         blocks.append(

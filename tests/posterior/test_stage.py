@@ -129,10 +129,10 @@ def test_correction_is_reported(run_dir: Path) -> None:
     assert "emulator_spread" not in info  # the correction's weights judge a corrected posterior
     # no chain made the corrected sample: no R-hat in its table, the chains' in theirs
     assert all(p["r_hat"] is None and p["ess"] == corr["ess"] for p in info["parameters"])
-    assert all(p["r_hat"] >= 1.0 for p in info["emulator_parameters"])
+    assert all(np.isfinite(p["r_hat"]) for p in info["emulator_parameters"])
     table = list(csv.DictReader((run_dir / "posterior" / "summary.csv").open(encoding="utf-8")))
     chains = list(csv.DictReader((run_dir / "posterior" / "summary_emulator.csv").open(encoding="utf-8")))
-    assert [r["r_hat"] for r in table] == ["", ""] and all(float(r["r_hat"]) >= 1.0 for r in chains)
+    assert [r["r_hat"] for r in table] == ["", ""] and all(np.isfinite(float(r["r_hat"])) for r in chains)
 
 
 def _truth_inside_and_slip_pair_positive(info: dict) -> dict[str, float]:

@@ -93,3 +93,25 @@ def test_a_posterior_as_wide_as_the_prior_is_called_the_prior(tmp_path: Path) ->
     narrow = report_text(tmp_path / "b", NARROW, GOOD_WEIGHTS)
     assert "essentially the prior" not in narrow and "the data identify the parameters" in narrow
 
+
+
+@pytest.mark.parametrize(("k_hat", "settled", "words", "tone_word"),
+                         [(0.2, True, "the weights are reliable.", None),
+                          (0.9, False, "the weights are unreliable (k-hat above 0.7)", "indicative"),
+                          (0.3, False, "the sampling did not settle within its draws", "indicative")])
+def test_the_emulators_own_importance_sample_is_not_called_a_forward_model_correction(
+        tmp_path: Path, k_hat: float, settled: bool, words: str, tone_word: str | None) -> None:
+    """The default path samples the emulated posterior by importance, with no forward run:
+    the words say so, judge it by its weights, and do not call the chains that started it
+    unconverged (the stage's verdict does not read their R-hat either)."""
+    sampled = {"enabled": True, "target": "emulator", "draws": 144000, "evaluations": 0, "k_hat": k_hat,
+               "ess": 4589.0, "reliable": k_hat <= 0.7, "settled": settled}
+    weighted = [dict(p, r_hat=None, ess=4589.0) for p in NARROW]
+    chains = [dict(p, r_hat=1.12, ess=300.0) for p in NARROW]
+    text = report_text(tmp_path, weighted, sampled, {"emulator_parameters": chains})
+    assert "sampled by importance on the emulator, with no forward run" in text
+    assert "emulator evaluations" in text and words in text
+    assert "with the forward model" not in text and "did not converge" not in text
+    assert "the largest R-hat of its chains is 1.12. They only started the importance sampling" in text
+    if tone_word:
+        assert tone_word in text
