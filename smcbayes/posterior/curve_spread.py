@@ -271,14 +271,14 @@ def spread_standard_error(moves: Sequence[Array]) -> float | None:
 def function_spread(posteriors: Sequence[FunctionPosteriors], sample: ImportanceSample,
                     names: Sequence[str]) -> dict[str, Any]:
     """The spread of the functions' ``posteriors`` (one per support) around the mean's
-    ``sample``, in the keys :func:`smcbayes.posterior.spread.emulator_spread` records (and
-    a standard error, which that one has not): per
-    parameter, the move of a quantile against the mean's posterior on the function's own
-    support that one function in ten exceeds (``shift_level``; not net of any noise;
-    ``sampling_noise`` is the largest of the supports' own, against the whole sample), with
-    each function's ESS on its support, the ``supports`` and their distinct points
-    together (``support_points``), and the spread's standard error over the supports
-    (``max_quantile_shift_se``, :func:`spread_standard_error`; ``None`` for one)."""
+    ``sample``, in the keys :func:`smcbayes.posterior.spread.emulator_spread` records and
+    one more: per parameter, the move of a quantile against the mean's posterior on the
+    function's own support that one function in ten exceeds (``shift_level``; not net of
+    any noise; ``sampling_noise`` is the largest of the supports' own, against the whole
+    sample), with each function's ESS on its support, the ``supports`` and their distinct
+    points together (``support_points``), and the spread's standard error over the
+    supports (``max_quantile_shift_se``, :func:`spread_standard_error`; ``None`` for one),
+    which the log-loss emulator's record has not."""
     moves: list[Array] = []
     noise = np.zeros(sample.unit.shape[1])
     whole = _quantiles(sample.unit, np.exp(sample.log_weight))

@@ -170,10 +170,6 @@ def _standard_error(spread: Mapping[str, Any]) -> str:
     return "" if se is None else f"; standard error {se:.3f}"
 
 
-MARGINAL_PASS = "a marginal pass"
-"""How :func:`marginal_spread_note` begins."""
-
-
 def marginal_spread_note(spread: Mapping[str, Any]) -> str:
     """A note when the spread ``spread`` (an ``emulator_spread`` record) passes
     :data:`SPREAD_MAX` by less than :data:`MARGIN_SE` of its standard error over the
@@ -187,7 +183,7 @@ def marginal_spread_note(spread: Mapping[str, Any]) -> str:
     per = spread.get("per_parameter") or {}
     worst = max(per, key=per.get) if per else None
     which, read = (f" of {worst}", f"{worst}'s quantiles") if worst else ("", "the quantiles")
-    return (f"{MARGINAL_PASS}: the emulator's spread, the move of a 5/50/95 % quantile{which} by "
+    return (f"a marginal pass: the emulator's spread, the move of a 5/50/95 % quantile{which} by "
             f"{shift:.3f} of its range, lies within {MARGIN_SE:g} standard errors ({se:.3f} each, over its "
             f"supports) of its bound {SPREAD_MAX}; another draw of its supports may read it above the "
             f"bound, and another seed, learning another emulator, varies more; read {read} with this "
