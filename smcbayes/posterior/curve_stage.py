@@ -206,14 +206,14 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         ``last_quantile_shifts`` (those of the last :data:`VALIDATED_ROUNDS` rounds; ``None``
         for a round with nothing to compare, or a sample too thin to tell), ``last_spreads``
         (those of the last :data:`VALIDATED_ROUNDS` rounds), ``confirmations`` (after how many
-        ``rounds`` and ``forward_runs`` each was drawn, its ``spread``, whether it ``passed``
-        and its ``seconds``), ``validated_at_budget_end`` (the last validation counted rounds
-        from before a failed confirmation, which only the budget's end allows) and
-        ``variance_factor`` (the last emulator's calibration of its output variances,
-        :meth:`~smcbayes.posterior.curves.CurveEmulator.calibrate`: rows used and range;
-        ``None`` when nothing calibrated them)).  The first round has no earlier emulator to
-        compare with, so the emulator can be validated after ``VALIDATED_ROUNDS + 1`` rounds at
-        the earliest.
+        ``rounds`` and ``forward_runs`` each was drawn, its ``spread`` and ``spread_se``,
+        whether it ``passed`` and its ``seconds``), ``validated_at_budget_end`` (the last
+        validation counted rounds from before a failed confirmation, which only the budget's end
+        allows) and ``variance_factor`` (the last emulator's calibration of its output
+        variances, :meth:`~smcbayes.posterior.curves.CurveEmulator.calibrate`: rows used and
+        range; ``None`` when nothing calibrated them)).  The first round has no earlier emulator
+        to compare with, so the emulator can be validated after ``VALIDATED_ROUNDS + 1`` rounds
+        at the earliest.
     """
     spec = spec or CorrectionSettings()
     progress = _Progress(x, y, x[np.argsort(features.loss(y))[:walkers]])
@@ -300,11 +300,13 @@ def _confirmed(progress: _Progress, final: FinalPosterior, rng: np.random.Genera
     when it has not and the learning is ``going_on``, restarts the validation and starts
     the next round's sampling from the mean's importance sample of that posterior."""
     passed = bool(final.max_shift <= SPREAD_MAX)
+    se = (final.spread or {}).get("max_quantile_shift_se")
     progress.confirmations.append({"rounds": progress.rounds, "forward_runs": progress.spent,
-                                   "spread": _finite(final.max_shift), "passed": passed,
+                                   "spread": _finite(final.max_shift), "spread_se": se, "passed": passed,
                                    "seconds": float(sum(final.seconds.values()))})
-    logger.info("curve emulator validated after %d rounds; the reported posterior's spread %.4f %s",
-                progress.rounds, final.max_shift, "confirms it" if passed else f"does not (> {SPREAD_MAX})")
+    logger.info("curve emulator validated after %d rounds; the reported posterior's spread %.4f%s %s",
+                progress.rounds, final.max_shift, "" if se is None else f" (standard error {se:.4f})",
+                "confirms it" if passed else f"does not (> {SPREAD_MAX})")
     if not passed and going_on:
         progress.since = progress.rounds
         progress.start = final.sample.resample(3 * START_ROWS // 4, rng)

@@ -191,9 +191,10 @@ def test_rounds_validate_only_when_stable_and_accurate_together() -> None:
     assert _validated(small, stable, 1.0, [3 * SPREAD_MAX, *narrow])
 
 
-def _final(spread: float | None) -> FinalPosterior:
-    """A reported posterior whose sample functions move a quantile by ``spread`` (``None``: not measured)."""
-    measured = None if spread is None else {"max_quantile_shift": spread}
+def _final(spread: float | None, se: float | None = None) -> FinalPosterior:
+    """A reported posterior whose sample functions move a quantile by ``spread`` (``None``: not
+    measured), with standard error ``se``."""
+    measured = None if spread is None else {"max_quantile_shift": spread, "max_quantile_shift_se": se}
     return FinalPosterior([], _sample(0.7), measured, None, {"sampling": 0.0, "spread": 0.0})
 
 
@@ -227,7 +228,7 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
         assert not progress.validated(1.0)
     good_round()
     assert progress.validated(1.0)
-    assert _confirmed(progress, _final(SPREAD_MAX / 2), rng, True)
+    assert _confirmed(progress, _final(SPREAD_MAX / 2, 0.004), rng, True)
     # with the budget spent, a failed confirmation is recorded and nothing restarts
     start = progress.start.copy()
     assert not _confirmed(progress, _final(None), rng, False)  # an unmeasured spread confirms nothing
@@ -237,6 +238,7 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
     assert [c["rounds"] for c in record["confirmations"]] == [3, 6, 6]
     assert record["confirmations"][0]["spread"] == 1.5 * SPREAD_MAX
     assert record["confirmations"][1]["forward_runs"] == 240 and record["confirmations"][2]["spread"] is None
+    assert [c["spread_se"] for c in record["confirmations"]] == [None, 0.004, None]
     assert all(c["seconds"] == 0.0 for c in record["confirmations"])
 
 
