@@ -520,7 +520,8 @@ def test_the_spread_records_its_standard_error_over_several_supports() -> None:
         rows = np.sort(rng.choice(len(sample.unit), 8000, replace=False))
         log_mean = sample.log_weight[rows] - np.logaddexp.reduce(sample.log_weight[rows])
         x = sample.unit[rows, 0]
-        lik = np.array([norm.logpdf(x, 0.5 + shift * k / 9, 0.1) - norm.logpdf(x, 0.5, 0.1) for k in range(10)])
+        lik = np.array([norm.logpdf(x, 0.5 + shift * k / 9, 0.1) - norm.logpdf(x, 0.5, 0.1)
+                        for k in range(10)])
         log_f = np.array([lw - np.logaddexp.reduce(lw) for lw in log_mean + lik])
         return FunctionPosteriors(rows, log_mean, log_f, lik)
 
