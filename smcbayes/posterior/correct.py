@@ -196,8 +196,9 @@ class _Points:
         unit: points, ``(N, d)``.
         target: exact log posterior, ``(N,)``.
         iteration: iteration that drew each point, ``(N,)``.
-        dens: log density of each proposal used so far at every point, one ``(N,)`` row per
-            proposal (kept so that a new point costs one density per proposal, not all again).
+        dens: log density of each proposal used so far at every point of finite target (0
+            at the others, whose weight is zero), one ``(N,)`` row per proposal (kept so that
+            a new point costs one density per proposal, not all again).
         evaluations: forward runs so far.
     """
 
@@ -213,15 +214,27 @@ class _Points:
         self.unit, self.target = np.vstack([self.unit, new]), np.concatenate([self.target, val])
         self.iteration = np.concatenate([self.iteration, np.full(new.shape[0], t)])
         self.evaluations += used
-        self.dens = [np.concatenate([row, q.log_pdf(new)])
-                     for row, q in zip(self.dens, proposals, strict=False)]
-        self.dens.append(proposals[-1].log_pdf(self.unit))
+        live = np.isfinite(val)
+        self.dens = [np.concatenate([row, _log_pdf_where(q, new, live)])
+                     for row, q in zip(self.dens, proposals[:-1], strict=True)]
+        self.dens.append(_log_pdf_where(proposals[-1], self.unit, np.isfinite(self.target)))
 
     def log_mixture(self, sizes: list[int]) -> Array:
         """Log density ``(N,)`` of the mixture of all proposals used, each weighted by its
         share ``D_s / N`` of the draws (the balance-heuristic denominator)."""
         share = np.array(sizes, dtype=float) / sum(sizes)
         return logsumexp(np.stack(self.dens) + np.log(share)[:, None], axis=0)
+
+
+def _log_pdf_where(proposal: Proposal, u: Array, live: NDArray[np.bool_]) -> Array:
+    """The proposal's log density ``(N,)`` at the points ``u`` ``(N, d)`` where ``live``
+    ``(N,)``, 0 elsewhere: a point whose target is zero (outside the cube, or where the
+    forward model failed) has zero weight whatever its density, and a posterior against a
+    bound puts many draws there."""
+    out = np.zeros(u.shape[0])
+    if np.any(live):
+        out[live] = proposal.log_pdf(u[live])
+    return out
 
 
 def correct(log_target: Callable[[Array], Array], start: Array, settings: CorrectionSettings,
