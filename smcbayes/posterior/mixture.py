@@ -50,6 +50,13 @@ can pin a parameter to a tiny share of its range: the demo's press-frame stiffne
 posterior sd of 8e-5 of its log range, where a floor of 1e-4 (sd 0.01) made the kernels a
 hundred times too wide and most draws fell where the posterior has no mass."""
 
+EM_TOL = 1e-3
+"""Improvement of the weighted mean log density (nats a point) below which the EM stops.
+The fits shape proposals, whose weights stay exact whatever the fit: on 34 proposal fits of
+an active learning on the measured thesis trials (seven parameters, eight components, 3,000
+points), stopped at 1e-3 they reached within 0.012 nats a point (mean 8.59) of the fits
+stopped at 1e-6, which mostly ran to the 60 iterations allowed, in half the time."""
+
 
 @dataclass(frozen=True)
 class Mixture:
@@ -134,7 +141,7 @@ def thin(x: Array, w: Array, count: int, rng: np.random.Generator) -> tuple[Arra
 
 
 def fit_mixture(x: Array, w: Array, components: int, rng: np.random.Generator,
-                iterations: int = 60, tol: float = 1e-6, var_floor: float = VAR_FLOOR,
+                iterations: int = 60, tol: float = EM_TOL, var_floor: float = VAR_FLOOR,
                 max_points: int = 3000) -> Mixture:
     """Weighted EM fit of a Gaussian mixture (see the module docstring).
 
