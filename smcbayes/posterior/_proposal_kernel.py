@@ -1,15 +1,15 @@
 """numba kernel of :meth:`smcbayes.posterior.proposal.Proposal.log_pdf` (imported on first
 use).
 
-The importance samplers evaluate every proposal of a run at every draw so far (the
-balance-heuristic denominator), so the mixture density is their largest cost after the
-target.  In numpy each chunk of points builds an ``(M, n, d)`` array of whitened offsets.
-Here each point is whitened against all kernels at once with the kernels on the innermost,
-contiguous axis (so the compiler vectorises over them), using the lower-triangular
-inverse Cholesky factors (half the products of a full matrix), and the kernels' densities
-are summed by a log-sum-exp over that axis.  Many points are shared out in blocks over
-numba's threads; each point's arithmetic is the same, so the result does not depend on
-their number.
+The importance samplers evaluate every proposal of a run at every draw of nonzero target
+so far (the balance-heuristic denominator), so the mixture density is their largest cost
+after the target.  In numpy each chunk of points builds an ``(M, n, d)`` array of whitened
+offsets.  Here each point is whitened against all kernels at once with the kernels on the
+innermost, contiguous axis (so the compiler vectorises over them), using the
+lower-triangular inverse Cholesky factors (half the products of a full matrix), and the
+kernels' densities are summed by a log-sum-exp over that axis.  Many points are shared out
+in blocks over numba's threads; each point's arithmetic is the same, so the result does
+not depend on their number.
 """
 
 from __future__ import annotations

@@ -196,9 +196,9 @@ class _Points:
         unit: points, ``(N, d)``.
         target: exact log posterior, ``(N,)``.
         iteration: iteration that drew each point, ``(N,)``.
-        dens: log density of each proposal used so far at every point of finite target (0
-            at the others, whose weight is zero), one ``(N,)`` row per proposal (kept so that
-            a new point costs one density per proposal, not all again).
+        dens: log density of each proposal used so far at every point of finite target
+            (0 at the others, whose weight is zero), one ``(N,)`` row per proposal (kept
+            so that a new point costs one density per proposal, not all again).
         evaluations: forward runs so far.
     """
 
