@@ -7,13 +7,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from smcbayes.posterior.correct import K_HAT_WARN as K_HAT_LIMIT
+from smcbayes.posterior.reliability import R_HAT_MAX as R_HAT_LIMIT
 from smcbayes.posterior.reliability import chains_r_hat
 from smcbayes.report.document import Block, Paragraph, fmt
-
-R_HAT_LIMIT = 1.05
-"""R-hat above which the walkers are said to disagree (the posterior stage's own limit)."""
-K_HAT_LIMIT = 0.7
-"""Pareto k-hat above which importance weights are unreliable."""
 
 
 def num(x: Any) -> float:
