@@ -243,7 +243,8 @@ class PosteriorSpec(Strict):
     refine_tolerance_nats: float = Field(
         1.0, gt=0, description="active learning stops once the emulator's out-of-sample error at "
                                "fresh posterior draws is below this (nats) in three rounds in a row, the "
-                               "quantiles are stable and the emulator's spread is at most 0.10")
+                               "quantiles are stable (each round and over the three) and the emulator's spread is "
+                               "at most 0.10")
     correct_draws: int | None = Field(
         None, ge=0, le=10_000_000,
         description=f"most proposal draws of the importance correction by the exact forward model "

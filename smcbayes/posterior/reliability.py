@@ -236,6 +236,10 @@ def _curve_budget_reason(active: dict[str, Any]) -> str:
     spreads = active.get("last_spreads") or []
     spread_words = ("" if not spreads else f"; their sample functions moving a quantile by "
                     f"{words(spreads, '')}, their mean to be at most {SPREAD_MAX}")
+    drift = active.get("drift")
+    if drift is not None:
+        spread_words += (f"; the posterior's quantiles moving by {drift:.2g} over those rounds, to be "
+                         f"at most {QUANTILE_SHIFT}")
     failed = [c for c in active.get("confirmations") or [] if not c.get("passed")]
     # rounds that validated but whose reported posterior did not confirm them
     confirm_words = ("" if not failed else f"; when its rounds last passed, after "

@@ -175,20 +175,55 @@ def test_rounds_validate_only_when_stable_and_accurate_together() -> None:
     small = [0.5] * VALIDATED_ROUNDS
     stable = [QUANTILE_SHIFT / 2] * VALIDATED_ROUNDS
     narrow = [SPREAD_MAX / 2] * VALIDATED_ROUNDS
-    assert _validated(small, [None, *stable], 1.0, narrow)
-    assert not _validated(small[:-1], stable[:-1], 1.0, narrow)  # too few rounds
-    assert not _validated(small, [*stable[:-1], 2 * QUANTILE_SHIFT], 1.0, narrow)  # the last round moved
-    assert not _validated(small, [None, *stable[:-1]], 1.0, narrow)  # a round with nothing to compare
+
+    def still() -> float:
+        return QUANTILE_SHIFT / 2
+
+    assert _validated(small, [None, *stable], 1.0, narrow, still)
+    assert not _validated(small[:-1], stable[:-1], 1.0, narrow, still)  # too few rounds
+    assert not _validated(small, [*stable[:-1], 2 * QUANTILE_SHIFT], 1.0, narrow, still)  # the last round moved
+    assert not _validated(small, [None, *stable[:-1]], 1.0, narrow, still)  # a round with nothing to compare
     # every round must be within the tolerance: a good mean over the rounds is not enough
-    assert not _validated([0.2, 0.2, 1.4], stable, 1.0, narrow)
+    assert not _validated([0.2, 0.2, 1.4], stable, 1.0, narrow, still)
     # earlier rounds do not count
-    assert _validated([50.0, *small], stable, 1.0, [1.0, *narrow])
+    assert _validated([50.0, *small], stable, 1.0, [1.0, *narrow], still)
     # the same rounds' sample functions must agree with the mean, on average: one round's
     # noisy reading neither stops the learning nor holds it, and earlier rounds do not count
-    assert not _validated(small, stable, 1.0, [*narrow[:-1], 3 * SPREAD_MAX])
-    assert not _validated(small, stable, 1.0, [1.1 * SPREAD_MAX] * VALIDATED_ROUNDS)
-    assert _validated(small, stable, 1.0, [*narrow[:-1], 1.5 * SPREAD_MAX])
-    assert _validated(small, stable, 1.0, [3 * SPREAD_MAX, *narrow])
+    assert not _validated(small, stable, 1.0, [*narrow[:-1], 3 * SPREAD_MAX], still)
+    assert not _validated(small, stable, 1.0, [1.1 * SPREAD_MAX] * VALIDATED_ROUNDS, still)
+    assert _validated(small, stable, 1.0, [*narrow[:-1], 1.5 * SPREAD_MAX], still)
+    assert _validated(small, stable, 1.0, [3 * SPREAD_MAX, *narrow], still)
+    # small moves that add up over the rounds do not validate, nor does a drift not measured
+    assert not _validated(small, stable, 1.0, narrow, lambda: 1.5 * QUANTILE_SHIFT)
+    assert not _validated(small, stable, 1.0, narrow, lambda: None)
+
+    # the drift is measured only when the rest validates
+    def unwanted() -> float:
+        raise AssertionError("measured")
+
+    assert not _validated(small[:-1], stable[:-1], 1.0, narrow, unwanted)
+
+
+def test_the_drift_is_the_move_since_the_emulator_of_the_validations_first_round() -> None:
+    """A posterior that creeps one way by a little each round moves by the sum over the
+    rounds that validate: each round's shift stays within the bound, the drift does not."""
+    step = QUANTILE_SHIFT * 0.6
+    progress = _Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
+    assert progress.drift() is None  # no round yet
+    centres = [0.5 - step * k for k in range(VALIDATED_ROUNDS + 2)]
+    for k, centre in enumerate(centres, start=1):
+        progress.rounds = k
+        progress.sample = _sample(centre)
+        progress.earlier = [*progress.earlier[-VALIDATED_ROUNDS:],
+                            lambda u, c=centre: norm.logpdf(u[:, 0], c, 0.1)]
+        if k <= VALIDATED_ROUNDS:
+            assert progress.drift() is None  # no emulator that many rounds back
+    assert quantile_shift(progress.sample, progress.earlier[-2]) == pytest.approx(step, abs=0.01)
+    assert progress.drift() == pytest.approx(VALIDATED_ROUNDS * step, abs=0.01)
+    assert progress.record(False)["drift"] == progress.drift()
+    # measured once a round: the reading is kept
+    progress.sample = _sample(0.9)
+    assert progress.drift() == pytest.approx(VALIDATED_ROUNDS * step, abs=0.01)
 
 
 def _final(spread: float | None, se: float | None = None) -> FinalPosterior:
@@ -211,6 +246,7 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
         progress.errors.append(0.5)
         progress.shifts.append(QUANTILE_SHIFT / 2)
         progress.spreads.append(SPREAD_MAX / 2)
+        progress.drifts[progress.rounds] = QUANTILE_SHIFT / 2
 
     for _ in range(VALIDATED_ROUNDS):
         good_round()
@@ -273,6 +309,7 @@ def test_at_the_budgets_end_a_new_round_that_fails_keeps_the_learning_unvalidate
         progress.shifts.append(QUANTILE_SHIFT / 2)
         progress.spreads.append(SPREAD_MAX / 2)
     progress.since = VALIDATED_ROUNDS
+    progress.drifts[progress.rounds] = QUANTILE_SHIFT / 2
     assert not progress.validated(1.0) and not progress.validated(1.0, ended=True)
 
 

@@ -137,6 +137,12 @@ def test_a_curve_emulator_out_of_budget_names_its_last_rounds_and_spread() -> No
     assert "0.02, 0.03, not measured" in reason
     assert "moving a quantile by 0.08, 0.23, not measured, their mean" in reason
     assert reason.endswith("raise --refine") and "rounds last passed" not in reason
+    assert "over those rounds" not in reason  # no drift measured: the rest did not pass
+    # a drift measured (the rest passed) is named with its bound
+    active["drift"] = 0.083
+    reason = assess(info, space, 10.0)["reasons"][0]
+    assert "the posterior's quantiles moving by 0.083 over those rounds, to be at most 0.05" in reason
+    del active["drift"]
     # rounds that passed but whose reported posterior did not confirm them: the last such reading
     active["confirmations"] = [{"rounds": 9, "forward_runs": 360, "spread": 0.16, "passed": False},
                                {"rounds": 13, "forward_runs": 520, "spread": 0.12, "passed": False}]
