@@ -3,14 +3,17 @@
 All but a share :data:`EXPLORATION` of a round's runs are draws of the emulated posterior
 pooled with those of GP sample functions (:mod:`smcbayes.posterior.curve_spread`), leaning
 to where the functions disagree and to the quantiles they move
-(:func:`~smcbayes.posterior.curve_aim.targeted`); the rest are draws of the tempered
-posterior (the likelihood to the power :data:`TEMPER`) of the optimistic loss (curves one
-emulator sd closer to the data), which reaches regions the emulator's mean rates too low
-because it has no points there.  The emulated posterior is sampled by adaptive importance
+(:func:`~smcbayes.posterior.curve_aim.targeted`); the rest explore: draws of the posterior
+of the emulator's mean curves, without the variance term of the expected loss the emulated
+posterior uses (:data:`~smcbayes.posterior.curve_sample.EXPECTED_LOSS`).  Where the emulator
+has few points its variance raises the expected loss, so the emulated posterior stays out of
+a region until rounds have put points there, and it creeps into a tail round by round; the
+mean curves' posterior leans into such regions, and its draws put points there first.  The
+emulated posterior is sampled by adaptive importance
 sampling on the emulator (the correction's algorithm, no forward run): emcee chains started
 at the best point under-sample a flat arm of the accuracy benchmark's first case (1.2 % of
 the mass where the exact posterior has 6.5 %), and a stopping rule judged on them stopped
-early and called a posterior reliable that was 0.34 off in a correlation.  The tempered
+early and called a posterior reliable that was 0.34 off in a correlation.  The exploration's
 posterior, which only has to be reached, not weighed, is sampled by emcee, whose walkers go
 on from round to round.  :mod:`smcbayes.posterior.curve_stage` decides from the rounds when
 the learning stops.
@@ -32,24 +35,21 @@ from smcbayes.posterior.curves import CurveEmulator
 
 Array = NDArray[np.float64]
 
-TEMPER = 0.25
-"""Exponent of the exploration's likelihood."""
-
 EXPLORATION = 0.25
-"""Share of a round's runs drawn from the tempered optimistic posterior (the exploration);
-the rest are posterior draws.  The spread that decides the stop falls with the runs where
+"""Share of a round's runs drawn from the mean curves' posterior (the exploration); the rest
+are draws of the emulated posterior.  The spread that decides the stop falls with the runs where
 the posterior lives: on the measured thesis trials an emulator of 60 calibration points and
 340 draws of the posterior had a spread of 0.089, while the active learning, with half its
 runs exploring, read 0.10-0.15 after 400-800 runs."""
 
 ROUND_STEPS = 1000
-"""Most emcee steps of the first round's tempered sampling, whose walkers start at the best
+"""Most emcee steps of the first round's exploration, whose walkers start at the best
 training point."""
 
 WARM_STEPS = 250
-"""emcee steps of a later round's tempered sampling: its walkers go on from where the last
-round's stopped, already spread over a tempered posterior that a round's new runs only
-nudge, so they need no way in.  The sampling only picks the exploration's few runs and a
+"""emcee steps of a later round's exploration: its walkers go on from where the last
+round's stopped, already spread over a posterior that a round's new runs only nudge, so
+they need no way in.  The sampling only picks the exploration's few runs and a
 share of the importance sampling's first proposal, and its emulator calls are a third of a
 round's time at a thousand steps."""
 
@@ -66,8 +66,8 @@ class Round:
         new: the rows to simulate ``(B, d)``: the first ``posterior`` are draws of the
             emulated posterior pooled with its GP sample functions', leaning to where
             they disagree and to the quantiles they move
-            (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest of the tempered
-            optimistic one.
+            (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest of the mean curves'
+            posterior (the exploration).
         posterior: how many of ``new`` are posterior draws.
         sample: the round's importance sample of the emulated posterior (the mean's).
         spread: how far its sample functions move its 5/50/95 % quantiles (share of the unit cube).
@@ -75,8 +75,8 @@ class Round:
             round's mean error (:func:`~smcbayes.posterior.curve_aim.targeted`).
         aim: what ``refine.jsonl`` keeps of the aiming
             (:func:`~smcbayes.posterior.curve_aim.targeted`).
-        tempered: where the tempered sampling's walkers stopped ``(W, d)`` (W the
-            ensemble's walkers); the next round's go on from there.
+        explorers: where the exploration's walkers stopped ``(W, d)`` (W the ensemble's
+            walkers); the next round's go on from there.
     """
 
     new: Array
@@ -85,34 +85,32 @@ class Round:
     spread: float
     error_weight: Array
     aim: dict[str, float] = field(default_factory=dict)
-    tempered: Array | None = None
+    explorers: Array | None = None
 
 
 def next_round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, spec: CorrectionSettings,
-               rng: np.random.Generator, walkers: int, tempered: Array | None = None) -> Round:
+               rng: np.random.Generator, walkers: int, explorers: Array | None = None) -> Round:
     """The next batch of ``size`` rows: all but a share :data:`EXPLORATION` (fewer when the
     posterior rests on fewer support points) drawn from the emulated posterior, sampled by
     importance (:data:`ROUND_DRAWS` emulator evaluations; its first proposal fitted to the
-    earlier round's posterior draws ``start`` ``(S, d)`` and tempered draws, a quarter of
-    :data:`~smcbayes.posterior.curve_sample.START_ROWS` or as many as
+    earlier round's posterior draws ``start`` ``(S, d)`` and the exploration's draws, a
+    quarter of :data:`~smcbayes.posterior.curve_sample.START_ROWS` or as many as
     the chains hold; on the first round, whose ``start`` holds only the best training
-    points, nearly all tempered; twice as many draws once more when its ESS is below
+    points, nearly all the exploration's; twice as many draws once more when its ESS is below
     :data:`~smcbayes.posterior.curve_sample.ROUND_ESS`) and pooled with the posteriors of GP
     sample functions on a support of its points, leaning to where they disagree and to the
     quantiles they move (:func:`~smcbayes.posterior.curve_aim.targeted`), the rest from the
-    tempered posterior of the optimistic loss (emcee, :data:`ROUND_STEPS` steps from the best
-    training point or, given the last round's walkers ``tempered`` ``(W, d)``,
-    :data:`WARM_STEPS` from there; the round keeps where they stopped)."""
+    mean curves' posterior (emcee, :data:`ROUND_STEPS` steps from the best training point or,
+    given the last round's walkers ``explorers`` ``(W, d)``, :data:`WARM_STEPS` from there;
+    the round keeps where they stopped)."""
     d = emulator.x.shape[1]
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
-    steps = ROUND_STEPS if tempered is None else WARM_STEPS
-    chains = sample_chains(emulator, n_eff, rng, centre, TEMPER, steps, walkers, optimistic=True,
-                           start=tempered)
+    steps = ROUND_STEPS if explorers is None else WARM_STEPS
+    chains = sample_chains(emulator, n_eff, rng, centre, 1.0, steps, walkers, variance=False, start=explorers)
     # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
     wide = np.unique(chains.samples.reshape(-1, d), axis=0)
-    # after the first round mostly the last round's posterior: the tempered draws alone,
-    # twice as wide in every direction, make a first proposal that wastes most of its draws
-    # in seven dimensions
+    # after the first round mostly the last round's posterior, the exploration's draws a
+    # quarter: the first proposal follows the posterior the round samples
     count = min(len(wide), max(START_ROWS // 4, START_ROWS - len(start)))
     share = wide[rng.choice(len(wide), count, replace=False)]
     sample = emulator_sample(emulator, n_eff, np.vstack([start, share]), spec, ROUND_DRAWS, rng)

@@ -145,15 +145,14 @@ class FinalPosterior:
 
 def sample_chains(emulator: CurveEmulator, n_eff: float, rng: np.random.Generator, centre: Array,
                   temper: float = 1.0, steps: int = CHAIN_STEPS, walkers: int = 32,
-                  variance: bool = EXPECTED_LOSS, label: str = "", optimistic: bool = False,
-                  start: Array | None = None) -> Chains:
+                  variance: bool = EXPECTED_LOSS, label: str = "", start: Array | None = None) -> Chains:
     """emcee chains (differential evolution, from ``centre`` ``(d,)``, or from the walkers'
     distinct positions ``start`` ``(W, d)``, W the ensemble's walkers,
     :func:`~smcbayes.posterior.sampler.ensemble_size`) of the emulated posterior, tempered
-    by ``temper``, of the loss ``variance`` and ``optimistic`` ask for
+    by ``temper``, of the loss ``variance`` asks for
     (:meth:`~smcbayes.posterior.curves.CurveEmulator.loss`)."""
     settings = SamplerSettings(walkers=walkers, max_steps=steps, min_steps=min(500, steps), moves="de")
-    return run_ensemble(log_posterior(emulator, n_eff, temper, variance, optimistic), emulator.x.shape[1],
+    return run_ensemble(log_posterior(emulator, n_eff, temper, variance), emulator.x.shape[1],
                         settings, rng, centre, label, start)
 
 

@@ -103,7 +103,8 @@ class Learned:
 @dataclass
 class _Progress:
     """The active learning so far: the data, each round's measures (one entry per round),
-    where the next round's importance sampling starts and where its tempered walkers go on.
+    where the next round's importance sampling starts and where its exploration's walkers go
+    on.
 
     Attributes:
         since: the first round that counts towards a validation (the one after the last
@@ -111,7 +112,7 @@ class _Progress:
         before: the log posterior of the emulator the last round sampled.
         late: the last validation counted rounds from before the last failed confirmation,
             which only the budget's end allows.
-        tempered: where the last round's tempered walkers stopped ``(W, d)``, W the
+        explorers: where the last round's exploration's walkers stopped ``(W, d)``, W the
             ensemble's walkers.
         earlier: the log posteriors of the emulators that drew the last rounds, the last
             round's at the end (at most :data:`VALIDATED_ROUNDS` + 1 of them).
@@ -133,7 +134,7 @@ class _Progress:
     confirmations: list[dict[str, Any]] = field(default_factory=list)
     before: Callable[[Array], Array] | None = None
     late: bool = False
-    tempered: Array | None = None
+    explorers: Array | None = None
     earlier: list[Callable[[Array], Array]] = field(default_factory=list)
     sample: ImportanceSample | None = None
     drifts: dict[int, float | None] = field(default_factory=dict)
@@ -273,7 +274,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
             break
         size = min(round_runs, budget - progress.spent)
         step = next_round(emulator, n_eff, size, progress.start, spec, rng, walkers,
-                          tempered=progress.tempered)
+                          explorers=progress.explorers)
         record = _take(progress, step, emulator, n_eff, simulate, rng, t0)
         logger.info("curve emulator round %d: %d points, %s", progress.rounds, record["training_points"],
                     _round_status(progress, tolerance_nats, budget))
@@ -297,7 +298,7 @@ def _take(progress: _Progress, step: Round, emulator: CurveEmulator, n_eff: floa
     progress.earlier = [*progress.earlier[-VALIDATED_ROUNDS:], progress.before]
     progress.sample = step.sample
     progress.start = step.sample.resample(3 * START_ROWS // 4, rng)
-    progress.tempered = step.tempered
+    progress.explorers = step.explorers
     t1 = time.perf_counter()
     y_new, ok = simulate(step.new)
     progress.spent, progress.rounds = progress.spent + len(step.new), progress.rounds + 1

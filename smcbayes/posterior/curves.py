@@ -383,9 +383,8 @@ class CurveEmulator:
         principal components and the trend keep the left-out row, so the errors of later
         components are somewhat low; the factor is measured on the noisy prediction
         (nugget included) and scales the latent variance too.  It holds wherever the
-        emulator's variance is read: the sample functions, the optimistic loss of the
-        rounds' exploration and the expected loss.  Each call starts from the fit's own
-        variances.
+        emulator's variance is read: the sample functions and the expected loss.  Each call
+        starts from the fit's own variances.
         """
         index = {row.tobytes(): k for k, row in enumerate(self.x)}
         keys = [r.tobytes() for r in np.asarray(points, dtype=float)]
@@ -429,13 +428,11 @@ class CurveEmulator:
         force = np.exp(self.mean_log + outputs[:, :j] @ self.basis) - FORCE_FLOOR_KN
         return np.hstack([force, self.scalar_mean + outputs[:, j:] * self.scalar_sd])
 
-    def loss(self, x: Array, variance: bool = False, optimistic: bool = False) -> Array:
+    def loss(self, x: Array, variance: bool = False) -> Array:
         """Emulated loss ``(P,)`` at ``x (P, d)``: of the mean curves; with ``variance`` plus
         the mean over nodes of the emulator's variance of the force, s^2 (kN^2; to first
-        order var F = (F + 1 kN)^2 var log(F + 1 kN)), the expected loss; ``optimistic``:
-        the loss of curves one s closer to the data, (sqrt(L) - s)^2, floored at a tenth of
-        L: where the emulator is unsure the data may fit better than its mean says."""
-        mean, share = self._mean_and_share(x, variance or optimistic)
+        order var F = (F + 1 kN)^2 var log(F + 1 kN)), the expected loss."""
+        mean, share = self._mean_and_share(x, variance)
         y = self.curves(mean)
         out = self.features.loss(y)
         if share is not None:
@@ -443,15 +440,12 @@ class CurveEmulator:
             # var log(F + 1 kN) at the nodes is share x (output variances @ basis^2): a product
             # of a row's share and one node profile, so no (P, J) @ (J, nodes) product is needed
             profile = self._node_profile()
-            s2 = self.features.spec.w_force * share * (((y[:, :nk] + FORCE_FLOOR_KN) ** 2) @ profile) / nk
-            if optimistic:
-                return np.maximum(np.sqrt(out) - np.sqrt(s2), np.sqrt(0.1 * out)) ** 2
-            out = out + s2
+            out = out + self.features.spec.w_force * share * (((y[:, :nk] + FORCE_FLOOR_KN) ** 2) @ profile) / nk
         return out
 
 
-def log_posterior(emulator: CurveEmulator, n_eff: float, temper: float = 1.0, variance: bool = True,
-                  optimistic: bool = False) -> Callable[[Array], Array]:
+def log_posterior(emulator: CurveEmulator, n_eff: float, temper: float = 1.0,
+                  variance: bool = True) -> Callable[[Array], Array]:
     """Emulated log posterior on the unit cube, ``(P, d) -> (P,)``: -(temper N_eff / 2) log L,
     L as :meth:`CurveEmulator.loss` gives it."""
     a = 0.5 * n_eff * temper
@@ -461,7 +455,7 @@ def log_posterior(emulator: CurveEmulator, n_eff: float, temper: float = 1.0, va
         out = np.full(u.shape[0], -np.inf)
         inside = np.all((u >= 0.0) & (u <= 1.0), axis=1)
         if np.any(inside):
-            out[inside] = -a * np.log(np.maximum(emulator.loss(u[inside], variance, optimistic), 1e-300))
+            out[inside] = -a * np.log(np.maximum(emulator.loss(u[inside], variance), 1e-300))
         return out
 
     return log_prob

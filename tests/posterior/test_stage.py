@@ -529,13 +529,11 @@ def test_the_emulator_interpolates_its_points_and_predicts_new_ones(run_dir: Pat
     mean_curve = np.repeat(y[:45].mean(axis=0, keepdims=True), 15, axis=0)
     naive = np.abs(np.log(features.loss(mean_curve)) - np.log(loss[45:]))
     assert np.median(held_out) < 0.2 * np.median(naive), (np.median(held_out), np.median(naive))
-    # the variance term raises the loss and the optimistic bound lowers it, both least at
-    # the training points, where the emulator is sure
+    # the variance term raises the loss, least at the training points, where the emulator is sure
     mean_loss = emulator.loss(u[45:])
-    with_var, optimistic = emulator.loss(u[45:], variance=True), emulator.loss(u[45:], optimistic=True)
-    assert np.all(with_var > mean_loss) and np.all(optimistic < mean_loss)
-    for kind in ({"variance": True}, {"optimistic": True}):
-        np.testing.assert_allclose(emulator.loss(u[:45], **kind), emulator.loss(u[:45]), rtol=1e-3)
+    with_var = emulator.loss(u[45:], variance=True)
+    assert np.all(with_var > mean_loss)
+    np.testing.assert_allclose(emulator.loss(u[:45], variance=True), emulator.loss(u[:45]), rtol=1e-3)
     # the variance term is the nodes' mean of (F + 1 kN)^2 var log(F + 1 kN), var log from
     # the predicted variances of the principal components
     mean, var = emulator.predict(u[45:], variance=True)
@@ -543,11 +541,6 @@ def test_the_emulator_interpolates_its_points_and_predicts_new_ones(run_dir: Pat
     var_log = var[:, :emulator.components] @ emulator.basis ** 2
     s2 = features.spec.w_force * np.mean(force ** 2 * var_log, axis=1)
     np.testing.assert_allclose(with_var, mean_loss + s2, rtol=1e-12)
-    # far from every point, where the emulator's sd exceeds the fit's error, the optimistic
-    # loss is still at most the mean curves' (floored at a tenth of it)
-    far = np.random.default_rng(7).random((200, u.shape[1]))
-    far_mean, far_optimistic = emulator.loss(far), emulator.loss(far, optimistic=True)
-    assert np.all(far_optimistic <= far_mean) and np.all(far_optimistic >= 0.1 * far_mean * (1 - 1e-12))
     # variances calibrated after a call reach the variance term (it keeps its node profile
     # until they change)
     emulator.calibrate(u[:45])
@@ -820,10 +813,10 @@ def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
     assert learned.final is not None and learned.final.max_shift == 0.5 * SPREAD_MAX
 
 
-def test_each_rounds_tempered_walkers_go_on_from_where_the_last_rounds_stopped(
+def test_each_rounds_exploring_walkers_go_on_from_where_the_last_rounds_stopped(
         run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The first round's tempered sampling starts at the best training point and runs up to
-    :data:`ROUND_STEPS` steps; each later one goes on from the walkers the round before
+    """The first round's exploration (the mean curves' posterior, untempered) starts at the
+    best training point and runs up to :data:`ROUND_STEPS` steps; each later one goes on from the walkers the round before
     left, for :data:`WARM_STEPS`; a confirmation gets draws of the last round's posterior to
     start its sampling from, and so does the reported posterior after the learning."""
     import smcbayes.posterior.curve_stage as curve_stage
@@ -831,15 +824,17 @@ def test_each_rounds_tempered_walkers_go_on_from_where_the_last_rounds_stopped(
 
     calls: list[tuple[np.ndarray | None, np.ndarray | None]] = []
     steps: list[int] = []
+    kinds: list[tuple[float, bool]] = []
     real_round, real_chains = curve_stage.next_round, curve_round.sample_chains
 
     def spy(*args: Any, **kwargs: Any) -> curve_round.Round:
         step = real_round(*args, **kwargs)
-        calls.append((kwargs["tempered"], step.tempered))
+        calls.append((kwargs["explorers"], step.explorers))
         return step
 
     def chains(*args: Any, **kwargs: Any) -> Any:
         steps.append(args[5])
+        kinds.append((args[4], kwargs["variance"]))
         return real_chains(*args, **kwargs)
 
     monkeypatch.setattr(curve_stage, "next_round", spy)
@@ -851,6 +846,7 @@ def test_each_rounds_tempered_walkers_go_on_from_where_the_last_rounds_stopped(
     d = learned.x.shape[1]
     assert learned.record["rounds"] == len(calls) == 3 and calls[0][0] is None
     assert steps == [curve_round.ROUND_STEPS, curve_round.WARM_STEPS, curve_round.WARM_STEPS]
+    assert kinds == [(1.0, False)] * 3
     for (handed, _), (_, left) in zip(calls[1:], calls[:-1], strict=True):
         assert handed is left and left is not None and left.shape == (16, d)
     assert len(given) == 1 and given[0] is not None and given[0].shape == (3 * START_ROWS // 4, d)
