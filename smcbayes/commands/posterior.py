@@ -20,7 +20,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "posterior", help="posterior of the parameters from a calibration run (actively learned GP emulator)",
         description="Start from the calibration's GP as an emulator, train it by active "
                     "learning with the run's simulator (fresh posterior draws as the out-of-sample "
-                    "check, points where the GP is unsure and a tempered posterior could be large; "
+                    "check, and exploring points: where the GP is unsure and a tempered posterior "
+                    "could be large with the log-loss emulator, draws of the mean curves' "
+                    "posterior with the curve one; "
                     "stops once validated and GP sample functions no longer move the posterior), "
                     "and report its posterior; without a correction, pooled with those of GP "
                     "sample functions, so the emulator's uncertainty widens the posterior.  By "

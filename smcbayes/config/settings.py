@@ -217,8 +217,10 @@ class PosteriorSpec(Strict):
     refine: int | None = Field(
         None, ge=0, le=1_000_000,
         description=f"most forward evaluations of the active learning of the emulator (rounds of "
-                    f"fresh posterior draws and points where the GP is unsure and a tempered "
-                    f"posterior could be large; it stops earlier once validated and GP sample "
+                    f"fresh posterior draws and exploring points: where the GP is unsure and a "
+                    f"tempered posterior could be large with the log-loss emulator, draws of the "
+                    f"mean curves' posterior with the curve one; it stops earlier once validated "
+                    f"and GP sample "
                     f"functions no longer move the posterior); default {REFINE_CURVES} with the "
                     f"curve emulator; with the log-loss one {REFINE_EMULATED}, or "
                     f"{REFINE_CORRECTED} when the importance correction follows (it needs a "
@@ -242,9 +244,9 @@ class PosteriorSpec(Strict):
                                             "the same to the last digit whatever the number")
     refine_tolerance_nats: float = Field(
         1.0, gt=0, description="active learning stops once the emulator's out-of-sample error at "
-                               "fresh posterior draws is below this (nats) in three rounds in a row, the "
-                               "quantiles are stable (each round and over the three) and the emulator's spread is "
-                               "at most 0.10")
+                               "fresh posterior draws is below this (nats) in three rounds in a row, "
+                               "the quantiles are stable (each round and over the three) and the "
+                               "emulator's spread is at most 0.10")
     correct_draws: int | None = Field(
         None, ge=0, le=10_000_000,
         description=f"most proposal draws of the importance correction by the exact forward model "

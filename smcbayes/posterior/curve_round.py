@@ -49,9 +49,8 @@ training point."""
 WARM_STEPS = 250
 """emcee steps of a later round's exploration: its walkers go on from where the last
 round's stopped, already spread over a posterior that a round's new runs only nudge, so
-they need no way in.  The sampling only picks the exploration's few runs and a
-share of the importance sampling's first proposal, and its emulator calls are a third of a
-round's time at a thousand steps."""
+they need no way in.  The sampling only picks the exploration's few runs and a share of
+the importance sampling's first proposal."""
 
 ROUND_DRAWS = 20000
 """Most proposal draws of a round's importance sample of the emulated posterior (it stops
@@ -106,13 +105,13 @@ def next_round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, s
     d = emulator.x.shape[1]
     centre = emulator.x[np.argmin(emulator.features.loss(emulator.y))]
     steps = ROUND_STEPS if explorers is None else WARM_STEPS
-    chains = sample_chains(emulator, n_eff, rng, centre, 1.0, steps, walkers, variance=False, start=explorers)
+    chains = sample_chains(emulator, n_eff, rng, centre, steps, walkers, variance=False, start=explorers)
     # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
-    wide = np.unique(chains.samples.reshape(-1, d), axis=0)
+    explored = np.unique(chains.samples.reshape(-1, d), axis=0)
     # after the first round mostly the last round's posterior, the exploration's draws a
     # quarter: the first proposal follows the posterior the round samples
-    count = min(len(wide), max(START_ROWS // 4, START_ROWS - len(start)))
-    share = wide[rng.choice(len(wide), count, replace=False)]
+    count = min(len(explored), max(START_ROWS // 4, START_ROWS - len(start)))
+    share = explored[rng.choice(len(explored), count, replace=False)]
     sample = emulator_sample(emulator, n_eff, np.vstack([start, share]), spec, ROUND_DRAWS, rng)
     if sample.ess < ROUND_ESS:
         # too few to measure the round's move by: once more, twice as long, from what it found
@@ -130,5 +129,5 @@ def next_round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, s
     # fewer distinct posterior points (a posterior on few support points): more exploration
     drawn = len(rows)
     new = np.vstack([sample.unit[posteriors.rows[rows]],
-                     wide[rng.choice(len(wide), size - drawn, replace=size - drawn > len(wide))]])
+                     explored[rng.choice(len(explored), size - drawn, replace=size - drawn > len(explored))]])
     return Round(new, drawn, sample, spread["max_quantile_shift"], error_weight, aim, chains.last)

@@ -144,15 +144,15 @@ class FinalPosterior:
 
 
 def sample_chains(emulator: CurveEmulator, n_eff: float, rng: np.random.Generator, centre: Array,
-                  temper: float = 1.0, steps: int = CHAIN_STEPS, walkers: int = 32,
+                  steps: int = CHAIN_STEPS, walkers: int = 32,
                   variance: bool = EXPECTED_LOSS, label: str = "", start: Array | None = None) -> Chains:
     """emcee chains (differential evolution, from ``centre`` ``(d,)``, or from the walkers'
     distinct positions ``start`` ``(W, d)``, W the ensemble's walkers,
-    :func:`~smcbayes.posterior.sampler.ensemble_size`) of the emulated posterior, tempered
-    by ``temper``, of the loss ``variance`` asks for
+    :func:`~smcbayes.posterior.sampler.ensemble_size`) of the emulated posterior of the
+    loss ``variance`` asks for
     (:meth:`~smcbayes.posterior.curves.CurveEmulator.loss`)."""
     settings = SamplerSettings(walkers=walkers, max_steps=steps, min_steps=min(500, steps), moves="de")
-    return run_ensemble(log_posterior(emulator, n_eff, temper, variance), emulator.x.shape[1],
+    return run_ensemble(log_posterior(emulator, n_eff, variance=variance), emulator.x.shape[1],
                         settings, rng, centre, label, start)
 
 
@@ -177,7 +177,7 @@ def curve_chains(emulation: CurveEmulation, settings: PosteriorSpec, rng: np.ran
     if settings.steps > cap and settings.steps != default_of(PosteriorSpec, "steps"):
         logger.info("curve emulator: %d emcee steps, not %d: the chains only start the importance sampling",
                     cap, settings.steps)
-    return [sample_chains(emulator, emulation.n_eff, rng, centre, 1.0, min(settings.steps, cap), walkers,
+    return [sample_chains(emulator, emulation.n_eff, rng, centre, min(settings.steps, cap), walkers,
                           variance=EXPECTED_LOSS, label=" (curve emulator)", start=at)]
 
 
@@ -261,7 +261,8 @@ def final_posterior(emulation: CurveEmulation, settings: PosteriorSpec, names: S
 
 
 def quantile_shift(sample: ImportanceSample, before: Callable[[Array], Array]) -> float:
-    """How far the emulated posterior moved since the last round: the largest difference
+    """How far the emulated posterior moved since an earlier emulator (the last round's, or
+    that of the first validating round for the drift): the largest difference
     (share of the unit cube) between a 5/50/95 % quantile of ``sample`` and the same
     quantile under the earlier emulator's log posterior ``before``, both weighted over the
     same draws (the earlier posterior by the ratio of the two densities), so that the

@@ -23,7 +23,7 @@ per output on the residuals.  The expected loss adds the emulator's variance of 
 squared error, so that where the emulator is unsure the likelihood is lower, not
 arbitrary.
 
-The scales are fitted over the whole training set, exploration points far out included;
+The scales are fitted over the whole training set, the calibration's points far out included;
 where the posterior lives the points are dense and the outputs smoother, and the GP's
 variance there can be several times too large (on the measured thesis trials the leading
 components' errors at fresh posterior draws were 0.4-0.8 of the predicted sd).
@@ -440,7 +440,8 @@ class CurveEmulator:
             # var log(F + 1 kN) at the nodes is share x (output variances @ basis^2): a product
             # of a row's share and one node profile, so no (P, J) @ (J, nodes) product is needed
             profile = self._node_profile()
-            out = out + self.features.spec.w_force * share * (((y[:, :nk] + FORCE_FLOOR_KN) ** 2) @ profile) / nk
+            s2 = self.features.spec.w_force * share * (((y[:, :nk] + FORCE_FLOOR_KN) ** 2) @ profile) / nk
+            out = out + s2
         return out
 
 

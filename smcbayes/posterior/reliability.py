@@ -227,8 +227,8 @@ def _budget_reason(active: dict[str, Any]) -> str:
 
 def _curve_budget_reason(active: dict[str, Any]) -> str:
     """Why the curve emulator's active learning was not validated: its last rounds' errors
-    and quantile moves, each of which must be within its bound, and their spreads, whose mean
-    must be."""
+    and quantile moves, each of which must be within its bound, their spreads, whose mean
+    must be, and the posterior's drift over them, when it was measured."""
     def words(values: list[float | None], unit: str) -> str:
         return ", ".join("not measured" if v is None else f"{v:.2g}{unit}" for v in values) or "none"
 

@@ -22,6 +22,7 @@ from smcbayes.posterior.curve_stage import (
     _fresh_error,
     _Progress,
     _round_status,
+    _take,
     _validated,
 )
 from smcbayes.posterior.spread import SPREAD_MAX
@@ -181,7 +182,8 @@ def test_rounds_validate_only_when_stable_and_accurate_together() -> None:
 
     assert _validated(small, [None, *stable], 1.0, narrow, still)
     assert not _validated(small[:-1], stable[:-1], 1.0, narrow, still)  # too few rounds
-    assert not _validated(small, [*stable[:-1], 2 * QUANTILE_SHIFT], 1.0, narrow, still)  # the last round moved
+    # the last round moved
+    assert not _validated(small, [*stable[:-1], 2 * QUANTILE_SHIFT], 1.0, narrow, still)
     assert not _validated(small, [None, *stable[:-1]], 1.0, narrow, still)  # a round with nothing to compare
     # every round must be within the tolerance: a good mean over the rounds is not enough
     assert not _validated([0.2, 0.2, 1.4], stable, 1.0, narrow, still)
@@ -204,21 +206,35 @@ def test_rounds_validate_only_when_stable_and_accurate_together() -> None:
     assert not _validated(small[:-1], stable[:-1], 1.0, narrow, unwanted)
 
 
-def test_the_drift_is_the_move_since_the_emulator_of_the_validations_first_round() -> None:
+def test_the_drift_is_the_move_from_the_emulator_before_the_validating_rounds(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     """A posterior that creeps one way by a little each round moves by the sum over the
-    rounds that validate: each round's shift stays within the bound, the drift does not."""
+    rounds that validate: each round's shift stays within the bound, the drift does not.
+    The rounds are taken as the learning takes them (:func:`_take`), each emulator standing
+    for a normal posterior at its centre."""
+    import smcbayes.posterior.curve_stage as curve_stage
+
+    monkeypatch.setattr(curve_stage, "log_posterior",
+                        lambda centre, *args, **kwargs: lambda u: norm.logpdf(u[:, 0], centre, 0.1))
+    monkeypatch.setattr(curve_stage, "_fresh_error", lambda *args: 0.5)
+    monkeypatch.setattr(curve_stage, "_round_record", lambda *args: {})
     step = QUANTILE_SHIFT * 0.6
     progress = _Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
     assert progress.drift() is None  # no round yet
-    centres = [0.5 - step * k for k in range(VALIDATED_ROUNDS + 2)]
-    for k, centre in enumerate(centres, start=1):
-        progress.rounds = k
-        progress.sample = _sample(centre)
-        progress.earlier = [*progress.earlier[-VALIDATED_ROUNDS:],
-                            lambda u, c=centre: norm.logpdf(u[:, 0], c, 0.1)]
-        if k <= VALIDATED_ROUNDS:
+    rng = np.random.default_rng(1)
+
+    def simulate(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.zeros((len(rows), 2)), np.ones(len(rows), dtype=bool)
+
+    # round k is drawn from emulator k, whose posterior lies at 0.5 - k * step
+    for k in range(VALIDATED_ROUNDS + 2):
+        centre = 0.5 - step * k
+        drawn = Round(np.full((3, 1), centre), 2, _sample(centre, seed=k), 0.0, np.ones(2))
+        _take(progress, drawn, centre, 4.0, simulate, rng, 0.0)
+        if k < VALIDATED_ROUNDS:
             assert progress.drift() is None  # no emulator that many rounds back
-    assert quantile_shift(progress.sample, progress.earlier[-2]) == pytest.approx(step, abs=0.01)
+    assert len(progress.earlier) == VALIDATED_ROUNDS + 1
+    assert progress.shifts[-1] == pytest.approx(step, abs=0.01)
     assert progress.drift() == pytest.approx(VALIDATED_ROUNDS * step, abs=0.01)
     assert progress.record(False)["drift"] == progress.drift()
     # measured once a round: the reading is kept
@@ -309,7 +325,6 @@ def test_at_the_budgets_end_a_new_round_that_fails_keeps_the_learning_unvalidate
         progress.shifts.append(QUANTILE_SHIFT / 2)
         progress.spreads.append(SPREAD_MAX / 2)
     progress.since = VALIDATED_ROUNDS
-    progress.drifts[progress.rounds] = QUANTILE_SHIFT / 2
     assert not progress.validated(1.0) and not progress.validated(1.0, ended=True)
 
 
@@ -580,7 +595,7 @@ def test_the_final_chains_start_at_draws_of_a_close_posterior_and_run_fewer_step
 
     seen: list[dict[str, object]] = []
     monkeypatch.setattr(curve_sample, "sample_chains",
-                        lambda emulator, n_eff, rng, centre, temper, steps, walkers, **kw: seen.append(
+                        lambda emulator, n_eff, rng, centre, steps, walkers, **kw: seen.append(
                             {"centre": centre, "steps": steps, "walkers": walkers, **kw}))
     x = np.array([[0.2, 0.2], [0.6, 0.4], [0.9, 0.9]])
     features = SimpleNamespace(loss=lambda y: y[:, 0])

@@ -816,15 +816,16 @@ def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
 def test_each_rounds_exploring_walkers_go_on_from_where_the_last_rounds_stopped(
         run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The first round's exploration (the mean curves' posterior, untempered) starts at the
-    best training point and runs up to :data:`ROUND_STEPS` steps; each later one goes on from the walkers the round before
-    left, for :data:`WARM_STEPS`; a confirmation gets draws of the last round's posterior to
-    start its sampling from, and so does the reported posterior after the learning."""
+    best training point and runs up to :data:`ROUND_STEPS` steps; each later one goes on
+    from the walkers the round before left, for :data:`WARM_STEPS`; a confirmation gets
+    draws of the last round's posterior to start its sampling from, and so does the
+    reported posterior after the learning."""
     import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.curve_sample import START_ROWS
 
     calls: list[tuple[np.ndarray | None, np.ndarray | None]] = []
     steps: list[int] = []
-    kinds: list[tuple[float, bool]] = []
+    kinds: list[bool] = []
     real_round, real_chains = curve_stage.next_round, curve_round.sample_chains
 
     def spy(*args: Any, **kwargs: Any) -> curve_round.Round:
@@ -833,8 +834,8 @@ def test_each_rounds_exploring_walkers_go_on_from_where_the_last_rounds_stopped(
         return step
 
     def chains(*args: Any, **kwargs: Any) -> Any:
-        steps.append(args[5])
-        kinds.append((args[4], kwargs["variance"]))
+        steps.append(args[4])
+        kinds.append(kwargs["variance"])
         return real_chains(*args, **kwargs)
 
     monkeypatch.setattr(curve_stage, "next_round", spy)
@@ -846,7 +847,7 @@ def test_each_rounds_exploring_walkers_go_on_from_where_the_last_rounds_stopped(
     d = learned.x.shape[1]
     assert learned.record["rounds"] == len(calls) == 3 and calls[0][0] is None
     assert steps == [curve_round.ROUND_STEPS, curve_round.WARM_STEPS, curve_round.WARM_STEPS]
-    assert kinds == [(1.0, False)] * 3
+    assert kinds == [False] * 3
     for (handed, _), (_, left) in zip(calls[1:], calls[:-1], strict=True):
         assert handed is left and left is not None and left.shape == (16, d)
     assert len(given) == 1 and given[0] is not None and given[0].shape == (3 * START_ROWS // 4, d)
