@@ -261,8 +261,8 @@ def final_posterior(emulation: CurveEmulation, settings: PosteriorSpec, names: S
 
 
 def quantile_shift(sample: ImportanceSample, before: Callable[[Array], Array]) -> float:
-    """How far the emulated posterior moved since an earlier emulator (the last round's, or
-    that of the first validating round for the drift): the largest difference
+    """How far the emulated posterior moved since an earlier emulator (the last round's, or,
+    for the drift, the one before the validating rounds): the largest difference
     (share of the unit cube) between a 5/50/95 % quantile of ``sample`` and the same
     quantile under the earlier emulator's log posterior ``before``, both weighted over the
     same draws (the earlier posterior by the ratio of the two densities), so that the

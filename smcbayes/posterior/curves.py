@@ -445,11 +445,10 @@ class CurveEmulator:
         return out
 
 
-def log_posterior(emulator: CurveEmulator, n_eff: float, temper: float = 1.0,
-                  variance: bool = True) -> Callable[[Array], Array]:
-    """Emulated log posterior on the unit cube, ``(P, d) -> (P,)``: -(temper N_eff / 2) log L,
-    L as :meth:`CurveEmulator.loss` gives it."""
-    a = 0.5 * n_eff * temper
+def log_posterior(emulator: CurveEmulator, n_eff: float, variance: bool = True) -> Callable[[Array], Array]:
+    """Emulated log posterior on the unit cube, ``(P, d) -> (P,)``: -(N_eff / 2) log L, L as
+    :meth:`CurveEmulator.loss` gives it."""
+    a = 0.5 * n_eff
 
     def log_prob(u: Array) -> Array:
         u = np.atleast_2d(u)
