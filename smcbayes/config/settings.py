@@ -219,9 +219,9 @@ class PosteriorSpec(Strict):
         description=f"most forward evaluations of the active learning of the emulator (rounds of "
                     f"fresh posterior draws and exploring points: where the GP is unsure and a "
                     f"tempered posterior could be large with the log-loss emulator, draws of the "
-                    f"mean curves' posterior with the curve one; it stops earlier once validated "
-                    f"and GP sample "
-                    f"functions no longer move the posterior); default {REFINE_CURVES} with the "
+                    f"posterior mass the expected loss's variance hides with the curve one; it "
+                    f"stops earlier once validated and GP sample functions no longer move the "
+                    f"posterior); default {REFINE_CURVES} with the "
                     f"curve emulator; with the log-loss one {REFINE_EMULATED}, or "
                     f"{REFINE_CORRECTED} when the importance correction follows (it needs a "
                     f"proposal, not a validated emulator)")

@@ -432,17 +432,25 @@ class CurveEmulator:
         """Emulated loss ``(P,)`` at ``x (P, d)``: of the mean curves; with ``variance`` plus
         the mean over nodes of the emulator's variance of the force, s^2 (kN^2; to first
         order var F = (F + 1 kN)^2 var log(F + 1 kN)), the expected loss."""
-        mean, share = self._mean_and_share(x, variance)
+        if variance:
+            mean_loss, s2 = self.loss_terms(x)
+            return mean_loss + s2
+        mean, _ = self._mean_and_share(x, False)
+        return self.features.loss(self.curves(mean))
+
+    def loss_terms(self, x: Array) -> tuple[Array, Array]:
+        """The mean curves' loss ``(P,)`` at ``x (P, d)`` and the variance term s^2 ``(P,)``
+        that the expected loss adds to it (:meth:`loss`)."""
+        mean, share = self._mean_and_share(x, True)
         y = self.curves(mean)
-        out = self.features.loss(y)
-        if share is not None:
-            nk = len(self.features.ids) * self.features.nodes
-            # var log(F + 1 kN) at the nodes is share x (output variances @ basis^2): a product
-            # of a row's share and one node profile, so no (P, J) @ (J, nodes) product is needed
-            profile = self._node_profile()
-            s2 = self.features.spec.w_force * share * (((y[:, :nk] + FORCE_FLOOR_KN) ** 2) @ profile) / nk
-            out = out + s2
-        return out
+        if share is None:  # asked for, so never: for the type checker
+            return self.features.loss(y), np.zeros(len(y))
+        nk = len(self.features.ids) * self.features.nodes
+        # var log(F + 1 kN) at the nodes is share x (output variances @ basis^2): a product
+        # of a row's share and one node profile, so no (P, J) @ (J, nodes) product is needed
+        profile = self._node_profile()
+        s2 = self.features.spec.w_force * share * (((y[:, :nk] + FORCE_FLOOR_KN) ** 2) @ profile) / nk
+        return self.features.loss(y), s2
 
 
 def log_posterior(emulator: CurveEmulator, n_eff: float, variance: bool = True) -> Callable[[Array], Array]:
@@ -456,6 +464,31 @@ def log_posterior(emulator: CurveEmulator, n_eff: float, variance: bool = True) 
         inside = np.all((u >= 0.0) & (u <= 1.0), axis=1)
         if np.any(inside):
             out[inside] = -a * np.log(np.maximum(emulator.loss(u[inside], variance), 1e-300))
+        return out
+
+    return log_prob
+
+
+def log_hidden_mass(emulator: CurveEmulator, n_eff: float) -> Callable[[Array], Array]:
+    """Log of the posterior mass that the expected loss's variance term hides, on the unit
+    cube, ``(P, d) -> (P,)``, unnormalised: p_mean - p_expected = L^-a (1 - (1 + s^2 / L)^-a),
+    a = N_eff / 2, L the mean curves' loss and s^2 the variance term
+    (:meth:`CurveEmulator.loss_terms`).  The expected loss is never below the mean curves'
+    loss, so the difference is never negative; it vanishes where the emulator is sure and
+    follows the mean curves' posterior where it is unsure: where the mean says the data may
+    fit and too few runs let the emulated posterior in."""
+    a = 0.5 * n_eff
+
+    def log_prob(u: Array) -> Array:
+        u = np.atleast_2d(u)
+        out = np.full(u.shape[0], -np.inf)
+        inside = np.all((u >= 0.0) & (u <= 1.0), axis=1)
+        if np.any(inside):
+            mean_loss, s2 = emulator.loss_terms(u[inside])
+            mean_loss = np.maximum(mean_loss, 1e-300)
+            with np.errstate(divide="ignore"):
+                hidden = np.log(-np.expm1(-a * np.log1p(np.maximum(s2, 0.0) / mean_loss)))
+            out[inside] = -a * np.log(mean_loss) + hidden
         return out
 
     return log_prob

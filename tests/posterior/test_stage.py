@@ -23,7 +23,14 @@ from smcbayes.posterior.active import STABLE_ROUNDS
 from smcbayes.posterior.context import load_run
 from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample
 from smcbayes.posterior.curve_stage import Learned
-from smcbayes.posterior.curves import FORCE_FLOOR_KN, CurveEmulator, CurveFeatures, CurveLossUnsupported
+from smcbayes.posterior.curves import (
+    FORCE_FLOOR_KN,
+    CurveEmulator,
+    CurveFeatures,
+    CurveLossUnsupported,
+    log_hidden_mass,
+    log_posterior,
+)
 from smcbayes.posterior.spread import SPREAD_MAX
 from smcbayes.surrogate.gp import load_surrogate
 
@@ -630,9 +637,29 @@ def test_sample_functions_of_the_curve_emulator_follow_its_variance(run_dir: Pat
     assert np.all(near < 0.1 * np.sqrt(latent[4:, varies].min(axis=0))), near.max()
 
 
+def test_the_hidden_mass_is_the_mean_curves_posterior_less_the_emulated_one(run_dir: Path) -> None:
+    """The exploration's density is p_mean - p_expected, computed stably in logs: never
+    above the mean curves' posterior, a share of it away from the training points (where
+    the variance hides some of it) and almost none at them (where it hides almost none)."""
+    features, u, y, _ = _rows(run_dir, 30, 4)
+    emulator = CurveEmulator(features, u, y)
+    n_eff = 4.0
+    x = np.vstack([u[:5], np.random.default_rng(3).random((200, u.shape[1]))])
+    mean_loss, s2 = emulator.loss_terms(x)
+    np.testing.assert_allclose(mean_loss, emulator.loss(x))
+    np.testing.assert_allclose(mean_loss + s2, emulator.loss(x, variance=True))
+    p_mean = np.exp(log_posterior(emulator, n_eff, variance=False)(x))
+    p_expected = np.exp(log_posterior(emulator, n_eff, variance=True)(x))
+    hidden = log_hidden_mass(emulator, n_eff)(x)
+    np.testing.assert_allclose(np.exp(hidden), p_mean - p_expected, rtol=1e-6, atol=1e-12 * p_mean.max())
+    assert np.all(hidden <= np.log(p_mean))
+    share = np.exp(hidden) / p_mean
+    assert share[:5].max() < 1e-4 and share[5:].mean() > 0.01, (share[:5].max(), share[5:].mean())
+    assert np.all(log_hidden_mass(emulator, n_eff)(np.array([[1.5] * u.shape[1]])) == -np.inf)
+
+
 def _emulator_sample(emulator: CurveEmulator, n_eff: float, count: int, seed: int) -> ImportanceSample:
     """The emulator's posterior sampled by importance from the prior (the unit cube)."""
-    from smcbayes.posterior.curves import log_posterior
 
     u = np.random.default_rng(seed).random((count, emulator.x.shape[1]))
     lp = log_posterior(emulator, n_eff, variance=False)(u)
@@ -709,7 +736,6 @@ def test_the_emulated_posterior_is_the_same_to_the_bit_on_one_thread_and_on_two(
     emulator's threads, each task's rows as on one thread: the same values, the same path."""
     from smcbayes.posterior import curve_sample
     from smcbayes.posterior.curve_spread import curve_spread
-    from smcbayes.posterior.curves import log_posterior
     from smcbayes.posterior.threads import emulator_threads
 
     features, u, y, _ = _rows(run_dir, 25, 5)
@@ -815,7 +841,7 @@ def test_the_active_learning_stops_only_when_the_reported_posterior_confirms(
 
 def test_each_rounds_exploring_walkers_go_on_from_where_the_last_rounds_stopped(
         run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The first round's exploration (the mean curves' posterior, untempered) starts at the
+    """The first round's exploration (the hidden posterior mass) starts at the
     best training point and runs up to :data:`ROUND_STEPS` steps; each later one goes on
     from the walkers the round before left, for :data:`WARM_STEPS`; a confirmation gets
     draws of the last round's posterior to start its sampling from, and so does the
@@ -835,7 +861,8 @@ def test_each_rounds_exploring_walkers_go_on_from_where_the_last_rounds_stopped(
 
     def chains(*args: Any, **kwargs: Any) -> Any:
         steps.append(args[4])
-        kinds.append(kwargs["variance"])
+        u = np.random.default_rng(len(steps)).random((20, args[0].x.shape[1]))
+        kinds.append(bool(np.allclose(kwargs["log_prob"](u), log_hidden_mass(args[0], args[1])(u))))
         return real_chains(*args, **kwargs)
 
     monkeypatch.setattr(curve_stage, "next_round", spy)
@@ -847,7 +874,7 @@ def test_each_rounds_exploring_walkers_go_on_from_where_the_last_rounds_stopped(
     d = learned.x.shape[1]
     assert learned.record["rounds"] == len(calls) == 3 and calls[0][0] is None
     assert steps == [curve_round.ROUND_STEPS, curve_round.WARM_STEPS, curve_round.WARM_STEPS]
-    assert kinds == [False] * 3
+    assert kinds == [True] * 3
     for (handed, _), (_, left) in zip(calls[1:], calls[:-1], strict=True):
         assert handed is left and left is not None and left.shape == (16, d)
     assert len(given) == 1 and given[0] is not None and given[0].shape == (3 * START_ROWS // 4, d)
