@@ -476,7 +476,14 @@ def log_hidden_mass(emulator: CurveEmulator, n_eff: float) -> Callable[[Array], 
     (:meth:`CurveEmulator.loss_terms`).  The expected loss is never below the mean curves'
     loss, so the difference is never negative; it vanishes where the emulator is sure and
     follows the mean curves' posterior where it is unsure: where the mean says the data may
-    fit and too few runs let the emulated posterior in."""
+    fit and too few runs let the emulated posterior in.  Where the variance is small it is
+    about p_mean a s^2 / L: the density times the nats the variance term takes off the log
+    likelihood, which grow with the emulator's variance, like the variance-times-density
+    acquisition of VBMC (Acerbi 2018, "Variational Bayesian Monte Carlo", NeurIPS 31); where
+    it is large it is bounded by p_mean, where BAPE's variance of the likelihood
+    (Kandasamy, Schneider & Poczos 2017,
+    "Query efficient posterior estimation in scientific experiments via Bayesian active
+    learning", Artif. Intell. 243, 45) grows without bound."""
     a = 0.5 * n_eff
 
     def log_prob(u: Array) -> Array:
