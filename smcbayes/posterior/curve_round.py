@@ -119,7 +119,8 @@ def next_round(emulator: CurveEmulator, n_eff: float, size: int, start: Array, s
     # a rejected emcee move repeats its walker's row: simulated twice it would add nothing
     explored = np.unique(chains.samples.reshape(-1, d), axis=0)
     # after the first round mostly the last round's posterior, the exploration's draws a
-    # quarter: the first proposal follows the posterior the round samples
+    # quarter that widens it; on the first round nearly all are the exploration's, which
+    # avoid where the emulator is sure, and the adaptive iterations find the posterior
     count = min(len(explored), max(START_ROWS // 4, START_ROWS - len(start)))
     share = explored[rng.choice(len(explored), count, replace=False)]
     sample = emulator_sample(emulator, n_eff, np.vstack([start, share]), spec, ROUND_DRAWS, rng)

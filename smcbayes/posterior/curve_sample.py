@@ -152,7 +152,8 @@ def sample_chains(emulator: CurveEmulator, n_eff: float, rng: np.random.Generato
     :func:`~smcbayes.posterior.sampler.ensemble_size`) of the emulated posterior of the
     loss ``variance`` asks for
     (:meth:`~smcbayes.posterior.curves.CurveEmulator.loss`), or of the log density
-    ``log_prob`` ``(P, d) -> (P,)`` on the unit cube when given."""
+    ``log_prob`` ``(P, d) -> (P,)`` on the unit cube when given (``variance`` is then
+    unused)."""
     settings = SamplerSettings(walkers=walkers, max_steps=steps, min_steps=min(500, steps), moves="de")
     target = log_posterior(emulator, n_eff, variance=variance) if log_prob is None else log_prob
     return run_ensemble(target, emulator.x.shape[1], settings, rng, centre, label, start)

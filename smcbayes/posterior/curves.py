@@ -440,11 +440,11 @@ class CurveEmulator:
 
     def loss_terms(self, x: Array) -> tuple[Array, Array]:
         """The mean curves' loss ``(P,)`` at ``x (P, d)`` and the variance term s^2 ``(P,)``
-        that the expected loss adds to it (:meth:`loss`)."""
+        that the expected loss adds to it (:meth:`loss`; both in the loss's units, kN^2)."""
         mean, share = self._mean_and_share(x, True)
         y = self.curves(mean)
-        if share is None:  # asked for, so never: for the type checker
-            return self.features.loss(y), np.zeros(len(y))
+        if share is None:
+            raise RuntimeError("the GP's variance was asked for and not computed")
         nk = len(self.features.ids) * self.features.nodes
         # var log(F + 1 kN) at the nodes is share x (output variances @ basis^2): a product
         # of a row's share and one node profile, so no (P, J) @ (J, nodes) product is needed
@@ -479,11 +479,11 @@ def log_hidden_mass(emulator: CurveEmulator, n_eff: float) -> Callable[[Array], 
     fit and too few runs let the emulated posterior in.  Where the variance is small it is
     about p_mean a s^2 / L: the density times the nats the variance term takes off the log
     likelihood, which grow with the emulator's variance, like the variance-times-density
-    acquisition of VBMC (Acerbi 2018, "Variational Bayesian Monte Carlo", NeurIPS 31); where
-    it is large it is bounded by p_mean, where BAPE's variance of the likelihood
-    (Kandasamy, Schneider & Poczos 2017,
-    "Query efficient posterior estimation in scientific experiments via Bayesian active
-    learning", Artif. Intell. 243, 45) grows without bound."""
+    acquisition of VBMC (Acerbi 2018, "Variational Bayesian Monte Carlo", NeurIPS 31).
+    Where it is large it is bounded by p_mean, where BAPE's variance of the likelihood
+    grows without bound (Kandasamy, Schneider & Poczos 2017, "Query efficient posterior
+    estimation in scientific experiments via Bayesian active learning", Artificial
+    Intelligence 243, 45-56)."""
     a = 0.5 * n_eff
 
     def log_prob(u: Array) -> Array:
