@@ -457,16 +457,7 @@ def log_posterior(emulator: CurveEmulator, n_eff: float, variance: bool = True) 
     """Emulated log posterior on the unit cube, ``(P, d) -> (P,)``: -(N_eff / 2) log L, L as
     :meth:`CurveEmulator.loss` gives it."""
     a = 0.5 * n_eff
-
-    def log_prob(u: Array) -> Array:
-        u = np.atleast_2d(u)
-        out = np.full(u.shape[0], -np.inf)
-        inside = np.all((u >= 0.0) & (u <= 1.0), axis=1)
-        if np.any(inside):
-            out[inside] = -a * np.log(np.maximum(emulator.loss(u[inside], variance), 1e-300))
-        return out
-
-    return log_prob
+    return _on_cube(lambda u: -a * np.log(np.maximum(emulator.loss(u, variance), 1e-300)))
 
 
 def log_hidden_mass(emulator: CurveEmulator, n_eff: float) -> Callable[[Array], Array]:
@@ -486,16 +477,25 @@ def log_hidden_mass(emulator: CurveEmulator, n_eff: float) -> Callable[[Array], 
     Intelligence 243, 45-56)."""
     a = 0.5 * n_eff
 
+    def log_density(u: Array) -> Array:
+        mean_loss, s2 = emulator.loss_terms(u)
+        mean_loss = np.maximum(mean_loss, 1e-300)
+        with np.errstate(divide="ignore"):
+            hidden = np.log(-np.expm1(-a * np.log1p(np.maximum(s2, 0.0) / mean_loss)))
+        return -a * np.log(mean_loss) + hidden
+
+    return _on_cube(log_density)
+
+
+def _on_cube(log_density: Callable[[Array], Array]) -> Callable[[Array], Array]:
+    """``log_density`` ``(P, d) -> (P,)`` called on the rows inside the unit cube only,
+    -inf at the others."""
     def log_prob(u: Array) -> Array:
         u = np.atleast_2d(u)
         out = np.full(u.shape[0], -np.inf)
         inside = np.all((u >= 0.0) & (u <= 1.0), axis=1)
         if np.any(inside):
-            mean_loss, s2 = emulator.loss_terms(u[inside])
-            mean_loss = np.maximum(mean_loss, 1e-300)
-            with np.errstate(divide="ignore"):
-                hidden = np.log(-np.expm1(-a * np.log1p(np.maximum(s2, 0.0) / mean_loss)))
-            out[inside] = -a * np.log(mean_loss) + hidden
+            out[inside] = log_density(u[inside])
         return out
 
     return log_prob
