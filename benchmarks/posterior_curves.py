@@ -94,8 +94,7 @@ def run_seed(run_dir: Path, ref: tuple[np.ndarray, np.ndarray], budgets: list[in
         row: dict[str, Any] = {"seed": seed, "budget": spent, "rows": len(x), "n_eff": n_eff,
                                "components": emulator.components,
                                "lengthscales": emulator.corr.lengthscales.tolist()}
-        draws = sample_chains(emulator, n_eff, rng, centre, steps=10000,
-                              variance=EXPECTED_LOSS).samples.reshape(-1, x.shape[1])
+        draws = sample_chains(emulator, n_eff, rng, centre, steps=10000).samples.reshape(-1, x.shape[1])
         row["emcee"] = summary(compare(NAMES, ref, draws, np.zeros(len(NAMES))))
         sample = sample_emulator(emulator, n_eff, draws, CorrectionSettings(), rng)
         row["importance"] = summary(compare(NAMES, ref, sample.unit, np.zeros(len(NAMES)), sample.weights))

@@ -144,18 +144,15 @@ class FinalPosterior:
 
 
 def sample_chains(emulator: CurveEmulator, n_eff: float, rng: np.random.Generator, centre: Array,
-                  steps: int = CHAIN_STEPS, walkers: int = 32,
-                  variance: bool = EXPECTED_LOSS, label: str = "", start: Array | None = None,
-                  log_prob: Callable[[Array], Array] | None = None) -> Chains:
+                  steps: int = CHAIN_STEPS, walkers: int = 32, label: str = "",
+                  start: Array | None = None, log_prob: Callable[[Array], Array] | None = None) -> Chains:
     """emcee chains (differential evolution, from ``centre`` ``(d,)``, or from the walkers'
     distinct positions ``start`` ``(W, d)``, W the ensemble's walkers,
-    :func:`~smcbayes.posterior.sampler.ensemble_size`) of the emulated posterior of the
-    loss ``variance`` asks for
-    (:meth:`~smcbayes.posterior.curves.CurveEmulator.loss`), or of the log density
-    ``log_prob`` ``(P, d) -> (P,)`` on the unit cube when given (``variance`` is then
-    unused)."""
+    :func:`~smcbayes.posterior.sampler.ensemble_size`) of the emulated posterior (of the
+    expected loss, :data:`EXPECTED_LOSS`), or of the log density ``log_prob``
+    ``(P, d) -> (P,)`` on the unit cube when given."""
     settings = SamplerSettings(walkers=walkers, max_steps=steps, min_steps=min(500, steps), moves="de")
-    target = log_posterior(emulator, n_eff, variance=variance) if log_prob is None else log_prob
+    target = log_posterior(emulator, n_eff, variance=EXPECTED_LOSS) if log_prob is None else log_prob
     return run_ensemble(target, emulator.x.shape[1], settings, rng, centre, label, start)
 
 
@@ -181,7 +178,7 @@ def curve_chains(emulation: CurveEmulation, settings: PosteriorSpec, rng: np.ran
         logger.info("curve emulator: %d emcee steps, not %d: the chains only start the importance sampling",
                     cap, settings.steps)
     return [sample_chains(emulator, emulation.n_eff, rng, centre, min(settings.steps, cap), walkers,
-                          variance=EXPECTED_LOSS, label=" (curve emulator)", start=at)]
+                          label=" (curve emulator)", start=at)]
 
 
 def batched(log_prob: Callable[[Array], Array]) -> Callable[[Array], Array]:
