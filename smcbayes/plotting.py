@@ -24,6 +24,8 @@ from smcbayes.forward.result import SimulationResult
 
 Array = NDArray[np.float64]
 MEASURED = "black"
+PAD_INCHES = 0.1
+"""Margin (inches) around the drawn content of a saved figure (matplotlib's default)."""
 
 
 def subplots(nrows: int = 1, ncols: int = 1, figsize: tuple[float, float] | None = None,
@@ -54,8 +56,13 @@ def save(fig: Figure, path: str | Path) -> list[Path]:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     out = [path.with_suffix(".png"), path.with_suffix(".svg")]
-    fig.savefig(out[0], dpi=130, bbox_inches="tight")
-    fig.savefig(out[1], bbox_inches="tight")
+    # one tight box for both files: with bbox_inches="tight" each save lays the figure out
+    # once more to measure it (1.6 s of the 4.5 s that the posterior's corner plot of eight
+    # parameters took to write)
+    fig.draw_without_rendering()
+    box = fig.get_tightbbox().padded(PAD_INCHES)
+    fig.savefig(out[0], dpi=130, bbox_inches=box)
+    fig.savefig(out[1], bbox_inches=box)
     plt = sys.modules.get("matplotlib.pyplot")
     if plt is not None and getattr(fig.canvas, "manager", None) is not None:
         plt.close(fig)

@@ -767,7 +767,7 @@ def test_the_emulated_posterior_is_the_same_to_the_bit_on_one_thread_and_on_two(
     np.testing.assert_equal(s1, s2)  # NaN equal to NaN, as a function's ESS may be
     assert q1 == q2 and q1 > 0.0
     np.testing.assert_array_equal(p1.log_weight, p2.log_weight)
-    # two batches of an iteration (6,000 draws, 4,000 a batch) ran on the two threads
+    # the batches of an iteration (6,000 draws) ran on the two threads
     assert len(d1.unit) >= 6000 > curve_sample.EMULATOR_BATCH
     np.testing.assert_array_equal(d1.unit, d2.unit)
     np.testing.assert_array_equal(d1.log_target, d2.log_target)
