@@ -93,9 +93,10 @@ START_ROWS = 4000
 
 EMULATOR_BATCH = 2000
 """Rows of one emulator call of an importance sample (each a task of the emulator's threads,
-:func:`batched`).  Each call builds ``(rows, features)`` curves, 30 MB at 2,000 rows of
+:func:`batched`).  Each call builds ``(rows, features)`` curves, 29 MB at 2,000 rows of
 the measured thesis trials' 1,818 features: 16,000 rows of an emulator of 700 points took
-0.71 s in batches of 2,000 and 0.87 s in batches of 4,000, whose arrays are twice as large."""
+0.71 s in batches of 2,000 and 0.87 s in batches of 4,000, whose arrays are twice as
+large."""
 
 EMULATOR_ITERATION = 4000
 """Proposal draws per iteration of the importance sampling of the emulator: each
@@ -201,12 +202,14 @@ def batched(log_prob: Callable[[Array], Array]) -> Callable[[Array], Array]:
 
 def emulator_sample(emulator: CurveEmulator, n_eff: float, start: Array, spec: CorrectionSettings,
                     draws: int, rng: np.random.Generator, aim: float = 0.0,
-                    per_iteration: int = EMULATOR_ITERATION) -> ImportanceSample:
+                    per_iteration: int | None = None) -> ImportanceSample:
     """The emulated posterior (of the expected loss) by adaptive importance sampling from the
     draws ``start`` ``(S, d)``: the correction's algorithm with the emulator as its target,
-    at most ``draws`` emulator evaluations in iterations of ``per_iteration`` and no forward
-    run.  It is settled at the correction's k-hat target and an ESS of at least the
-    correction's target and ``2 * ROUND_ESS``, and once settled draws on to an ESS of ``aim``."""
+    at most ``draws`` emulator evaluations in iterations of ``per_iteration`` (default
+    :data:`EMULATOR_ITERATION`, read at the call) and no forward run.  It is settled at the
+    correction's k-hat target and an ESS of at least the correction's target and
+    ``2 * ROUND_ESS``, and once settled draws on to an ESS of ``aim``."""
+    per_iteration = EMULATOR_ITERATION if per_iteration is None else per_iteration
     # an iteration's draws reach the target at once, which cuts them into EMULATOR_BATCH rows
     run = spec.model_copy(update={"draws": draws, "batch": max(draws, 1), "per_iteration": per_iteration,
                                   "ess_target": max(spec.ess_target, 2 * ROUND_ESS)})

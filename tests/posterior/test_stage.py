@@ -808,10 +808,13 @@ def _scripted_learning(run_dir: Path, monkeypatch: pytest.MonkeyPatch, budget: i
     spreads; by default every round validates) and confirmations that read the spreads
     ``readings`` in turn: what it learned and the training points each confirmation saw
     (the draws each was given to start from are appended to ``given``)."""
+    import smcbayes.posterior.curve_sample as curve_sample
     import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.curve_sample import FinalPosterior
 
     monkeypatch.setattr(curve_round, "ROUND_DRAWS", 4000)
+    # two iterations a round, so that the rounds' samples adapt as at full size
+    monkeypatch.setattr(curve_sample, "EMULATOR_ITERATION", 2000)
     monkeypatch.setattr(curve_stage, "_validated", validated or (lambda *args: True))
     ctx = load_run(run_dir)
     features, u, y, _ = _rows(run_dir, 25, 5)
@@ -1008,6 +1011,7 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     monkeypatch.setattr(curve_sample, "EMULATOR_DRAWS", 8000)
     monkeypatch.setattr(curve_sample, "FINAL_ITERATION", 2000)
     monkeypatch.setattr(curve_round, "ROUND_DRAWS", 4000)
+    monkeypatch.setattr(curve_sample, "EMULATOR_ITERATION", 2000)
     settings = PosteriorSettings(emulator="curves", walkers=16, steps=1500, refine=120, draws=20,
                                  correct_draws=0, seed=1)
     folder = _fresh_copy(run_dir, tmp_path / "curves")
