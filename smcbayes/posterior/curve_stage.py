@@ -187,6 +187,9 @@ class _Progress:
                 "last_errors_nats": last, "last_quantile_shifts": self.shifts[-VALIDATED_ROUNDS:],
                 "last_spreads": [_finite(v) for v in self.spreads[-VALIDATED_ROUNDS:]],
                 "drift": self.drifts.get(self.rounds),
+                "drifts": [{"rounds": k, "drift": v} for k, v in sorted(self.drifts.items()) if v is not None],
+                "validated_rounds": VALIDATED_ROUNDS,
+                "bounds": {"quantile_shift": QUANTILE_SHIFT, "drift": QUANTILE_SHIFT, "spread": SPREAD_MAX},
                 "confirmations": self.confirmations, "validated_at_budget_end": self.late}
 
 
@@ -242,6 +245,8 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         for a round with nothing to compare, or a sample too thin to tell), ``last_spreads``
         (those of the last :data:`VALIDATED_ROUNDS` rounds), ``drift`` (the posterior's move over
         them, :meth:`_Progress.drift`; ``None`` unless their other measures passed),
+        ``drifts`` (every drift measured, after how many ``rounds``), ``validated_rounds`` and
+        ``bounds`` (those the stop asks of the move, the drift and the mean spread),
         ``confirmations`` (after how many
         ``rounds`` and ``forward_runs`` each was drawn, its ``spread`` and ``spread_se``,
         whether it ``passed`` and its ``seconds``), ``validated_at_budget_end`` (the last

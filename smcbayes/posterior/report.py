@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict
@@ -17,7 +18,7 @@ from smcbayes.posterior.crossfit import LocalFit
 from smcbayes.posterior.error_models import BandErrorModels, band_error_models
 from smcbayes.posterior.extrapolation import extrapolation_notes
 from smcbayes.posterior.likelihood import EmulatedPosterior
-from smcbayes.posterior.plots import bands_plot, corner_plot, correlation_plot
+from smcbayes.posterior.plots import bands_plot, corner_plot, correlation_plot, learning_plot
 from smcbayes.posterior.predictive import QUANTILES, Band, predictive_bands
 from smcbayes.posterior.refine import check_emulator
 from smcbayes.posterior.shape import shape_notes
@@ -173,6 +174,20 @@ def _chain_warnings(raw: list, chains: list, corrected: Any) -> tuple[list[str],
     of = "the importance sampling on the emulator" if corrected.target == "emulator" else "the correction"
     named = [f"emulator chains (proposal of {of}): {w}" for w in warns]
     return ([], named) if corrected.settled else (named, [])
+
+
+def learning_figures(active: Mapping[str, Any], out_dir: Path) -> list[Path]:
+    """The curve emulator's rounds (``refine.jsonl``) drawn as ``figures/learning``
+    (:func:`~smcbayes.posterior.plots.learning_figure`); none for the log-loss emulator or
+    a learning without rounds, whose figure of an earlier run is removed."""
+    stem = out_dir / "figures" / "learning"
+    if active.get("kind") != "curves" or not active.get("rounds"):
+        for old in (stem.with_suffix(".png"), stem.with_suffix(".svg")):
+            old.unlink(missing_ok=True)
+        return []
+    with (out_dir / "refine.jsonl").open(encoding="utf-8") as fh:
+        rounds = [json.loads(line) for line in fh]
+    return learning_plot(rounds, active, stem)
 
 
 def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget: dict[str, Any],

@@ -12,7 +12,8 @@ curve emulator :mod:`smcbayes.posterior.curve_spread`) and pools the sample func
 posteriors of that check with the GP mean's (``pool_functions``),
 checks the emulator against the forward model at posterior draws and writes
 ``RUN_DIR/posterior/``: ``posterior.nc`` (arviz InferenceData), ``summary.json``,
-``summary.csv``, figures (corner, correlations, predictive bands; PNG and SVG) and, after
+``summary.csv``, figures (corner, correlations, predictive bands, the curve emulator's
+active learning round by round; PNG and SVG) and, after
 refinement, ``gp_refined.pt`` and ``refine.jsonl``.
 """
 
@@ -48,7 +49,7 @@ from smcbayes.posterior.curve_stage import curve_posterior
 from smcbayes.posterior.curves import CurveFeatures, CurveLossUnsupported
 from smcbayes.posterior.likelihood import effective_points, sandwich_points
 from smcbayes.posterior.reliability import assess
-from smcbayes.posterior.report import write_outputs
+from smcbayes.posterior.report import learning_figures, write_outputs
 from smcbayes.posterior.sampler import Chains
 from smcbayes.posterior.summary import stack_components
 from smcbayes.posterior.threads import emulator_threads
@@ -330,6 +331,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
                              corrected, fit)
         if spread is not None:
             info["emulator_spread"] = {**spread, "pooled": pooling}
+        learning_figures(emulated.active, out_dir)
     cache.close()
     final = emulated.final
     info["stage_seconds"] = {"setup_and_refine": t_emulate - start + emulated.seconds["learning"],

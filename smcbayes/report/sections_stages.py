@@ -280,6 +280,11 @@ def posterior_section(
     if (ident := _identification(params, ranges)) is not None:
         sec.add(ident)
     sec.add(*_diagnostics(post))
+    if (fig := run.figure("posterior", "figures", "learning")) is not None:
+        sec.add(Figure(fig, "Active learning round by round: the emulator's error at fresh posterior "
+                            "draws, the posterior's move and drift, and the spread of GP sample "
+                            "functions' posteriors, each beside the bound the stop asks of the last "
+                            "rounds; stars mark the reported posterior's spread at each confirmation."))
     if (fig := run.figure("posterior", "figures", "corner")) is not None:
         caption = "Corner plot of the posterior draws (log10 for log-scaled parameters); "
         caption += "5/50/95 % quantiles dashed" + ("; true values in red." if truth else ".")

@@ -93,6 +93,8 @@ def test_outputs_written(run_dir: Path) -> None:
     for name in ("summary.csv", "refine.jsonl", "gp_refined.pt", "figures/corner.png",
                  "figures/correlations.svg", "figures/bands.png"):
         assert (out / name).is_file(), name
+    # the round-by-round figure is the curve emulator's
+    assert not (out / "figures" / "learning.png").exists()
     info = json.loads((out / "summary.json").read_text())
     assert info["emulator_check"]["points"] > 0
     assert info["effective_points"]["n_eff_total"] > 0
@@ -1019,6 +1021,8 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     _truth_inside_and_slip_pair_positive(info)
     active = info["active_learning"]
     assert active["kind"] == "curves" and info["emulator_spread"]["pooled"]
+    assert active["validated_rounds"] == 3 and active["bounds"]["spread"] == SPREAD_MAX
+    assert (folder / "posterior" / "figures" / "learning.png").is_file()
     functions = curve_spread.CURVE_FUNCTIONS * curve_spread.SPREAD_SUPPORTS
     assert info["emulator_spread"]["functions"] == functions
     assert len(info["emulator_spread"]["function_ess"]) == functions

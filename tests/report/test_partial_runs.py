@@ -239,3 +239,17 @@ def test_the_emulators_start_and_active_learning_are_stated() -> None:
     searched = {**alone, "start_points": start}
     assert _active_words({"active_learning": searched}) == (
         ", starting from its 61 points and 178 evaluations of the calibration's local search")
+
+
+def test_the_active_learnings_figure_is_shown_where_the_stage_drew_it(tmp_path: Path) -> None:
+    from smcbayes.posterior.plots import learning_plot
+
+    (tmp_path / "without").mkdir()
+    assert "Active learning round by round" not in posterior_report_text(tmp_path / "without", {})
+    run = fake_run(tmp_path)
+    rounds = [{"round": 1, "forward_runs": 40, "error_nats": 2.0, "quantile_shift": None, "spread": 0.2}]
+    learning_plot(rounds, {"start_runs": 60, "tolerance_nats": 1.0}, run / "posterior" / "figures" / "learning")
+    (run / "posterior" / "summary.json").write_text(json.dumps({"parameters": []}), encoding="utf-8")
+    write_report(run, formats=("md",))
+    text = next(run.glob("report*.md")).read_text(encoding="utf-8")
+    assert "Active learning round by round" in text and "posterior/figures/learning.png" in text
