@@ -108,8 +108,10 @@ def print_summary(info: dict[str, Any]) -> None:
         unconfirmed = (f", {failed} validation(s) not confirmed by the reported posterior's spread"
                        if failed else "")
         verdict = ("validated" if active.get("converged") else "not validated (budget spent)") + unconfirmed
+        reused = active.get("start_runs_from_calibration") or 0
+        kept = f", the calibration's curves of {reused} more reused" if reused else ""
         print(f"curve emulator: {active['evaluations']} forward runs ({active['start_runs']} at the "
-              f"calibration's points), {active['components']} principal components, worst "
+              f"calibration's points{kept}), {active['components']} principal components, worst "
               f"out-of-sample error of its last rounds {error:.2g} nats, {verdict}")
     spread = info.get("emulator_spread")
     if spread:

@@ -155,3 +155,29 @@ def emulator_start(ctx: RunContext, x_unit: Array, log_loss: Array, spacing: flo
             x[k], y[k] = x_new[i], y_new[i]
             k += 1
     return x[:k], y[:k]
+
+
+LOGGED_MATCH = 1e-9
+"""Largest difference (unit cube) at which a GP training point is the logged evaluation."""
+
+
+def logged_rows(ctx: RunContext, x_unit: Array) -> Array:
+    """The free parameters ``(N, d)`` (user units) of the calibration's evaluations at the
+    unit-cube points ``x_unit`` ``(N, d)`` (the GP's training points), exactly as the log
+    holds them where it holds one within :data:`LOGGED_MATCH` of a point, else the point
+    mapped back.  The round trip through the unit cube can change a value's last bit, and
+    the calibration's kept runs are found by their exact rows."""
+    x_unit = np.atleast_2d(np.asarray(x_unit, dtype=float))
+    theta = ctx.space.from_unit(x_unit)
+    names = ctx.space.free_names
+    recs = [r for r in ctx.run.evaluation_log().read().evaluations.values() if isinstance(r.get("params"), dict)]
+    if not recs or not x_unit.size:
+        return theta
+    logged = np.array([[r["params"][n] for n in names] for r in recs], dtype=float)
+    unit = ctx.space.to_unit(logged)
+    for k, u in enumerate(x_unit):
+        gap = np.max(np.abs(unit - u), axis=1)
+        j = int(np.argmin(gap))
+        if gap[j] <= LOGGED_MATCH:
+            theta[k] = logged[j]
+    return theta

@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 from smcbayes.config import PosteriorSpec
 from smcbayes.config.settings import ROUND_RUNS_CURVES
 from smcbayes.errors import SurrogateError
-from smcbayes.posterior.context import RunContext
+from smcbayes.posterior.context import RunContext, logged_rows
 from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample
 from smcbayes.posterior.curve_round import Round, next_round
 from smcbayes.posterior.curve_sample import (
@@ -443,7 +443,9 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
                     rng: np.random.Generator, out_dir: Path
                     ) -> tuple[CurveEmulation, dict[str, Any], tuple[Array, Array], FinalPosterior | None]:
     """The curve emulator's active learning from the calibration GP's points ``start``
-    ``(N, d)`` (unit cube) and, when the stage reports the emulated posterior (no
+    ``(N, d)`` (unit cube; their curves taken from the calibration's cache where it kept
+    them, :meth:`~smcbayes.run.directory.RunDir.calibration_cache`, else simulated) and,
+    when the stage reports the emulated posterior (no
     correction), that posterior (:func:`~smcbayes.posterior.curve_sample.final_posterior`),
     which confirms a validated active learning before it stops (:func:`learn`).  A
     confirmation that passes after a failed one is measured again on fresh supports
@@ -452,7 +454,9 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
 
     Returns:
         The emulator, the active learning's record (``enabled``, ``kind``, ``evaluations``
-        (the starting points' runs included), ``start_runs``, ``converged``,
+        (the starting points' runs included), ``start_runs`` (the starting points the stage
+        simulated), ``start_runs_from_calibration`` (those whose curves the calibration
+        kept), ``converged``,
         ``error_nats``, ``rounds``, ``confirmations`` (their ``forward_runs`` counted as
         ``evaluations``)), the emulator's data
         ``(x_unit (N, d), log_loss (N,))`` and the reported posterior (``None`` with the
@@ -469,7 +473,10 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
         return features.of(ctx.runner.simulate(space.from_unit(u), features.ids))
 
     start = np.asarray(start, dtype=float)
-    y0, ok = simulate(start)
+    # the calibration's own rows: its kept curves of them are found by their exact values
+    theta0 = logged_rows(ctx, start)
+    reused = int(np.count_nonzero(ctx.run.calibration_cache().holds(features.ids, theta0)))
+    y0, ok = features.of(ctx.runner.simulate(theta0, features.ids))
     if np.count_nonzero(ok) < space.dim + 2:
         raise SurrogateError(f"only {np.count_nonzero(ok)} of the calibration's {len(start)} points "
                              "simulated successfully again; the curve emulator needs at least "
@@ -492,8 +499,9 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
     learned = learn(simulate, features, start[ok], y0[ok], n_eff, int(settings.refine),
                     settings.refine_tolerance_nats, rng, log, settings.walkers, settings.correction,
                     final if reported and not ctx.noise_free else None, int(settings.round_runs))
-    runs = int(start.shape[0])
+    runs = int(start.shape[0]) - reused
     active = {"enabled": True, "kind": "curves", **learned.record, "start_runs": runs,
+              "start_runs_from_calibration": reused,
               "tolerance_nats": float(settings.refine_tolerance_nats),
               "evaluations": learned.record["evaluations"] + runs, "components": learned.emulator.components,
               # counted as the stage's active learning counts them, its starting points included

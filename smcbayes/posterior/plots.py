@@ -149,7 +149,7 @@ def learning_figure(rounds: Sequence[Mapping[str, Any]], active: Mapping[str, An
     _bound(move, bounds.get("quantile_shift"), "")
     move.set_ylabel("quantile move (share of range)")
     _spread_panel(spread, x, rounds, active)
-    spread.set_xlabel("forward runs of the stage (calibration's points simulated again included)")
+    spread.set_xlabel("forward runs of the stage")
     for ax in axes:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="best")

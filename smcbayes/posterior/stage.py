@@ -89,7 +89,11 @@ def local_fit(ctx: RunContext) -> LocalFit:
     rows = np.repeat(u0[None, :], 2 * d + 1, axis=0)
     rows[1 + np.arange(d), np.arange(d)] = up
     rows[1 + d + np.arange(d), np.arange(d)] = down
-    results = ctx.runner.simulate(space.from_unit(rows), p.train_ids)
+    theta = space.from_unit(rows)
+    # the best point as the calibration ran it (the unit cube's round trip may change its
+    # last bit), so that its kept run is found
+    theta[0] = ctx.best_theta[0]
+    results = ctx.runner.simulate(theta, p.train_ids)
     residuals, sensitivities, usable = [], [], True
     for cid in p.train_ids:
         m, spec = p.dataset.measurements[cid], p.project.loss
@@ -259,7 +263,7 @@ def _emulate(ctx: RunContext, calibration_gp: Any, n_eff: float, settings: Poste
     t0 = time.perf_counter()
     if settings.emulator == "curves":
         emul, active, data, final = curve_posterior(ctx, calibration_gp.x_unit, n_eff, settings, rng, out_dir)
-        start_points = {"calibration_gp": active["start_runs"], "local_search": 0}
+        start_points = {"calibration_gp": int(calibration_gp.x_unit.shape[0]), "local_search": 0}
         if final is not None:
             learning = time.perf_counter() - t0 - final.seconds["sampling"] - final.seconds["spread"]
             return _Emulated(emul, final.chains, active, data, start_points, None, None, final,
@@ -311,7 +315,8 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     ctx = load_run(run_dir, executor)
     settings, out_dir = _begin(ctx, settings if settings is not None else ctx.problem.project.posterior)
     # every step is seeded: a rerun after a kill asks for the same rows and finds them here
-    ctx.runner.cache = cache = ctx.run.forward_cache("posterior")
+    # and the calibration's kept curves of the GP's points, where the curve emulator starts
+    ctx.runner.cache = cache = ctx.run.forward_cache("posterior", earlier=ctx.run.calibration_cache())
     rng = np.random.default_rng(settings.seed)
     calibration_gp, _ = load_surrogate(ctx.run.gp_path)
     # torch and BLAS on one thread: two made the GP fits and the emulators slower (gp_session)
@@ -341,7 +346,9 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
                              "outputs": time.perf_counter() - t_outputs}
     info["active_learning"] = {**emulated.active, "start_points": emulated.start_points}
     info["emulator_threads"] = threads
-    _count_runs(info["forward_evaluations"], emulated.active["evaluations"], 2 * ctx.space.dim + 1)
+    # the best point's run is the calibration's where it kept its curves
+    kept = int(ctx.run.calibration_cache().holds(ctx.problem.train_ids, ctx.best_theta)[0])
+    _count_runs(info["forward_evaluations"], emulated.active["evaluations"], 2 * ctx.space.dim + 1 - kept)
     info["reliability"] = assess(info, ctx.space, ctx.summary.get("best_loss_kN2"), ctx.noise_free,
                                  cheap=ctx.problem.fast)
     info["reliable"] = info["reliability"]["reliable"]

@@ -111,11 +111,15 @@ class ForwardCache:
     Args:
         folder: the stage's cache folder (created on the first write).
         tag: the identity hash of the run and model.
+        earlier: another stage's cache of the same model, read where this one lacks a run
+            and never written (the posterior reads the calibration's curves of the GP's
+            points there).
     """
 
-    def __init__(self, folder: Path, tag: str) -> None:
+    def __init__(self, folder: Path, tag: str, earlier: ForwardCache | None = None) -> None:
         self.folder = Path(folder)
         self.tag = tag
+        self.earlier = earlier
         self.path = self.folder / f"{tag}.jsonl"
         self._records: dict[str, dict[str, Any]] = {}
         self._npz: dict[str, dict[str, Any]] = {}
@@ -158,16 +162,28 @@ class ForwardCache:
 
     # -- the RunCache contract of smcbayes.simulation.runner --------------------------------
     def lookup(self, config_id: str, theta: Array, curves: bool) -> list[TaskResult | None]:
-        """Per row of ``theta`` ``(P, d)``: its kept one-row result, or ``None`` when the row
-        was never run (or ``curves`` are wanted and only its errors were kept)."""
+        """Per row of ``theta`` ``(P, d)``: its kept one-row result (here, or else in the
+        ``earlier`` cache), or ``None`` when the row was never run (or ``curves`` are wanted
+        and only its errors were kept)."""
         out: list[TaskResult | None] = []
         for row in np.atleast_2d(theta):
             rec = self._records.get(row_key(config_id, row))
             result = None
             if rec is not None and (not curves or rec.get("z")):
                 result = self._result(rec, curves)
+            if result is None and self.earlier is not None:
+                result = self.earlier.lookup(config_id, row[None, :], curves)[0]
             out.append(result)
         return out
+
+    def holds(self, config_ids: Sequence[str], theta: Array) -> NDArray[np.bool_]:
+        """Per row of ``theta`` ``(P, d)``: whether its curves on every one of
+        ``config_ids`` are kept here (or in the ``earlier`` cache)."""
+        rows = np.atleast_2d(theta)
+        found = np.ones(rows.shape[0], dtype=bool)
+        for cid in config_ids:
+            found &= np.array([r is not None for r in self.lookup(cid, rows, curves=True)], dtype=bool)
+        return found
 
     def begin(self, runs: int) -> None:
         """Mark the start of a batch of ``runs`` forward runs."""

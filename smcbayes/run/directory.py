@@ -304,15 +304,21 @@ class RunDir:
         return "complete" if isinstance(summary, dict) else "interrupted"
 
     def forward_cache(self, stage: str, folder: Path | None = None,
-                      model: Sequence[str] = ()) -> ForwardCache:
+                      model: Sequence[str] = (), earlier: ForwardCache | None = None) -> ForwardCache:
         """The forward-run cache of a stage's model (``<stage folder>/forward_cache/``), tied
         to the run's identity (project, effects, overrides, fidelity, external simulator),
         the model's extra effects ``model``, the package version and the model's source
         (:func:`~smcbayes.run.cache.model_source`), so that runs of another calibration,
-        model or model code are never reused."""
+        model or model code are never reused; it also reads the runs of the ``earlier``
+        cache (another stage's, of the same model)."""
         ident = self.identity().to_json()
         tag = cache_tag({k: ident.get(k) for k in _MODEL_KEYS}, model)
-        return ForwardCache(self.stage_dir(stage, folder) / "forward_cache", tag)
+        return ForwardCache(self.stage_dir(stage, folder) / "forward_cache", tag, earlier)
+
+    def calibration_cache(self) -> ForwardCache:
+        """The calibration's forward-run cache (``RUN_DIR/forward_cache/``): the curves of
+        the design's and the optimisation's evaluations, the GP's training points."""
+        return self.forward_cache("calibration", self.root)
 
     def stage_summary(self, stage: str, folder: Path | None = None) -> dict[str, Any] | None:
         """A complete stage's ``summary.json``, or ``None``."""

@@ -258,9 +258,17 @@ def calibrate(problem: Problem, settings: CalibrationSpec, run_dir: RunDir | Pat
         run.write_calibration_summary(summary(bo, problem, time.perf_counter() - start))
 
     polish = settings.polish_evaluations(problem.fast)
+    # the GP's points keep their curves, so the posterior's curve emulator starts from them
+    # without simulating them again; the cache is tied to the run's identity, which a folder
+    # not prepared as a run directory lacks
+    cache = run.calibration_cache() if run.is_run() else None
     bo = BayesOpt(problem.objective, settings, run.evaluation_log(), executor,
                   on_progress=progress or progress_reporter(settings.budget + polish), on_round=on_round,
-                  polish=polish)
-    bo.run()
+                  polish=polish, cache=cache)
+    try:
+        bo.run()
+    finally:
+        if cache is not None:
+            cache.close()
     logger.info("calibration stopped: %s", bo.stop_reason)
     return finish(bo, problem, run, time.perf_counter() - start, figures, executor)

@@ -31,7 +31,7 @@ from smcbayes.config import CalibrationSpec
 from smcbayes.run.runlog import LogState, RunLog
 from smcbayes.simulation.executors.base import Executor
 from smcbayes.simulation.objective import Objective, Task, TaskResult, combine
-from smcbayes.simulation.runner import with_retries
+from smcbayes.simulation.runner import RunCache, with_retries
 from smcbayes.surrogate.design import latin_hypercube, round_rng, round_seed
 from smcbayes.surrogate.polish import POLISH, PolishResult, is_search, phase_rounds, run_polish
 
@@ -136,11 +136,16 @@ class BayesOpt:
         on_round: called after each round with the loop (e.g. to write the summary).
         polish: most evaluations of the local search from the best point once the
             optimisation has stopped (:mod:`smcbayes.surrogate.polish`); 0: none.
+        cache: where the design's and the optimisation's evaluations keep their simulated
+            curves (not the local search's, which are many and near one point): the GP's
+            training points, from which the posterior's curve emulator starts, so that it
+            need not simulate them again; ``None``: kept nowhere.
     """
 
     def __init__(self, objective: Objective, settings: BOSettings, log: RunLog, executor: Executor,
                  on_progress: Callable[[Progress], None] | None = None,
-                 on_round: Callable[[BayesOpt], None] | None = None, polish: int = 0) -> None:
+                 on_round: Callable[[BayesOpt], None] | None = None, polish: int = 0,
+                 cache: RunCache | None = None) -> None:
         settings.check()
         self.objective = objective
         self.space = objective.space
@@ -156,6 +161,7 @@ class BayesOpt:
         self.last_surrogate: Any = None
         self.last_candidate: Array | None = None
         self.polish_budget = polish
+        self.cache = cache
         self.polish: PolishResult | None = None
         self._search_from: int | None = None
 
@@ -245,12 +251,12 @@ class BayesOpt:
         return record
 
     # -- evaluating --------------------------------------------------------------------
-    def _tasks(self, indices: list[int], theta: Array) -> list[Task]:
+    def _tasks(self, indices: list[int], theta: Array, curves: bool = False) -> list[Task]:
         size = self.executor.rows_per_task or max(len(indices), 1)
         tasks = []
         for cid in self.objective.config_ids:
             for lo in range(0, len(indices), size):
-                tasks.append(Task(tuple(indices[lo:lo + size]), theta[lo:lo + size], cid))
+                tasks.append(Task(tuple(indices[lo:lo + size]), theta[lo:lo + size], cid, curves))
         return tasks
 
     def _record(self, index: int, rnd: int, theta_row: Array,
@@ -286,7 +292,13 @@ class BayesOpt:
         row_of = {i: theta[j] for j, i in enumerate(indices)}
         pending: dict[int, dict[str, tuple[TaskResult, int]]] = {i: {} for i in indices}
         n_cfg = len(self.objective.config_ids)
-        for result in self.executor.run(self._tasks(indices, theta)):
+        cache = None if self.cache is None or is_search(self.state, rnd) else self.cache
+        if cache is not None:
+            cache.begin(len(indices) * n_cfg)
+        for result in self.executor.run(self._tasks(indices, theta, curves=cache is not None)):
+            if cache is not None:
+                # kept before the evaluation is logged: a logged evaluation has its curves
+                cache.store(result, np.array([row_of[i] for i in result.indices]))
             for j, i in enumerate(result.indices):
                 pending[i][result.config_id] = (result, j)
                 if len(pending[i]) == n_cfg:
@@ -295,6 +307,8 @@ class BayesOpt:
                     self.state.evaluations[i] = rec
                     self._evaluated_now += 1
                     self._report()
+        if cache is not None:
+            cache.commit()
 
     def _report(self, final: bool = False) -> None:
         """Progress after an evaluation; ``final``: the run is done (a local search that

@@ -28,6 +28,11 @@ def test_the_curve_emulator_line_counts_the_validations_its_reported_posterior_d
     line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("curve emulator:"))
     assert line.endswith("not validated (budget spent), 2 validation(s) not confirmed by the reported "
                          "posterior's spread")
+    info = _info([{"passed": True}], True)
+    info["active_learning"].update(start_runs=1, start_runs_from_calibration=59)
+    print_summary(info)
+    line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("curve emulator:"))
+    assert "(1 at the calibration's points, the calibration's curves of 59 more reused)" in line
 
 
 def test_the_table_prints_no_r_hat_for_an_importance_weighted_posterior(

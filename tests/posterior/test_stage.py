@@ -1001,6 +1001,45 @@ def test_a_confirmation_that_passes_is_the_posterior_drawn_after_the_learning(
     assert confirmed.final.spread == after.spread
 
 
+def test_the_calibration_keeps_the_curves_of_the_gps_points_not_the_local_searchs(run_dir: Path) -> None:
+    from smcbayes.surrogate.polish import is_search
+
+    ctx = load_run(run_dir)
+    state = ctx.run.evaluation_log().read()
+    cache, ids = ctx.run.calibration_cache(), ctx.problem.train_ids
+    searched = [is_search(state, r["round"]) for r in state.evaluations.values()]
+    assert any(searched) and not all(searched)
+    for rec, search in zip(state.evaluations.values(), searched, strict=True):
+        theta = np.array([[rec["params"][n] for n in ctx.space.free_names]])
+        assert cache.holds(ids, theta)[0] == (rec["status"] == "ok" and not search)
+
+
+def test_the_curve_emulators_start_takes_the_calibrations_curves_as_simulated(run_dir: Path,
+                                                                             tmp_path: Path) -> None:
+    """The GP's points as the log holds them, to the bit, and their kept curves equal to
+    those simulated afresh: a posterior that reuses them takes the path of one that does not."""
+    from smcbayes.posterior.context import logged_rows
+
+    ctx = load_run(run_dir)
+    gp, _ = load_surrogate(ctx.run.gp_path)
+    theta = logged_rows(ctx, gp.x_unit)
+    logged = {tuple(r["params"][n] for n in ctx.space.free_names)
+              for r in ctx.run.evaluation_log().read().evaluations.values()}
+    assert all(tuple(row) in logged for row in theta.tolist())
+    off = np.full((1, ctx.space.dim), 0.123)  # a point the log does not hold: mapped back
+    np.testing.assert_array_equal(logged_rows(ctx, off), ctx.space.from_unit(off))
+    ids = ctx.problem.train_ids
+    fresh = ctx.runner.simulate(theta, ids)
+    reuse = ctx.problem.runner()
+    reuse.cache = ctx.run.forward_cache("posterior", tmp_path, earlier=ctx.run.calibration_cache())
+    kept = reuse.simulate(theta, ids)
+    # the local search's best is the one GP point whose curves the calibration did not keep
+    assert reuse.forward_runs_made == len(ids)
+    for cid in ids:
+        for name in ("time_s", "force_kN", "gap_mm", "displacement_mm"):
+            np.testing.assert_array_equal(getattr(kept[cid], name), getattr(fresh[cid], name))
+
+
 def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """``emulator = "curves"``: the truth inside the 90 % intervals, the slip pair's
     correlation sign right, the runs counted and logged, and a rerun with the same settings
@@ -1028,7 +1067,10 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     assert len(info["emulator_spread"]["function_ess"]) == functions
     assert 0.0 <= info["emulator_spread"]["pooled_shift"] < 1.0
     spent = active["evaluations"] - active["start_runs"]
-    assert 0 < spent <= 120 and active["start_runs"] == active["start_points"]["calibration_gp"]
+    assert 0 < spent <= 120
+    # the calibration kept the curves of the GP's points but the local search's best
+    assert active["start_runs_from_calibration"] == active["start_points"]["calibration_gp"] - 1
+    assert active["start_runs"] == 1
     assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5
     log = [json.loads(line) for line in (folder / "posterior" / "refine.jsonl").read_text().splitlines()]
     assert len(log) == active["rounds"] and log[-1]["forward_runs"] == spent

@@ -78,6 +78,28 @@ def test_curves_kept_and_errors_only_rows_rerun_for_curves(tmp_path: Path,
         assert res.status == plain.status and res.phase.dtype == np.int8
 
 
+def test_an_earlier_stages_runs_are_read_and_never_written(tmp_path: Path, objective: _CurveObjective) -> None:
+    theta = np.array([[0.5, 1.0], [1.5, 0.2], [0.1, 1.9]])
+    plain = Runner(objective).simulate(theta, ["c1", "c2"])
+    earlier = Runner(objective, cache=ForwardCache(tmp_path / "earlier", "t"))
+    earlier.simulate(theta[:2], ["c1", "c2"])
+    earlier.cache.close()  # type: ignore[union-attr]
+    before = (tmp_path / "earlier" / "t.jsonl").read_bytes()
+    objective.rows = 0
+    cache = ForwardCache(tmp_path / "own", "t", earlier=ForwardCache(tmp_path / "earlier", "t"))
+    np.testing.assert_array_equal(cache.holds(["c1", "c2"], theta), [True, True, False])
+    assert not cache.holds(["c1", "c2", "c3"], theta[:1])[0]
+    runner = Runner(objective, cache=cache)
+    got = runner.simulate(theta, ["c1", "c2"])
+    assert objective.rows == 2 and runner.forward_runs_reused == 4  # the third row on both
+    for cid in ("c1", "c2"):
+        np.testing.assert_array_equal(got[cid].force_kN, plain[cid].force_kN)
+    cache.close()
+    assert (tmp_path / "earlier" / "t.jsonl").read_bytes() == before
+    # the new row is this stage's own
+    assert ForwardCache(tmp_path / "own", "t").holds(["c1", "c2"], theta).tolist() == [False, False, True]
+
+
 def test_cut_line_is_dropped_and_appends_stay_readable(tmp_path: Path, objective: _CurveObjective) -> None:
     theta = np.array([[0.5, 1.0], [1.5, 0.2]])
     cache = ForwardCache(tmp_path, "t")

@@ -138,9 +138,10 @@ def test_posterior_of_an_external_run_uses_the_external_command(tmp_path: Path, 
     assert info["simulator"] == "external"
     assert made == info["forward_runs_made"] > 0
     # sensitivities (2 d + 1 = 5), emulator check and bands (2 draws each) on the one
-    # configuration; the best point's run, read again for the bands' error model, is reused
-    assert made == 5 + 2 + 2
-    assert info["simulator_runs"] == made + info["forward_runs_reused"] == made + 1
+    # configuration; the best point's run is the calibration's, kept with its curves, and
+    # read again for the bands' error model
+    assert made == 5 + 2 + 2 - 1
+    assert info["simulator_runs"] == made + info["forward_runs_reused"] == made + 2
     assert json.loads((out / "posterior" / "status.json").read_text())["state"] == "complete"
 
 
