@@ -1,7 +1,7 @@
 """The forward-run cache of a stage: what a killed stage already simulated, kept on disk.
 
-Each model of a stage (the posterior's one, the diagnosis's one per set of effects) gets an
-append-only log ``<folder>/<tag>.jsonl``, ``tag`` a hash of the run's identity, the
+Each model of a stage (the calibration's, the posterior's, the diagnosis's one per set of
+effects) gets an append-only log ``<folder>/<tag>.jsonl``, ``tag`` a hash of the run's identity, the
 model and the model's code (see :meth:`smcbayes.run.directory.RunDir.forward_cache`), so a
 cache of another calibration, model or model code is never read.  A line is either a batch
 marker ``{"batch": runs}`` written before a batch's runs start, or one forward run (one
@@ -12,9 +12,11 @@ parameter row on one configuration)::
 
 ``key`` hashes the configuration id and the row's float64 bytes (free parameters, user
 units): every random step of a stage is seeded, so a rerun asks for the very same rows
-and finds them.  Curves (asked for by the few curve batches: sensitivities, emulator
-check, bands, diagnosis residuals) go to one ``.npz`` per task, written completely
-before its lines.  Lines are flushed as each task finishes and fsynced at the end of each
+and finds them.  Curves (asked for by the curve batches: the calibration's design and
+optimisation, the curve emulator's rounds, sensitivities, emulator check, bands,
+diagnosis residuals) go to one ``.npz`` per task, written completely before its lines.
+A stage's cache may also read another's of the same model (``earlier``): the posterior
+reads the calibration's, whose curves of the GP's points start the curve emulator.  Lines are flushed as each task finishes and fsynced at the end of each
 batch, so a kill loses at most the batch in flight.  Only successful rows are kept: a
 failure (possibly a lost worker) is tried again by the next run.
 """
@@ -178,12 +180,16 @@ class ForwardCache:
 
     def holds(self, config_ids: Sequence[str], theta: Array) -> NDArray[np.bool_]:
         """Per row of ``theta`` ``(P, d)``: whether its curves on every one of
-        ``config_ids`` are kept here (or in the ``earlier`` cache)."""
-        rows = np.atleast_2d(theta)
-        found = np.ones(rows.shape[0], dtype=bool)
-        for cid in config_ids:
-            found &= np.array([r is not None for r in self.lookup(cid, rows, curves=True)], dtype=bool)
-        return found
+        ``config_ids`` are kept here (or in the ``earlier`` cache), without reading them (a
+        curves file is complete before its lines are written)."""
+        return np.array([all(self._kept(row_key(cid, row)) for cid in config_ids)
+                         for row in np.atleast_2d(theta)], dtype=bool)
+
+    def _kept(self, key: str) -> bool:
+        rec = self._records.get(key)
+        if rec is not None and rec.get("z") and (self.folder / rec["z"]).is_file():
+            return True
+        return self.earlier is not None and self.earlier._kept(key)
 
     def begin(self, runs: int) -> None:
         """Mark the start of a batch of ``runs`` forward runs."""

@@ -98,6 +98,9 @@ def test_an_earlier_stages_runs_are_read_and_never_written(tmp_path: Path, objec
     assert (tmp_path / "earlier" / "t.jsonl").read_bytes() == before
     # the new row is this stage's own
     assert ForwardCache(tmp_path / "own", "t").holds(["c1", "c2"], theta).tolist() == [False, False, True]
+    # a row whose curves file is gone is not held
+    next((tmp_path / "own").glob("t-*.npz")).unlink()
+    assert not ForwardCache(tmp_path / "own", "t").holds(["c1", "c2"], theta[2:]).any()
 
 
 def test_cut_line_is_dropped_and_appends_stay_readable(tmp_path: Path, objective: _CurveObjective) -> None:
