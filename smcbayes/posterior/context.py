@@ -10,8 +10,9 @@ counted.
 
 from __future__ import annotations
 
+import functools
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,7 +22,9 @@ from numpy.typing import NDArray
 
 from smcbayes.config import ProjectConfig
 from smcbayes.forward.parameters import ParameterSpace
+from smcbayes.forward.result import SimulationResult
 from smcbayes.run import RunDir
+from smcbayes.run.cache import ForwardCache
 from smcbayes.simulation.executors.base import Executor
 from smcbayes.simulation.problem import Problem
 from smcbayes.simulation.runner import Runner
@@ -68,6 +71,11 @@ class RunContext:
     def run_dir(self) -> Path:
         """The run directory's path."""
         return self.run.root
+
+    @functools.cached_property
+    def calibration_runs(self) -> ForwardCache:
+        """The calibration's forward-run cache, read only: the curves of the GP's points."""
+        return self.run.calibration_cache(read_only=True)
 
     @property
     def space(self) -> ParameterSpace:
@@ -170,7 +178,8 @@ def logged_rows(ctx: RunContext, x_unit: Array) -> Array:
     x_unit = np.atleast_2d(np.asarray(x_unit, dtype=float))
     theta = ctx.space.from_unit(x_unit)
     names = ctx.space.free_names
-    recs = [r for r in ctx.run.evaluation_log().read().evaluations.values() if isinstance(r.get("params"), dict)]
+    recs = [r for r in ctx.run.evaluation_log().read().evaluations.values()
+            if isinstance(r.get("params"), dict)]
     if not recs or not x_unit.size:
         return theta
     logged = np.array([[r["params"][n] for n in names] for r in recs], dtype=float)
@@ -181,3 +190,21 @@ def logged_rows(ctx: RunContext, x_unit: Array) -> Array:
         if gap[j] <= LOGGED_MATCH:
             theta[k] = logged[j]
     return theta
+
+
+def start_curves(ctx: RunContext, x_unit: Array, ids: Sequence[str]
+                 ) -> tuple[dict[str, SimulationResult], int, int]:
+    """The curves of the GP's points ``x_unit`` ``(N, d)`` (unit cube) on ``ids``, run at
+    their logged rows (:func:`logged_rows`): the calibration's where it kept them
+    (:attr:`RunContext.calibration_runs`), else simulated.
+
+    Returns:
+        The curves (``N`` rows per configuration), how many of the points the calibration
+        kept, and how many the stage ran for them: the others but the best point, which
+        the sensitivities ran (and count) at the same row before.
+    """
+    theta = logged_rows(ctx, x_unit)
+    kept = ctx.calibration_runs.holds(ids, theta)
+    best = np.all(theta == ctx.best_theta, axis=1)
+    results = ctx.runner.simulate(theta, ids)
+    return results, int(np.count_nonzero(kept)), int(np.count_nonzero(~kept & ~best))

@@ -2,8 +2,8 @@
 the force-curve emulator of :mod:`smcbayes.posterior.curves`, confirmed by its reported
 posterior.
 
-Starts from the calibration GP's points (simulated again for their curves, through the
-stage's forward cache), then runs rounds of ``round_runs`` forward runs, each chosen by
+Starts from the calibration GP's points (their curves the calibration's, or simulated where
+it did not keep them), then runs rounds of ``round_runs`` forward runs, each chosen by
 :func:`~smcbayes.posterior.curve_round.next_round`: mostly draws of the emulated posterior
 where the emulator's GP sample functions disagree, the rest exploring.  Two measures decide
 when to stop, in each of the last :data:`VALIDATED_ROUNDS` rounds: the emulator's error at
@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 from smcbayes.config import PosteriorSpec
 from smcbayes.config.settings import ROUND_RUNS_CURVES
 from smcbayes.errors import SurrogateError
-from smcbayes.posterior.context import RunContext, logged_rows
+from smcbayes.posterior.context import RunContext, start_curves
 from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample
 from smcbayes.posterior.curve_round import Round, next_round
 from smcbayes.posterior.curve_sample import (
@@ -187,7 +187,8 @@ class _Progress:
                 "last_errors_nats": last, "last_quantile_shifts": self.shifts[-VALIDATED_ROUNDS:],
                 "last_spreads": [_finite(v) for v in self.spreads[-VALIDATED_ROUNDS:]],
                 "drift": self.drifts.get(self.rounds),
-                "drifts": [{"rounds": k, "drift": v} for k, v in sorted(self.drifts.items()) if v is not None],
+                "drifts": [{"rounds": k, "drift": v} for k, v in sorted(self.drifts.items())
+                           if v is not None],
                 "validated_rounds": VALIDATED_ROUNDS,
                 "bounds": {"quantile_shift": QUANTILE_SHIFT, "drift": QUANTILE_SHIFT, "spread": SPREAD_MAX},
                 "confirmations": self.confirmations, "validated_at_budget_end": self.late}
@@ -455,8 +456,8 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
     Returns:
         The emulator, the active learning's record (``enabled``, ``kind``, ``evaluations``
         (the starting points' runs included), ``start_runs`` (the starting points the stage
-        simulated), ``start_runs_from_calibration`` (those whose curves the calibration
-        kept), ``converged``,
+        ran, :func:`~smcbayes.posterior.context.start_curves`), ``start_runs_from_calibration``
+        (those whose curves the calibration kept), ``converged``,
         ``error_nats``, ``rounds``, ``confirmations`` (their ``forward_runs`` counted as
         ``evaluations``)), the emulator's data
         ``(x_unit (N, d), log_loss (N,))`` and the reported posterior (``None`` with the
@@ -473,13 +474,11 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
         return features.of(ctx.runner.simulate(space.from_unit(u), features.ids))
 
     start = np.asarray(start, dtype=float)
-    # the calibration's own rows: its kept curves of them are found by their exact values
-    theta0 = logged_rows(ctx, start)
-    reused = int(np.count_nonzero(ctx.run.calibration_cache().holds(features.ids, theta0)))
-    y0, ok = features.of(ctx.runner.simulate(theta0, features.ids))
+    curves, reused, runs = start_curves(ctx, start, features.ids)
+    y0, ok = features.of(curves)
     if np.count_nonzero(ok) < space.dim + 2:
         raise SurrogateError(f"only {np.count_nonzero(ok)} of the calibration's {len(start)} points "
-                             "simulated successfully again; the curve emulator needs at least "
+                             "have curves (kept or simulated); the curve emulator needs at least "
                              f"{space.dim + 2} (the forward runs' failures are in the calibration's "
                              "evaluations.jsonl)")
     log_path = out_dir / "refine.jsonl"
@@ -499,7 +498,6 @@ def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: Poste
     learned = learn(simulate, features, start[ok], y0[ok], n_eff, int(settings.refine),
                     settings.refine_tolerance_nats, rng, log, settings.walkers, settings.correction,
                     final if reported and not ctx.noise_free else None, int(settings.round_runs))
-    runs = int(start.shape[0]) - reused
     active = {"enabled": True, "kind": "curves", **learned.record, "start_runs": runs,
               "start_runs_from_calibration": reused,
               "tolerance_nats": float(settings.refine_tolerance_nats),

@@ -110,8 +110,8 @@ def learning_plot(rounds: Sequence[Mapping[str, Any]], active: Mapping[str, Any]
 
 
 def learning_figure(rounds: Sequence[Mapping[str, Any]], active: Mapping[str, Any]) -> Figure:
-    """Three panels against the stage's forward runs (the calibration's points simulated
-    again included), each measure beside the bound the stop asks of the last rounds: the
+    """Three panels against the active learning's forward runs (those of its starting
+    points included), each measure beside the bound the stop asks of the last rounds: the
     emulator's error at fresh posterior draws (nats, log scale); the posterior's move at
     each round and its drift over the last rounds (share of a parameter's range); the
     spread of GP sample functions' posteriors at each round, its running mean over the
@@ -133,7 +133,8 @@ def learning_figure(rounds: Sequence[Mapping[str, Any]], active: Mapping[str, An
     at_round = {int(r["round"]): start + r["forward_runs"] for r in rounds}
     fig, axes = subplots(3, 1, figsize=(7.0, 7.5), sharex=True)
     err, move, spread = axes
-    err.plot(x, _values(rounds, "error_nats"), "o-", color="tab:blue", ms=3, label="error at fresh posterior draws")
+    err.plot(x, _values(rounds, "error_nats"), "o-", color="tab:blue", ms=3,
+             label="error at fresh posterior draws")
     err.set_yscale("log")
     # plain numbers (a log axis within a decade labels its ticks as 4 x 10^0), and of the
     # ticks between powers of ten only 2, 3 and 5, which do not crowd
@@ -144,12 +145,12 @@ def learning_figure(rounds: Sequence[Mapping[str, Any]], active: Mapping[str, An
     move.plot(x, _values(rounds, "quantile_shift"), "o-", color="tab:blue", ms=3, label="move over the round")
     drifts = [d for d in active.get("drifts") or [] if d.get("drift") is not None and d["rounds"] in at_round]
     if drifts:
-        move.plot([at_round[d["rounds"]] for d in drifts], [d["drift"] for d in drifts], "s", color="tab:purple",
-                  ms=5, label=f"drift over the last {active.get('validated_rounds', 3)} rounds")
+        move.plot([at_round[d["rounds"]] for d in drifts], [d["drift"] for d in drifts], "s",
+                  color="tab:purple", ms=5, label=f"drift over the last {active.get('validated_rounds', 3)} rounds")
     _bound(move, bounds.get("quantile_shift"), "")
     move.set_ylabel("quantile move (share of range)")
     _spread_panel(spread, x, rounds, active)
-    spread.set_xlabel("forward runs of the stage")
+    spread.set_xlabel("forward runs of the active learning (its starting points' included)")
     for ax in axes:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="best")

@@ -316,7 +316,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     settings, out_dir = _begin(ctx, settings if settings is not None else ctx.problem.project.posterior)
     # every step is seeded: a rerun after a kill asks for the same rows and finds them here
     # and the calibration's kept curves of the GP's points, where the curve emulator starts
-    ctx.runner.cache = cache = ctx.run.forward_cache("posterior", earlier=ctx.run.calibration_cache())
+    ctx.runner.cache = cache = ctx.run.forward_cache("posterior", earlier=ctx.calibration_runs)
     rng = np.random.default_rng(settings.seed)
     calibration_gp, _ = load_surrogate(ctx.run.gp_path)
     # torch and BLAS on one thread: two made the GP fits and the emulators slower (gp_session)
@@ -347,7 +347,7 @@ def run_posterior(run_dir: Path | RunDir, settings: PosteriorSettings | None = N
     info["active_learning"] = {**emulated.active, "start_points": emulated.start_points}
     info["emulator_threads"] = threads
     # the best point's run is the calibration's where it kept its curves
-    kept = int(ctx.run.calibration_cache().holds(ctx.problem.train_ids, ctx.best_theta)[0])
+    kept = int(ctx.calibration_runs.holds(ctx.problem.train_ids, ctx.best_theta)[0])
     _count_runs(info["forward_evaluations"], emulated.active["evaluations"], 2 * ctx.space.dim + 1 - kept)
     info["reliability"] = assess(info, ctx.space, ctx.summary.get("best_loss_kN2"), ctx.noise_free,
                                  cheap=ctx.problem.fast)

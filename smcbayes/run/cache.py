@@ -1,11 +1,12 @@
 """The forward-run cache of a stage: what a killed stage already simulated, kept on disk.
 
 Each model of a stage (the calibration's, the posterior's, the diagnosis's one per set of
-effects) gets an append-only log ``<folder>/<tag>.jsonl``, ``tag`` a hash of the run's identity, the
-model and the model's code (see :meth:`smcbayes.run.directory.RunDir.forward_cache`), so a
-cache of another calibration, model or model code is never read.  A line is either a batch
-marker ``{"batch": runs}`` written before a batch's runs start, or one forward run (one
-parameter row on one configuration)::
+effects) gets an append-only log ``<folder>/<tag>.jsonl``, ``tag`` a hash of the run's
+identity, the model and the model's code (see
+:meth:`smcbayes.run.directory.RunDir.forward_cache`), so a cache of another calibration,
+model or model code is never read.  A line is either a batch marker ``{"batch": runs}``
+written before a batch's runs start, or one forward run (one parameter row on one
+configuration)::
 
     {"k": key, "c": config_id, "e": error, "f": force_mse_kN2, "d": displacement_mse_mm2,
      "s": status, "z": curves file or null, "i": row in it}
@@ -15,10 +16,11 @@ units): every random step of a stage is seeded, so a rerun asks for the very sam
 and finds them.  Curves (asked for by the curve batches: the calibration's design and
 optimisation, the curve emulator's rounds, sensitivities, emulator check, bands,
 diagnosis residuals) go to one ``.npz`` per task, written completely before its lines.
-A stage's cache may also read another's of the same model (``earlier``): the posterior
-reads the calibration's, whose curves of the GP's points start the curve emulator.  Lines are flushed as each task finishes and fsynced at the end of each
-batch, so a kill loses at most the batch in flight.  Only successful rows are kept: a
-failure (possibly a lost worker) is tried again by the next run.
+Lines are flushed as each task finishes and fsynced at the end of each batch, so a kill
+loses at most the batch in flight.  Only successful rows are kept: a failure (possibly a
+lost worker) is tried again by the next run.  A stage's cache may also read another's of
+the same model, opened read only (``earlier``): the posterior reads the calibration's,
+whose curves of the GP's points start the curve emulator.
 """
 
 from __future__ import annotations
@@ -113,15 +115,23 @@ class ForwardCache:
     Args:
         folder: the stage's cache folder (created on the first write).
         tag: the identity hash of the run and model.
-        earlier: another stage's cache of the same model, read where this one lacks a run
-            and never written (the posterior reads the calibration's curves of the GP's
-            points there).
+        earlier: another stage's cache of the same model (the same tag), read where this
+            one lacks a run (the posterior reads the calibration's curves of the GP's
+            points there); open it ``read_only``.
+        read_only: never write, not even to cut off a line a kill left short (read up to it).
+
+    Raises:
+        ValueError: ``earlier`` belongs to another model.
     """
 
-    def __init__(self, folder: Path, tag: str, earlier: ForwardCache | None = None) -> None:
+    def __init__(self, folder: Path, tag: str, earlier: ForwardCache | None = None,
+                 read_only: bool = False) -> None:
+        if earlier is not None and earlier.tag != tag:
+            raise ValueError(f"the earlier cache {earlier.path} holds runs of another model than {tag}")
         self.folder = Path(folder)
         self.tag = tag
         self.earlier = earlier
+        self.read_only = read_only
         self.path = self.folder / f"{tag}.jsonl"
         self._records: dict[str, dict[str, Any]] = {}
         self._npz: dict[str, dict[str, Any]] = {}
@@ -140,7 +150,8 @@ class ForwardCache:
             return
         raw = self.path.read_bytes()
         end = raw.rfind(b"\n") + 1
-        if end < len(raw):  # a line cut short by a kill: drop it so appends start clean
+        # a line cut short by a kill: dropped so that appends start clean
+        if end < len(raw) and not self.read_only:
             with self.path.open("r+b") as fh:
                 fh.truncate(end)
         for line in raw[:end].decode("utf-8", errors="replace").splitlines():
@@ -181,7 +192,9 @@ class ForwardCache:
     def holds(self, config_ids: Sequence[str], theta: Array) -> NDArray[np.bool_]:
         """Per row of ``theta`` ``(P, d)``: whether its curves on every one of
         ``config_ids`` are kept here (or in the ``earlier`` cache), without reading them (a
-        curves file is complete before its lines are written)."""
+        curves file is complete before its lines are written; one damaged since is held
+        here, and :meth:`lookup` then finds nothing).  A row kept on some of them only is
+        not held, though :meth:`lookup` finds those."""
         return np.array([all(self._kept(row_key(cid, row)) for cid in config_ids)
                          for row in np.atleast_2d(theta)], dtype=bool)
 
@@ -231,6 +244,8 @@ class ForwardCache:
 
     # -- files ---------------------------------------------------------------------------
     def _write(self, recs: list[dict[str, Any]]) -> None:
+        if self.read_only:
+            raise ValueError(f"{self.path}: opened read only")
         if self._fh is None:
             self.folder.mkdir(parents=True, exist_ok=True)
             self._fh = self.path.open("a", encoding="utf-8")
@@ -239,6 +254,8 @@ class ForwardCache:
         self._fh.flush()
 
     def _write_curves(self, name: str, curves: SimulationResult) -> None:
+        if self.read_only:
+            raise ValueError(f"{self.path}: opened read only")
         self.folder.mkdir(parents=True, exist_ok=True)
         tmp = self.folder / f".{name}.tmp"
         arrays = {k: getattr(curves, k) for k in _CURVES}

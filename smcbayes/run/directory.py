@@ -315,10 +315,13 @@ class RunDir:
         tag = cache_tag({k: ident.get(k) for k in _MODEL_KEYS}, model)
         return ForwardCache(self.stage_dir(stage, folder) / "forward_cache", tag, earlier)
 
-    def calibration_cache(self) -> ForwardCache:
+    def calibration_cache(self, read_only: bool = False) -> ForwardCache:
         """The calibration's forward-run cache (``RUN_DIR/forward_cache/``): the curves of
-        the design's and the optimisation's evaluations, the GP's training points."""
-        return self.forward_cache("calibration", self.root)
+        the design's and the optimisation's evaluations, the GP's training points; a later
+        stage opens it ``read_only``."""
+        ident = self.identity().to_json()
+        tag = cache_tag({k: ident.get(k) for k in _MODEL_KEYS})
+        return ForwardCache(self.root / "forward_cache", tag, read_only=read_only)
 
     def stage_summary(self, stage: str, folder: Path | None = None) -> dict[str, Any] | None:
         """A complete stage's ``summary.json``, or ``None``."""

@@ -57,9 +57,9 @@ def test_bands_plot_with_and_without_measurements(tmp_path: Path) -> None:
 def learning_record() -> tuple[list[dict], dict]:
     """Four rounds of 40 runs after 60 starting runs, one error and one spread not measured
     (``None``), one drift, a failed and a passed confirmation."""
-    rounds = [{"round": k + 1, "forward_runs": 40 * (k + 1), "error_nats": e, "quantile_shift": q, "spread": s}
-              for k, (e, q, s) in enumerate([(3.0, None, 0.2), (None, 0.08, 0.12), (0.8, 0.03, None),
-                                             (0.5, 0.02, 0.07)])]
+    measures = [(3.0, None, 0.2), (None, 0.08, 0.12), (0.8, 0.03, None), (0.5, 0.02, 0.07)]
+    rounds = [{"round": k + 1, "forward_runs": 40 * (k + 1), "error_nats": e, "quantile_shift": q,
+               "spread": s} for k, (e, q, s) in enumerate(measures)]
     active = {"start_runs": 60, "tolerance_nats": 1.0, "validated_rounds": 3, "evaluations": 220,
               "converged": True, "bounds": {"quantile_shift": 0.05, "drift": 0.05, "spread": 0.1},
               "drifts": [{"rounds": 4, "drift": 0.04}],

@@ -1031,13 +1031,30 @@ def test_the_curve_emulators_start_takes_the_calibrations_curves_as_simulated(ru
     ids = ctx.problem.train_ids
     fresh = ctx.runner.simulate(theta, ids)
     reuse = ctx.problem.runner()
-    reuse.cache = ctx.run.forward_cache("posterior", tmp_path, earlier=ctx.run.calibration_cache())
+    reuse.cache = ctx.run.forward_cache("posterior", tmp_path, earlier=ctx.calibration_runs)
     kept = reuse.simulate(theta, ids)
     # the local search's best is the one GP point whose curves the calibration did not keep
     assert reuse.forward_runs_made == len(ids)
     for cid in ids:
         for name in ("time_s", "force_kN", "gap_mm", "displacement_mm"):
             np.testing.assert_array_equal(getattr(kept[cid], name), getattr(fresh[cid], name))
+
+
+def _gp_points_of_the_local_search(run: Path) -> tuple[int, bool]:
+    """How many of the calibration GP's points are evaluations of a local search, and whether
+    the best point is one (every evaluation of the calibration succeeded)."""
+    from smcbayes.surrogate.polish import is_search
+
+    ctx = load_run(run)
+    state = ctx.run.evaluation_log().read()
+    assert all(r["status"] == "ok" for r in state.evaluations.values())
+    names = ctx.space.free_names
+    gp, _ = load_surrogate(ctx.run.gp_path)
+    logged = [(ctx.space.to_unit(np.array([[r["params"][n] for n in names]]))[0], is_search(state, r["round"]),
+               [r["params"][n] for n in names]) for r in state.evaluations.values()]
+    searched = sum(next(s for u, s, _ in logged if np.max(np.abs(u - x)) <= 1e-9) for x in gp.x_unit)
+    best = ctx.best_theta[0].tolist()
+    return searched, any(s and row == best for _, s, row in logged)
 
 
 def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -1068,10 +1085,13 @@ def test_the_curve_emulator_path(run_dir: Path, tmp_path: Path, monkeypatch: pyt
     assert 0.0 <= info["emulator_spread"]["pooled_shift"] < 1.0
     spent = active["evaluations"] - active["start_runs"]
     assert 0 < spent <= 120
-    # the calibration kept the curves of the GP's points but the local search's best
-    assert active["start_runs_from_calibration"] == active["start_points"]["calibration_gp"] - 1
-    assert active["start_runs"] == 1
-    assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5
+    # the calibration kept the curves of the GP's points but the local searches' bests; the
+    # best point's run is the sensitivities' (2 d + 1 rows), counted there only
+    searched, best_searched = _gp_points_of_the_local_search(folder)
+    assert active["start_runs_from_calibration"] == active["start_points"]["calibration_gp"] - searched
+    assert active["start_runs"] == searched - best_searched
+    assert info["forward_evaluations"]["residual_budget"] == 5 - (not best_searched)
+    assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5 - (not best_searched)
     log = [json.loads(line) for line in (folder / "posterior" / "refine.jsonl").read_text().splitlines()]
     assert len(log) == active["rounds"] and log[-1]["forward_runs"] == spent
     # a quarter of each round's 40 runs explore, the rest are draws of the emulated posterior

@@ -248,7 +248,8 @@ def test_the_active_learnings_figure_is_shown_where_the_stage_drew_it(tmp_path: 
     assert "Active learning round by round" not in posterior_report_text(tmp_path / "without", {})
     run = fake_run(tmp_path)
     rounds = [{"round": 1, "forward_runs": 40, "error_nats": 2.0, "quantile_shift": None, "spread": 0.2}]
-    learning_plot(rounds, {"start_runs": 60, "tolerance_nats": 1.0}, run / "posterior" / "figures" / "learning")
+    learning_plot(rounds, {"start_runs": 60, "tolerance_nats": 1.0},
+                  run / "posterior" / "figures" / "learning")
     (run / "posterior" / "summary.json").write_text(json.dumps({"parameters": []}), encoding="utf-8")
     write_report(run, formats=("md",))
     text = next(run.glob("report*.md")).read_text(encoding="utf-8")

@@ -78,7 +78,8 @@ def test_curves_kept_and_errors_only_rows_rerun_for_curves(tmp_path: Path,
         assert res.status == plain.status and res.phase.dtype == np.int8
 
 
-def test_an_earlier_stages_runs_are_read_and_never_written(tmp_path: Path, objective: _CurveObjective) -> None:
+def test_an_earlier_stages_runs_are_read_and_never_written(tmp_path: Path,
+                                                           objective: _CurveObjective) -> None:
     theta = np.array([[0.5, 1.0], [1.5, 0.2], [0.1, 1.9]])
     plain = Runner(objective).simulate(theta, ["c1", "c2"])
     earlier = Runner(objective, cache=ForwardCache(tmp_path / "earlier", "t"))
@@ -101,6 +102,24 @@ def test_an_earlier_stages_runs_are_read_and_never_written(tmp_path: Path, objec
     # a row whose curves file is gone is not held
     next((tmp_path / "own").glob("t-*.npz")).unlink()
     assert not ForwardCache(tmp_path / "own", "t").holds(["c1", "c2"], theta[2:]).any()
+
+
+def test_an_earlier_cache_is_read_only_and_of_the_same_model(tmp_path: Path,
+                                                            objective: _CurveObjective) -> None:
+    theta = np.array([[0.5, 1.0], [1.5, 0.2]])
+    first = Runner(objective, cache=ForwardCache(tmp_path / "earlier", "t"))
+    first.simulate(theta, ["c1"])
+    first.cache.close()  # type: ignore[union-attr]
+    log = tmp_path / "earlier" / "t.jsonl"
+    with log.open("ab") as fh:  # a line a kill cut short
+        fh.write(b'{"k": "cut')
+    damaged = log.read_bytes()
+    earlier = ForwardCache(tmp_path / "earlier", "t", read_only=True)
+    assert log.read_bytes() == damaged and earlier.holds(["c1"], theta).all()
+    with pytest.raises(ValueError, match="read only"):
+        earlier.begin(1)
+    with pytest.raises(ValueError, match="another model"):
+        ForwardCache(tmp_path / "own", "u", earlier=earlier)
 
 
 def test_cut_line_is_dropped_and_appends_stay_readable(tmp_path: Path, objective: _CurveObjective) -> None:
