@@ -145,8 +145,9 @@ def learning_figure(rounds: Sequence[Mapping[str, Any]], active: Mapping[str, An
     move.plot(x, _values(rounds, "quantile_shift"), "o-", color="tab:blue", ms=3, label="move over the round")
     drifts = [d for d in active.get("drifts") or [] if d.get("drift") is not None and d["rounds"] in at_round]
     if drifts:
+        over = active.get("validated_rounds", 3)
         move.plot([at_round[d["rounds"]] for d in drifts], [d["drift"] for d in drifts], "s",
-                  color="tab:purple", ms=5, label=f"drift over the last {active.get('validated_rounds', 3)} rounds")
+                  color="tab:purple", ms=5, label=f"drift over the last {over} rounds")
     _bound(move, bounds.get("quantile_shift"), "")
     move.set_ylabel("quantile move (share of range)")
     _spread_panel(spread, x, rounds, active)

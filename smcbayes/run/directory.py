@@ -303,25 +303,23 @@ class RunDir:
         # a stage folder written before status files existed
         return "complete" if isinstance(summary, dict) else "interrupted"
 
-    def forward_cache(self, stage: str, folder: Path | None = None,
-                      model: Sequence[str] = (), earlier: ForwardCache | None = None) -> ForwardCache:
+    def forward_cache(self, stage: str, folder: Path | None = None, model: Sequence[str] = (),
+                      earlier: ForwardCache | None = None, read_only: bool = False) -> ForwardCache:
         """The forward-run cache of a stage's model (``<stage folder>/forward_cache/``), tied
         to the run's identity (project, effects, overrides, fidelity, external simulator),
         the model's extra effects ``model``, the package version and the model's source
         (:func:`~smcbayes.run.cache.model_source`), so that runs of another calibration,
         model or model code are never reused; it also reads the runs of the ``earlier``
-        cache (another stage's, of the same model)."""
+        cache (another stage's, of the same model), and writes nothing if ``read_only``."""
         ident = self.identity().to_json()
         tag = cache_tag({k: ident.get(k) for k in _MODEL_KEYS}, model)
-        return ForwardCache(self.stage_dir(stage, folder) / "forward_cache", tag, earlier)
+        return ForwardCache(self.stage_dir(stage, folder) / "forward_cache", tag, earlier, read_only)
 
     def calibration_cache(self, read_only: bool = False) -> ForwardCache:
         """The calibration's forward-run cache (``RUN_DIR/forward_cache/``): the curves of
         the design's and the optimisation's evaluations, the GP's training points; a later
         stage opens it ``read_only``."""
-        ident = self.identity().to_json()
-        tag = cache_tag({k: ident.get(k) for k in _MODEL_KEYS})
-        return ForwardCache(self.root / "forward_cache", tag, read_only=read_only)
+        return self.forward_cache("calibration", self.root, read_only=read_only)
 
     def stage_summary(self, stage: str, folder: Path | None = None) -> dict[str, Any] | None:
         """A complete stage's ``summary.json``, or ``None``."""

@@ -1050,8 +1050,9 @@ def _gp_points_of_the_local_search(run: Path) -> tuple[int, bool]:
     assert all(r["status"] == "ok" for r in state.evaluations.values())
     names = ctx.space.free_names
     gp, _ = load_surrogate(ctx.run.gp_path)
-    logged = [(ctx.space.to_unit(np.array([[r["params"][n] for n in names]]))[0], is_search(state, r["round"]),
-               [r["params"][n] for n in names]) for r in state.evaluations.values()]
+    rows = [[r["params"][n] for n in names] for r in state.evaluations.values()]
+    logged = [(ctx.space.to_unit(np.array([row]))[0], is_search(state, r["round"]), row)
+              for row, r in zip(rows, state.evaluations.values(), strict=True)]
     searched = sum(next(s for u, s, _ in logged if np.max(np.abs(u - x)) <= 1e-9) for x in gp.x_unit)
     best = ctx.best_theta[0].tolist()
     return searched, any(s and row == best for _, s, row in logged)
