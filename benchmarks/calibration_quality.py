@@ -144,8 +144,10 @@ def part_five(seeds: int, budget: int = 60) -> dict:
         for name, fn in (("random", run_random), ("de", run_de)):
             start = time.perf_counter()
             loss, params = fn(problem, budget, seed)
-            out[name].append((loss, float(unit_error(problem, params, truth).max()), time.perf_counter() - start))
-        print(f"five seed {seed}: " + ", ".join(f"{k} loss {v[-1][0]:.4g} err {v[-1][1]:.3f}" for k, v in out.items()))
+            out[name].append((loss, float(unit_error(problem, params, truth).max()),
+                              time.perf_counter() - start))
+        print(f"five seed {seed}: " + ", ".join(f"{k} loss {v[-1][0]:.4g} err {v[-1][1]:.3f}"
+                                                for k, v in out.items()))
     table = {}
     for name, rows in out.items():
         arr = np.array(rows)

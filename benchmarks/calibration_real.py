@@ -6,8 +6,9 @@ Runs `smcbayes calibrate` (library path: same code as the command) on configs/th
 (force compared up to the incompressible flow-stop time, what the thesis minimised; its
 best was 18384 kN^2, a sum over the 9 configurations), with the compressibility effect,
 and with compressibility + press_compliance (the recommended set); 30 Latin hypercube + 60
-BO evaluations each, then the calibration's default local search on the 1-D model.  Reports per-configuration force RMSE (kN) over the full closing, the
-loss as calibrated, the clipped loss at the best point (mean and sum over configurations),
+BO evaluations each, then the calibration's default local search on the 1-D model.  Reports
+per-configuration force RMSE (kN) over the full closing, the loss as calibrated, the
+clipped loss at the best point (mean and sum over configurations),
 the parameters on a search bound, and wall time.
 
 With compressibility the bulk viscosity is fixed at 0 (calibrated, it goes to 0); the
@@ -74,7 +75,8 @@ VARIANTS = {
     "compressibility": (["compressibility"], {"rho_solid_g_cm3": 1.5, "bulk_viscosity_MPa_s": 0.0}, "none"),
     "compressibility+compliance": (["compressibility", "press_compliance"], {"bulk_viscosity_MPa_s": 0.0},
                                    "none"),
-    "compressibility+heating": (["compressibility", "heating"], {"rho_solid_g_cm3": 1.5, "bulk_viscosity_MPa_s": 0.0},
+    "compressibility+heating": (["compressibility", "heating"],
+                                {"rho_solid_g_cm3": 1.5, "bulk_viscosity_MPa_s": 0.0},
                                 "none"),
     "compressibility+heating+compliance": (["compressibility", "heating", "press_compliance"],
                                            {"bulk_viscosity_MPa_s": 0.0}, "none"),
@@ -97,7 +99,8 @@ def contact_scan(problem, effects: list[str], fixed: dict, best: dict, ids: list
     for cid in ids:
         rows = []
         for h in np.round(np.arange(7.4, 8.81, 0.1), 2):
-            confs = [c.model_copy(update={"charge": c.charge.model_copy(update={"stack_height_mm": float(h)})})
+            confs = [c.model_copy(update={"charge": c.charge.model_copy(
+                         update={"stack_height_mm": float(h)})})
                      if c.id == cid else c for c in problem.project.configuration]
             model = ForwardModel(problem.project.model_copy(update={"configuration": confs}), effects, fixed)
             obj = SimulatorObjective(model, problem.objective.dataset, [cid],
@@ -145,7 +148,8 @@ def evolve(problem, generations: int) -> dict:
         u = np.clip(np.atleast_2d(u), 0.0, 1.0)
         count[0] += u.shape[0]
         theta = space.from_unit(u)
-        e = np.mean([obj.evaluate(Task(tuple(range(len(theta))), theta, c)).error for c in problem.train_ids], axis=0)
+        e = np.mean([obj.evaluate(Task(tuple(range(len(theta))), theta, c)).error
+                     for c in problem.train_ids], axis=0)
         return np.where(np.isfinite(e), e, 1e9)
 
     de = differential_evolution(lambda x: loss(x.T), [(0.0, 1.0)] * space.dim, vectorized=True, popsize=12,
@@ -156,7 +160,8 @@ def evolve(problem, generations: int) -> dict:
     theta = space.from_unit(u[None, :])[0]
     best = dict(zip(space.free_names, theta.tolist(), strict=True))
     on = [n for n, x in zip(space.free_names, u, strict=True) if x <= 0.01 or x >= 0.99]
-    return {"best_params": {n: {"value": v} for n, v in best.items()}, "best_loss_kN2": float(min(nm.fun, de.fun)),
+    return {"best_params": {n: {"value": v} for n, v in best.items()},
+            "best_loss_kN2": float(min(nm.fun, de.fun)),
             "evaluations": count[0], "failures": 0, "seconds_evaluations": float("nan"),
             "on_bounds": [{"advice": f"{n} on a search bound"} for n in on]}
 
@@ -168,7 +173,8 @@ def run_variant(name: str, run_dir: Path, budget: int, init: int, holdout: str |
     # the contact as this benchmark's options say, not the project's (which takes it from
     # the end state): profiled within +-offset_mm, or nominal
     project = project.model_copy(update={"loss": project.loss.model_copy(
-        update={"clip": clip, "contact_offset_mm": offset_mm, "contact": "profile" if offset_mm > 0 else "nominal"})})
+        update={"clip": clip, "contact_offset_mm": offset_mm,
+                "contact": "profile" if offset_mm > 0 else "nominal"})})
     if holdout is not None:
         left_out = HOLDOUTS[holdout]
         project = project.model_copy(update={"configuration": [
@@ -180,7 +186,8 @@ def run_variant(name: str, run_dir: Path, budget: int, init: int, holdout: str |
                                         settings.model_dump(mode="json", exclude={"truth"})), resume=False)
     problem = build_problem(project, run_dir, effects, fixed)
     start = time.perf_counter()
-    info = evolve(problem, de) if de else calibrate(problem, settings, run_dir, LocalExecutor(1), progress=None)
+    info = evolve(problem, de) if de else calibrate(problem, settings, run_dir,
+                                                    LocalExecutor(1), progress=None)
     wall = time.perf_counter() - start
     space = problem.model.space
     best = {k: v["value"] for k, v in info["best_params"].items()}
@@ -195,7 +202,8 @@ def run_variant(name: str, run_dir: Path, budget: int, init: int, holdout: str |
         rmse = {c: report["rmse_own_kN"].get(c, report["rmse_unseen_kN"][c]) for c in with_data}
     held = [c for c in with_data if c not in problem.train_ids]
     out = {"optimiser": f"differential evolution ({de} generations)" if de else "BO",
-           "effects": effects, "fixed": fixed, "loss_clip": clip, "holdout": holdout, "train_ids": problem.train_ids,
+           "effects": effects, "fixed": fixed, "loss_clip": clip, "holdout": holdout,
+           "train_ids": problem.train_ids,
            "held_out_ids": held, "free": space.free_names, "best_params": best,
            "best_loss_kN2": info["best_loss_kN2"], "clipped_loss_kN2": clipped,
            "clipped_loss_sum_kN2": float(sum(clipped_errs.values())),

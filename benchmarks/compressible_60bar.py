@@ -122,7 +122,8 @@ def main() -> int:
           f"{'met' if ok else 'MISSED'}; incompressible fill gap {case.gap_full * 1e3:.2f} mm)")
     print(f"  time to the limit: {t_limit:.2f} s (measured {meas_limit_s:.2f} s; "
           f"incompressible model {base.switch_time_s[0]:.2f} s)")
-    print(f"  RMSE of the force over the measured closing: {rmse:.1f} kN (incompressible model {rmse_base:.1f} kN)")
+    print(f"  RMSE of the force over the measured closing: {rmse:.1f} kN "
+          f"(incompressible model {rmse_base:.1f} kN)")
     print(f"  shape: share of the time to the limit below 10 % of the limit: simulated "
           f"{sim_shape['low_phase_share']:.2f}, measured {meas_shape['low_phase_share']:.2f}; 10-90 % "
           f"rise: simulated {sim_shape['rise_10_90_s']:.2f} s, measured {meas_shape['rise_10_90_s']:.2f} s")

@@ -167,7 +167,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         def sample(d: Path) -> np.ndarray:
             idata = az.from_netcdf(str(d / "posterior" / "posterior.nc"))
-            return np.column_stack([idata.posterior[v].values.reshape(-1) for v in sorted(idata.posterior.data_vars)])
+            return np.column_stack([idata.posterior[v].values.reshape(-1)
+                                    for v in sorted(idata.posterior.data_vars)])
 
         res.update(stage="posterior", reference_s=t_ref,
                    equal=strip(s_ref) == strip(s_new) and np.array_equal(sample(p_ref), sample(p_crash)),

@@ -84,7 +84,8 @@ def main() -> None:
         verdict = ("" if retries != default else
                    ("  target met" if lost <= TARGET else "  MISSED target"))
         print(f"retries {retries}{' (default)' if retries == default else ''}: "
-              f"{lost:6.1%} of evaluations lost (expected {expected_lost(args.share, retries):5.1%}){verdict}")
+              f"{lost:6.1%} of evaluations lost "
+              f"(expected {expected_lost(args.share, retries):5.1%}){verdict}")
     path = Path(__file__).resolve().parent / "results" / "failure_capture.json"
     path.write_text(json.dumps(out, indent=2), encoding="utf-8")
     print(f"wrote {path}")

@@ -206,8 +206,9 @@ def compressible(project: ProjectConfig, cid: str, quick: bool) -> dict:
     out["time_step"] = _time_study(case, si, comp, 24, [50, 100, 200] if quick else [50, 100, 200, 400])
     base = _run(case, si, project.solver.cells_2d, steps=steps)
     one = _run(case, si, project.solver.cells_2d, steps=steps, compaction=CellCompaction(1.0, comp.law))
-    out["s0_one_vs_incompressible_max_relative_force"] = float(
-        np.max(np.abs(np.array(one.force) / np.array(base.force) - 1.0))) if len(one.t) == len(base.t) else None
+    out["s0_one_vs_incompressible_max_relative_force"] = (float(
+        np.max(np.abs(np.array(one.force) / np.array(base.force) - 1.0)))
+        if len(one.t) == len(base.t) else None)
     out["uniform_limit"] = _uniform_limit(project)
     out["direction"] = _direction(project, cid)
     return out
@@ -240,7 +241,8 @@ def _study(case: Case, runs: list[Run]) -> dict:
             "rms_order": [float(np.log2(rms[i] / rms[i + 1])) for i in range(len(rms) - 1)],
             "rms_successive_pct": [100.0 * r / float(np.sqrt(np.mean(forces[-1] ** 2))) for r in rms],
             "flow_impulse_kNs": impulse, "flow_impulse_order": _order(impulse), "flow_window_s": t_flow,
-            "final_gap_mm": [1e3 * r.gap[-1] for r in runs], "final_gap_order": _order([r.gap[-1] for r in runs]),
+            "final_gap_mm": [1e3 * r.gap[-1] for r in runs],
+            "final_gap_order": _order([r.gap[-1] for r in runs]),
             "switch_s": [r.switch for r in runs]}
 
 
@@ -250,15 +252,19 @@ def _uniform_limit(project: ProjectConfig) -> dict:
     out = {}
     fine = project.model_copy(update={"solver": project.solver.model_copy(
         update={"closing_steps_2d": 4 * project.solver.closing_steps_2d})})
-    for label, over, proj in (("B_10_Pa_s", {"B_Pa_s": 10.0}, project), ("B_10_Pa_s_4x_steps", {"B_Pa_s": 10.0}, fine),
+    for label, over, proj in (("B_10_Pa_s", {"B_Pa_s": 10.0}, project),
+                              ("B_10_Pa_s_4x_steps", {"B_Pa_s": 10.0}, fine),
                               ("B_100_Pa_s", {"B_Pa_s": 100.0}, project), ("default", {}, project)):
-        r1 = ForwardModel(proj, effects=["compressibility"], fidelity="1d", overrides=over).simulate(None, ["60-bar-07"])
-        r2 = ForwardModel(proj, effects=["compressibility"], fidelity="2d", overrides=over).simulate(None, ["60-bar-07"])
+        r1 = ForwardModel(proj, effects=["compressibility"],
+                          fidelity="1d", overrides=over).simulate(None, ["60-bar-07"])
+        r2 = ForwardModel(proj, effects=["compressibility"],
+                          fidelity="2d", overrides=over).simulate(None, ["60-bar-07"])
         a, b = r1["60-bar-07"], r2["60-bar-07"]
         t = np.linspace(0.0, a.switch_time_s[0], 400)
         f1, f2 = (np.interp(t, r.time_s[0], r.force_kN[0]) for r in (a, b))
         s1, s2 = (np.interp(t, r.time_s[0], r.solid_fraction[0]) for r in (a, b))
-        out[label] = {"rms_force_pct": _rms(f2, f1)[1], "max_solid_fraction_difference": float(np.max(np.abs(s2 - s1))),
+        out[label] = {"rms_force_pct": _rms(f2, f1)[1],
+                      "max_solid_fraction_difference": float(np.max(np.abs(s2 - s1))),
                       "switch_relative": float(b.switch_time_s[0] / a.switch_time_s[0] - 1.0),
                       "final_solid_fraction_1d": float(a.solid_fraction[0, -1]),
                       "final_solid_fraction_2d": float(b.solid_fraction[0, -1])}
@@ -299,25 +305,32 @@ def _solid_figure(h: FillHistory, path: Path) -> None:
 
 
 def _print_compressible(c: dict) -> None:
-    print(f"2-D compressible, {c['configuration']} (s0 = {c['solid0']:.3f}): {c['seconds']:.2f} s, {c['nodes']} steps, "
-          f"solid mass max relative error {c['solid_mass_max_relative_error']:.1e}, final s {c['final_solid_fraction']:.4f}")
+    print(f"2-D compressible, {c['configuration']} (s0 = {c['solid0']:.3f}): {c['seconds']:.2f} s, "
+          f"{c['nodes']} steps, "
+          f"solid mass max relative error {c['solid_mass_max_relative_error']:.1e}, "
+          f"final s {c['final_solid_fraction']:.4f}")
     for name, g in (("grid", c["grid"]), ("time step", c["time_step"])):
-        print(f"  {name}: cells {g['cells']}, closing steps {g['closing_steps']}; RMS force between successive "
+        print(f"  {name}: cells {g['cells']}, closing steps {g['closing_steps']}; "
+              "RMS force between successive "
               "runs over the closing",
-              [f"{v:.3f} kN ({p:.2f} %)" for v, p in zip(g["rms_successive_kN"], g["rms_successive_pct"], strict=True)],
+              [f"{v:.3f} kN ({p:.2f} %)"
+               for v, p in zip(g["rms_successive_kN"], g["rms_successive_pct"], strict=True)],
               "order", [f"{o:.2f}" for o in g["rms_order"]])
-        print(f"    flow impulse to {g['flow_window_s']:.2f} s (kN s)", [f"{v:.4f}" for v in g["flow_impulse_kNs"]],
+        print(f"    flow impulse to {g['flow_window_s']:.2f} s (kN s)",
+              [f"{v:.4f}" for v in g["flow_impulse_kNs"]],
               "order", [f"{o:.2f}" for o in g["flow_impulse_order"]])
         print("    final gap (mm)", [f"{v:.4f}" for v in g["final_gap_mm"]], "order",
               [f"{o:.2f}" for o in g["final_gap_order"]], "; switch (s)", [f"{v:.4f}" for v in g["switch_s"]])
     print(f"  s0 = 1 on the per-cell path vs incompressible: max relative force difference "
           f"{c['s0_one_vs_incompressible_max_relative_force']:.1e}")
     for label, u in c["uniform_limit"].items():
-        print(f"  bar 60-bar-07 per-cell vs lumped 1-D ({label}): RMS force {u['rms_force_pct']:.2f} %, switch "
+        print(f"  bar 60-bar-07 per-cell vs lumped 1-D ({label}): "
+              f"RMS force {u['rms_force_pct']:.2f} %, switch "
               f"{u['switch_relative']:+.1e}, max |ds| {u['max_solid_fraction_difference']:.1e}, final s "
               f"{u['final_solid_fraction_2d']:.4f} vs {u['final_solid_fraction_1d']:.4f}")
     d = c["direction"]
-    print(f"  solid fraction at t = {d['time_s']:.2f} s: centre {d['centre']:.4f} (max {d['max']:.4f}), front "
+    print(f"  solid fraction at t = {d['time_s']:.2f} s: "
+          f"centre {d['centre']:.4f} (max {d['max']:.4f}), front "
           f"{d['front_min']:.4f}-{d['front_max']:.4f}, s0 {d['solid0']:.4f}")
 
 
@@ -341,8 +354,10 @@ def incompressible(project: ProjectConfig, quick: bool) -> dict:
     print("Time step (impulse over 80 % of the closing, 16 cells): steps", conv["time_step"]["closing_steps"],
           "order", [f"{o:.2f}" for o in conv["time_step"]["order"]])
     # the plain equal-area disc: the correction is what this section measures
-    plain = project.model_copy(update={"solver": project.solver.model_copy(update={"shape_correction": False})})
-    results["one_d_error"] = err = one_d_error(ForwardModel(plain, fidelity="1d"), si, project.solver.cells_2d)
+    plain = project.model_copy(update={"solver": project.solver.model_copy(
+        update={"shape_correction": False})})
+    results["one_d_error"] = err = one_d_error(ForwardModel(plain, fidelity="1d"),
+                                               si, project.solver.cells_2d)
     print(f"{'configuration':<16}{'1-D RMS (kN)':>14}{'(%)':>9}{'corrected (kN)':>16}{'(%)':>9}"
           f"{'leave-one-out (%)':>19}")
     for cid, row in err["configurations"].items():

@@ -71,7 +71,8 @@ def report(label: str, res: dict[str, Any]) -> None:
     """Print one code's figures."""
     worst = [line["max_second_difference_ms"] for line in res["lines"]]
     over = sum(line["over_1ms"] for line in res["lines"])
-    print(f"{label}: largest second difference of the switch time per line {min(worst):.4f}-{max(worst):.4f} ms "
+    print(f"{label}: largest second difference of the switch time per line "
+          f"{min(worst):.4f}-{max(worst):.4f} ms "
           f"(median {np.median(worst):.4f}); {over} second differences above 1 ms; {res['seconds']:.0f} s")
 
 

@@ -213,8 +213,8 @@ def interpolation(bench: Bench) -> list[Row]:
             out = [fn(q, nodes, force) for q in queries]
             times.append(time.perf_counter() - start)
         timed[name] = (statistics.median(times), out)
-    diff = max(float(np.max(np.abs(a - b))) for a, b in zip(timed["compiled walk"][1], timed["sorted search"][1],
-                                                             strict=True))
+    diff = max(float(np.max(np.abs(a - b))) for a, b in zip(timed["compiled walk"][1],
+                                                             timed["sorted search"][1], strict=True))
     walk, search = timed["compiled walk"][0], timed["sorted search"][0]
     label = f"loss resampling: {bench.batch} rows x 10 offsets x 400 points"
     return [Row(f"{label}, compiled walk", walk, bench.batch, 400, None, "",

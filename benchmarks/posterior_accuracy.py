@@ -36,7 +36,8 @@ judged only when its reference can be trusted: the reference and its check have 
 <= 0.7 and agree with each other within half the targets.  Otherwise the case is
 reported as not judged, with all differences.
 
-    python benchmarks/posterior_accuracy.py [--cases 2 | --case K] [--refine 150] [--emulator auto|curves|loss]
+    python benchmarks/posterior_accuracy.py [--cases 2 | --case K] [--refine 150]
+        [--emulator auto|curves|loss]
         [--correct-draws 14000] [--steps 10000] [--is-reference-draws 30000]
         [--reference-draws 120000] [--posterior-seeds 1] [--workdir DIR]
 
@@ -190,7 +191,8 @@ def gskl(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]) -> 
     return 0.5 * (kl(m1, c1, m2, c2) + kl(m2, c2, m1, c1))
 
 
-def max_diffs(ref: tuple[np.ndarray, np.ndarray], other: tuple[np.ndarray, np.ndarray | None]) -> dict[str, float]:
+def max_diffs(ref: tuple[np.ndarray, np.ndarray],
+              other: tuple[np.ndarray, np.ndarray | None]) -> dict[str, float]:
     """Largest quantile (share of the prior width) and correlation differences of two samples."""
     c = compare([str(j) for j in range(ref[0].shape[1])], ref, other[0], np.zeros(ref[0].shape[1]), other[1])
     return {key: c[key] for key in ("max_quantile_diff", "max_correlation_diff")}
@@ -201,7 +203,8 @@ def equal(draws: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return draws, np.full(draws.shape[0], 1.0 / draws.shape[0])
 
 
-def exact_reference(run_dir: Path, folder: Path, n_eff: float, steps: int, k: int) -> tuple[np.ndarray, int, dict]:
+def exact_reference(run_dir: Path, folder: Path, n_eff: float,
+                    steps: int, k: int) -> tuple[np.ndarray, int, dict]:
     """The exact MCMC posterior's draws, evaluations and diagnostics (cached in ``folder``)."""
     cache = folder / f"exact-de-{steps}-neff{n_eff:.2f}.npz"
     if cache.is_file():
@@ -259,7 +262,8 @@ def is_reference(run_dir: Path, folder: Path, n_eff: float, start: np.ndarray | 
                                  settings, seed, {"start": kind})
 
 
-def pooled_reference(run_dir: Path, folder: Path, n_eff: float, explorers: list[tuple[np.ndarray, np.ndarray]],
+def pooled_reference(run_dir: Path, folder: Path, n_eff: float,
+                     explorers: list[tuple[np.ndarray, np.ndarray]],
                      draws: int, seed: int) -> tuple[np.ndarray, np.ndarray, dict]:
     """A large importance-sampling reference whose first proposal is fitted to the pooled
     ``explorers`` (each a (points ``(N, d)``, weights ``(N,)``) pair with equal share).
@@ -336,11 +340,13 @@ def run_case(k: int, truth: dict[str, float], args: argparse.Namespace, tmp: Pat
         out["corrected"] = compare(names, ref, unit, truth_unit, weights)
     # the same differences against the MCMC reference
     out["vs_mcmc"] = {"raw": max_diffs(equal(exact), (samples["emulator"], None)),
-                      "corrected": max_diffs(equal(exact), samples["weighted"]) if samples["weighted"] else None}
+                      "corrected": max_diffs(equal(exact), samples["weighted"])
+                                   if samples["weighted"] else None}
     if args.peer == "pyvbmc":
         out["peer"] = peer_rows(run_dir, n_eff, names, ref, truth_unit, args, k)
     out["seeds"] = [seed_row(k, out)] + [
-        seed_row(seed, rerun_posterior(run_dir, args, seed, ref)) for seed in k + 100 * np.arange(1, args.posterior_seeds)]
+        seed_row(seed, rerun_posterior(run_dir, args, seed, ref))
+        for seed in k + 100 * np.arange(1, args.posterior_seeds)]
     return out
 
 
@@ -357,7 +363,8 @@ def peer_rows(run_dir: Path, n_eff: float, names: list[str], ref: tuple[np.ndarr
     for budget in (int(b) for b in args.peer_budgets.split(",")):
         draws, record = run_pyvbmc(exact_log_posterior(ctx, n_eff), x0, budget, seed=k)
         c = compare(names, ref, draws, truth_unit)
-        rows.append({**record, **{m: c[m] for m in ("max_quantile_diff", "max_correlation_diff", "mmtv", "gskl")},
+        rows.append({**record,
+                     **{m: c[m] for m in ("max_quantile_diff", "max_correlation_diff", "mmtv", "gskl")},
                      "met": bool(c["quantiles_met"] and c["correlations_met"] and c["mmtv"] < 0.2)})
         print(f"  PyVBMC, {record['evaluations']} evaluations: quantiles {c['max_quantile_diff']:.3f}, "
               f"correlations {c['max_correlation_diff']:.2f}, MMTV {c['mmtv']:.3f}, gsKL {c['gskl']:.3f}; "
@@ -397,7 +404,8 @@ def seed_row(seed: int, r: dict[str, Any]) -> dict[str, Any]:
     for key in ("raw", "corrected"):
         if key in r:
             row[key] = {m: r[key][m] for m in ("max_quantile_diff", "max_correlation_diff", "mmtv", "gskl")}
-            row[key]["met"] = bool(r[key]["quantiles_met"] and r[key]["correlations_met"] and r[key]["mmtv"] < 0.2)
+            row[key]["met"] = bool(r[key]["quantiles_met"] and r[key]["correlations_met"]
+                                   and r[key]["mmtv"] < 0.2)
     return row
 
 
@@ -413,7 +421,8 @@ def print_comparison(label: str, c: dict[str, Any]) -> None:
     print(f"  correlations (exact / {label} / |diff|):")
     for q in c["correlations"]:
         flag = "" if q["diff"] <= R_TARGET else "  MISSED"
-        print(f"    {q['a']:>12} - {q['b']:<12} {q['exact']:>6.2f} {q['emulated']:>6.2f} {q['diff']:>6.2f}{flag}")
+        print(f"    {q['a']:>12} - {q['b']:<12} "
+              f"{q['exact']:>6.2f} {q['emulated']:>6.2f} {q['diff']:>6.2f}{flag}")
     print(f"  quantiles within {Q_TARGET:.0%}: {'met' if c['quantiles_met'] else 'MISSED'} "
           f"(max {c['max_quantile_diff']:.3f}); correlations within {R_TARGET}: "
           f"{'met' if c['correlations_met'] else 'MISSED'} (max {c['max_correlation_diff']:.2f})")
@@ -421,15 +430,18 @@ def print_comparison(label: str, c: dict[str, Any]) -> None:
 
 def _pair(diffs: dict[str, float]) -> str:
     """``q / c (quantiles / correlations)`` of a :func:`max_diffs` result."""
-    return f"{diffs['max_quantile_diff']:.3f} / {diffs['max_correlation_diff']:.2f} (quantiles / correlations)"
+    return (f"{diffs['max_quantile_diff']:.3f} / {diffs['max_correlation_diff']:.2f} "
+            "(quantiles / correlations)")
 
 
 def print_case(r: dict[str, Any]) -> None:
     ev, ex, co = r["evaluations"], r["exact_sampler"], r["correction"]
     rf, rc, agree = r["reference"], r["reference_check"], r["references_agree"]
     print(f"\ncase {r['case']}: N_eff {r['n_eff']:.0f}; emulator check MAE "
-          f"{r['emulator_check_nats']['mean_abs_error']:.2f} nats, emulator R-hat max {r['emulated_rhat_max']:.3f}")
-    print(f"  reference: importance sampling on the forward model from the pooled explorers ({rf['evaluations']} "
+          f"{r['emulator_check_nats']['mean_abs_error']:.2f} nats, "
+          f"emulator R-hat max {r['emulated_rhat_max']:.3f}")
+    print("  reference: importance sampling on the forward model "
+          f"from the pooled explorers ({rf['evaluations']} "
           f"evaluations, k-hat {rf['k_hat']:.2f}, ESS {rf['ess']:.0f})")
     print(f"  check of the reference: the same with another seed ({rc['evaluations']} evaluations, k-hat "
           f"{rc['k_hat']:.2f}, ESS {rc['ess']:.0f}) differs by {_pair(agree['reference_vs_check'])}")
@@ -440,7 +452,8 @@ def print_case(r: dict[str, Any]) -> None:
           f"R-hat max {ex.get('rhat_max', float('nan')):.3f}, ESS min {ex.get('ess_min', float('nan')):.0f}, "
           f"stopping rule {'met' if ex['converged'] else 'NOT met'}; differs from the reference by "
           f"{_pair(agree['mcmc_vs_reference'])}")
-    print(f"  forward evaluations: raw emulator {ev['raw_emulator_total']} (calibration {ev['calibration']} + "
+    print(f"  forward evaluations: raw emulator {ev['raw_emulator_total']} "
+          f"(calibration {ev['calibration']} + "
           f"refine {ev['refine']}); corrected {ev['corrected_total']} (+ correction {ev['correction']}); "
           f"exact MCMC {ev['exact_mcmc']}; each explorer {ev['explorer_each']}; reference and check "
           f"{ev['reference_each']} each; "
@@ -449,7 +462,8 @@ def print_case(r: dict[str, Any]) -> None:
         print(f"  correction: Pareto k-hat {co['k_hat']:.2f}, importance ESS {co['ess']:.0f}")
     for label in ("raw", "corrected"):
         if r["vs_mcmc"].get(label):
-            print(f"  {label} vs the exact MCMC: max quantile diff {r['vs_mcmc'][label]['max_quantile_diff']:.3f}, "
+            print(f"  {label} vs the exact MCMC: "
+                  f"max quantile diff {r['vs_mcmc'][label]['max_quantile_diff']:.3f}, "
                   f"max correlation diff {r['vs_mcmc'][label]['max_correlation_diff']:.2f}")
     print_comparison("raw emulator", r["raw"])
     if "corrected" in r:
@@ -511,14 +525,16 @@ def main() -> int:
             print_case(rows[-1])
             write_result(name, {"settings": vars(args), "train": TRAIN, "cases": rows})
     judged = [r for r in rows if r["reference_trusted"]]
-    met = {key: all(key in sr and sr[key]["met"] for r in judged for sr in r["seeds"]) for key in ("raw", "corrected")}
+    met = {key: all(key in sr and sr[key]["met"] for r in judged for sr in r["seeds"])
+           for key in ("raw", "corrected")}
     for r in rows:
         if not r["reference_trusted"]:
             print(f"\ncase {r['case']}: NOT JUDGED - its reference and the check of it disagree by more "
                   "than half the targets (or their weights are unreliable), so no comparison with them can "
                   "pass or fail")
     verdict = {key: ("NOT JUDGED" if not judged else "met" if met[key] else "MISSED") for key in met}
-    print(f"\noverall over {len(judged)} judged case(s) and every posterior seed: raw emulator {verdict['raw']}; "
+    print(f"\noverall over {len(judged)} judged case(s) and every posterior seed: "
+          f"raw emulator {verdict['raw']}; "
           f"corrected {verdict['corrected']}")
     payload = {"settings": vars(args), "train": TRAIN, "solver": "coarsened 1-D (see _posterior_common)",
                "targets": {"quantile_share_of_prior_width": Q_TARGET, "correlation": R_TARGET},
@@ -535,7 +551,8 @@ def reference_trusted(r: dict[str, Any]) -> bool:
     agree = r["references_agree"]["reference_vs_check"]
     k_hats = np.array([r["reference"]["k_hat"], r["reference_check"]["k_hat"]], dtype=float)
     return bool(np.all(np.isfinite(k_hats)) and np.all(k_hats <= 0.7)
-                and agree["max_quantile_diff"] <= 0.5 * Q_TARGET and agree["max_correlation_diff"] <= 0.5 * R_TARGET)
+                and agree["max_quantile_diff"] <= 0.5 * Q_TARGET
+                and agree["max_correlation_diff"] <= 0.5 * R_TARGET)
 
 
 if __name__ == "__main__":

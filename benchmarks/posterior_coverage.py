@@ -85,7 +85,8 @@ def one_dataset(i: int, free: list[str], args: argparse.Namespace, tmp: Path) ->
         toml = make_dataset(folder, project_doc(free, truth, TRAIN, VALIDATION), truth, seed=10_000 + i)
         cal = calibrate_run(toml, run_dir, budget=budget, init=max(5, 4 * len(free)), seed=i,
                             local_evaluations=budget // 3, local_radius=0.1)
-    settings = PosteriorSettings(refine=args.refine, seed=i, steps=1500 if args.quick else PosteriorSettings().steps,
+    settings = PosteriorSettings(refine=args.refine, seed=i,
+                                 steps=1500 if args.quick else PosteriorSettings().steps,
                                  draws=60 if args.quick else 100, correct_draws=args.correct_draws,
                                  emulator=args.emulator)
     info = run_posterior(run_dir, settings)
@@ -99,7 +100,8 @@ def one_dataset(i: int, free: list[str], args: argparse.Namespace, tmp: Path) ->
     for kind, u, w in kinds:
         w = np.full(u.shape[0], 1.0 / u.shape[0]) if w is None else w
         q = np.array([weighted_quantile(u[:, k], w, [0.05, 0.25, 0.75, 0.95]) for k in range(u.shape[1])]).T
-        row[kind] = {"in90": ((t >= q[0]) & (t <= q[3])).tolist(), "in50": ((t >= q[1]) & (t <= q[2])).tolist(),
+        row[kind] = {"in90": ((t >= q[0]) & (t <= q[3])).tolist(),
+                     "in50": ((t >= q[1]) & (t <= q[2])).tolist(),
                      "width90_unit": (q[3] - q[0]).tolist(), "width50_unit": (q[2] - q[1]).tolist(),
                      "q05_q25_q75_q95_unit": q.T.tolist()}
     bands = info["bands"]
@@ -190,7 +192,8 @@ def tabulate_bands(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 def print_table(label: str, table: list[dict[str, Any]]) -> None:
     print(f"\n{label}:")
-    print(f"  {'parameter':<14}{'in 90 % CI':>12}{'95 % interval':>16}{'':>8}{'in 50 % CI':>12}{'95 % interval':>16}"
+    print(f"  {'parameter':<14}{'in 90 % CI':>12}{'95 % interval':>16}{'':>8}"
+          f"{'in 50 % CI':>12}{'95 % interval':>16}"
           f"{'90 % width':>12}")
     for p in table:
         a, b = p["ci95_coverage90"], p["ci95_coverage50"]
@@ -227,7 +230,8 @@ def main() -> int:
         for r in map_datasets(free, args, work):
             rows.append(r)
             rep = r.get("corrected", r["raw"])
-            print(f"  dataset {r['dataset']:>2}: truth unit {np.round(r['truth_unit'], 3).tolist()} in90 raw {r['raw']['in90']} "
+            print(f"  dataset {r['dataset']:>2}: truth unit {np.round(r['truth_unit'], 3).tolist()} "
+                  f"in90 raw {r['raw']['in90']} "
                   f"corrected {rep['in90']}, in50 corrected {rep['in50']}, "
                   f"band90 {np.nanmean(list(r['band_coverage90'].values())):.2f}, "
                   f"k-hat {r['correction'].get('k_hat', float('nan')):.2f}, "
@@ -243,14 +247,19 @@ def main() -> int:
     k_hat = [r["correction"].get("k_hat", float("nan")) for r in rows]
     ev = {k: float(np.mean([r["evaluations"].get(k, 0) for r in rows]))
           for k in ("calibration", "refine", "correction", "emulator_check", "bands")}
-    print(f"\nforward evaluations per dataset (mean): calibration {ev['calibration']:.0f}, refine {ev['refine']:.0f}, "
-          f"correction {ev['correction']:.0f}, emulator check {ev['emulator_check']:.0f}, bands {ev['bands']:.0f}; "
-          f"Pareto k-hat median {np.nanmedian(k_hat):.2f}, > 0.7 in {int(np.sum(np.array(k_hat) > 0.7))} datasets")
-    print(f"held-out predictive bands ({', '.join(VALIDATION)}; from the reported posterior): 90 % band covers "
+    print("\nforward evaluations per dataset (mean): "
+          f"calibration {ev['calibration']:.0f}, refine {ev['refine']:.0f}, "
+          f"correction {ev['correction']:.0f}, "
+          f"emulator check {ev['emulator_check']:.0f}, bands {ev['bands']:.0f}; "
+          f"Pareto k-hat median {np.nanmedian(k_hat):.2f}, "
+          f"> 0.7 in {int(np.sum(np.array(k_hat) > 0.7))} datasets")
+    print(f"held-out predictive bands ({', '.join(VALIDATION)}; "
+          "from the reported posterior): 90 % band covers "
           f"{b['coverage90_mean']:.0%} of points (median {b['coverage90_median']:.0%}) {b['met90']}, "
           f"mean width {b['width90_kN_mean']:.0f} kN; 50 % band {b['coverage50_mean']:.0%}")
     print(f"posterior reported reliable in {sum(r['reliable'] for r in rows)} of {len(rows)} datasets")
-    print(f"targets: 90 % CI {TARGET90[0]:.0%}-{TARGET90[1]:.0%}, 50 % CI {TARGET50[0]:.0%}-{TARGET50[1]:.0%}, "
+    print(f"targets: 90 % CI {TARGET90[0]:.0%}-{TARGET90[1]:.0%}, "
+          f"50 % CI {TARGET50[0]:.0%}-{TARGET50[1]:.0%}, "
           f"bands {TARGET_BAND[0]:.0%}-{TARGET_BAND[1]:.0%}; {len(rows)} datasets, {timer() / 60:.1f} min")
     payload = {"settings": vars(args), "free": free, "train": TRAIN, "validation": VALIDATION,
                "targets": {"ci90": TARGET90, "ci50": TARGET50, "band90": TARGET_BAND},

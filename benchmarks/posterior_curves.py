@@ -142,7 +142,8 @@ def main() -> int:
     ref = reference(folder, args.case)
     base = baseline(folder / "run", ref)
     if base is not None:
-        print(f"case {args.case}: the stage's {base['emulator']} emulator, {base['forward_runs']} forward runs: "
+        print(f"case {args.case}: the stage's {base['emulator']} emulator, "
+              f"{base['forward_runs']} forward runs: "
               f"quantiles {base['max_quantile_diff']:.3f} correlations {base['max_correlation_diff']:.2f} "
               f"MMTV {base['mmtv']:.3f} gsKL {base['gskl']:.2f} (reliable: {base['reliable']})")
     budgets = [int(b) for b in args.budgets.split(",")]

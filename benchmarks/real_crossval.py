@@ -95,7 +95,8 @@ def toml_dump(doc: dict[str, Any]) -> str:
     lines: list[str] = []
 
     def table(prefix: str, body: dict[str, Any]) -> None:
-        plain = {k: v for k, v in body.items() if not isinstance(v, dict) or not v or prefix == "configuration"}
+        plain = {k: v for k, v in body.items()
+                 if not isinstance(v, dict) or not v or prefix == "configuration"}
         nested = {k: v for k, v in body.items() if k not in plain}
         if prefix and plain:
             lines.append(f"\n[{prefix}]")
@@ -240,7 +241,8 @@ def choose_effects(base: Any, work: Path, args: argparse.Namespace,
     times["diagnose_s"] = time.perf_counter() - t
     effects = selected_effects(diag.summary)
     diagnosis = {"statement": diag.statement, "holdout": diag.summary.get("holdout"),
-                 "ranking": [{k2: r.get(k2) for k2 in ("effect", "score", "holdout_shrink_pct", "significant")}
+                 "ranking": [{k2: r.get(k2) for k2 in ("effect", "score",
+                                                       "holdout_shrink_pct", "significant")}
                              for r in diag.summary.get("ranking") or []]}
     chosen.write_text(json.dumps({"effects": effects, "diagnosis": diagnosis}, indent=2) + "\n")
     return effects, diagnosis
@@ -380,8 +382,10 @@ def totals(folds: list[dict[str, Any]]) -> dict[str, Any]:
 
     ok_rmse = all(r["rmse_kN"] <= 70.0 for r in rows)
     ok_cov = all(r["coverage90"] is not None and 0.80 <= r["coverage90"] <= 0.97 for r in rows)
-    ok_width = all(r["band_width90_kN"] is not None and r["band_width90_kN"] <= 4 * r["rmse_kN"] for r in rows)
-    return {"trials": len(rows), "mean_rmse_kN": mean("rmse_kN"), "max_rmse_kN": max(r["rmse_kN"] for r in rows),
+    ok_width = all(r["band_width90_kN"] is not None and r["band_width90_kN"] <= 4 * r["rmse_kN"]
+                   for r in rows)
+    return {"trials": len(rows), "mean_rmse_kN": mean("rmse_kN"),
+            "max_rmse_kN": max(r["rmse_kN"] for r in rows),
             "mean_rmse_median_kN": mean("rmse_median_kN"),
             "mean_rmse_mean_kN": mean("rmse_mean_kN"), "mean_coverage50": mean("coverage50"),
             "mean_coverage90": mean("coverage90"), "mean_band_width90_kN": mean("band_width90_kN"),
@@ -421,7 +425,8 @@ def parse() -> argparse.Namespace:
                          "reuses its forward runs)")
     ap.add_argument("--data-dir", default=str(DATA))
     ap.add_argument("--project", default=str(PROJECT),
-                    help="project file whose settings and trials the folds use (default: configs/thesis.toml); "
+                    help="project file whose settings and trials the folds use "
+                         "(default: configs/thesis.toml); "
                          "a variant of it tests another loss or parameter box")
     ap.add_argument("--name", default="real_crossval",
                     help="results file benchmarks/results/NAME.json, figures and work directories in "

@@ -64,7 +64,8 @@ def final_state(run: Path, seed: int) -> dict[str, Any]:
 
     stage.curve_posterior = keeping
     try:
-        kept["info"] = stage.run_posterior(run, PosteriorSettings(emulator="curves", correct_draws=0, seed=seed))
+        kept["info"] = stage.run_posterior(run, PosteriorSettings(emulator="curves",
+                                                                  correct_draws=0, seed=seed))
     finally:
         stage.curve_posterior = original
     return kept

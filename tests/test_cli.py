@@ -47,7 +47,8 @@ def run_error(capsys: pytest.CaptureFixture[str], args: list[str]) -> str:
 
 @pytest.mark.parametrize(("old", "new", "expected"), [
     ('shape = "bar"', 'shape = "ring"', ["shape", "'ring'", "'center'", "'bar'"]),
-    ("coverage_pct = 60.0, mass_g = 388", "coverage_pct = 0.0, mass_g = 388", ["coverage_pct", "greater than 0"]),
+    ("coverage_pct = 60.0, mass_g = 388", "coverage_pct = 0.0, mass_g = 388",
+     ["coverage_pct", "greater than 0"]),
     ("coverage_pct = 60.0, mass_g = 388", "coverage_pct = 120.0, mass_g = 388",
      ["coverage_pct", "less than or equal to 100"]),
     ("speed_mm_s = 0.3", "speed_mm_s = -0.3", ["speed_mm_s", "greater than 0"]),

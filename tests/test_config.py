@@ -90,7 +90,8 @@ def test_posterior_defaults_depend_on_the_simulator() -> None:
     assert REFINE_CORRECTED < REFINE_EMULATED
     given = PosteriorSpec(emulator="loss", refine=50, correct_draws=0, round_runs=12)
     assert given.resolved(slow=False, curves=True) == given.resolved(slow=True, curves=True) == given
-    assert PosteriorSpec(emulator="loss", correct_draws=3000).resolved(slow=True, curves=True).refine == REFINE_CORRECTED
+    assert (PosteriorSpec(emulator="loss", correct_draws=3000).resolved(slow=True, curves=True).refine
+            == REFINE_CORRECTED)
 
 
 def test_auto_takes_the_curve_emulator_where_the_loss_allows_it_without_a_correction() -> None:
@@ -119,11 +120,13 @@ def test_the_round_size_defaults_to_the_emulator_s_own() -> None:
     from smcbayes.config import PosteriorSpec
     from smcbayes.config.settings import ROUND_RUNS_CURVES
 
-    assert PosteriorSpec(emulator="curves").resolved(slow=True, curves=True).round_runs == ROUND_RUNS_CURVES == 40
+    assert (PosteriorSpec(emulator="curves").resolved(slow=True, curves=True).round_runs
+            == ROUND_RUNS_CURVES == 40)
     assert PosteriorSpec(emulator="loss").resolved(slow=True, curves=True).round_runs == 30  # a budget of 800
     assert PosteriorSpec(emulator="loss", refine=60).resolved(slow=True, curves=True).round_runs == 15
     assert PosteriorSpec(emulator="loss", refine=16).resolved(slow=True, curves=True).round_runs == 9
-    assert PosteriorSpec(emulator="curves", round_runs=120).resolved(slow=False, curves=True).round_runs == 120
+    assert (PosteriorSpec(emulator="curves", round_runs=120).resolved(slow=False, curves=True).round_runs
+            == 120)
     for outside in (8, 401):
         with pytest.raises(ValueError):
             PosteriorSpec(round_runs=outside)

@@ -29,7 +29,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "Settings come from the config's [calibration] table; the options below override it "
                     "(the defaults shown apply when the table does not set them). On --resume the "
                     "settings are the run's own (config.json in RUN_DIR): only --budget, "
-                    "--tolerance and --polish change them, e.g. `smcbayes calibrate --out RUN --resume --budget 120`. "
+                    "--tolerance and --polish change them, e.g. "
+                    "`smcbayes calibrate --out RUN --resume --budget 120`. "
                     "With the built-in 1-D model a local search on the model itself (Powell's method, "
                     "--polish evaluations) then refines the best point.")
     p.add_argument("config", nargs="?", default=None,
@@ -48,7 +49,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_executor_options(p)
     p.add_argument("--resume", action="store_true",
                    help="continue the run in RUN_DIR with its own settings (only --budget, "
-                        "--tolerance and --polish may change them; any other option given must agree with the "
+                        "--tolerance and --polish may change them; any other option "
+                        "given must agree with the "
                         "run); CONFIG may then be left out")
     p.add_argument("--external", metavar="COMMAND", default=None,
                    help="external simulator command template with {params} {output} {config} "
@@ -81,7 +83,8 @@ def selected_effects(path: str) -> list[str]:
     try:
         summary = json.loads(summary_path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise ConfigError(f"--effects-from {path}: {summary_path} is not a diagnosis summary ({err})") from err
+        raise ConfigError(f"--effects-from {path}: {summary_path} "
+                          f"is not a diagnosis summary ({err})") from err
     if not isinstance(summary, dict) or "selected_effects" not in summary:
         raise ConfigError(f"--effects-from {path}: {summary_path} records no selected effect set; "
                           "run the diagnosis again with this version")

@@ -37,7 +37,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "[diagnose] table's pair)")
     for name, kind in (("seed", int), ("population", int), ("generations", int), ("restarts", int),
                        ("min_score", float), ("max_effects", int)):
-        p.add_argument("--" + name.replace("_", "-"), type=kind, default=None, help=help_of(DiagnoseSpec, name))
+        p.add_argument("--" + name.replace("_", "-"), type=kind, default=None,
+                       help=help_of(DiagnoseSpec, name))
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     add_executor_options(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -52,8 +53,8 @@ def candidates(spec: str | None) -> tuple[str, ...] | None:
 
 def settings_from(spec: DiagnoseSpec, args: argparse.Namespace) -> DiagnoseSpec:
     """The project's ``[diagnose]`` table with the command line's overrides."""
-    values = {k: getattr(args, k) for k in ("seed", "population", "generations", "restarts", "min_score", "pair",
-                                            "max_effects")}
+    values = {k: getattr(args, k) for k in ("seed", "population", "generations", "restarts", "min_score",
+                                            "pair", "max_effects")}
     if args.effects is not None:
         values["effects"] = list(candidates(args.effects) or ())
     if args.holdout is not None:
@@ -94,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"selection: {', '.join(left_out)} not tried (alone, their parameters could not move the "
               f"curves along the gap and the held-out loss changed by less than {INERT_SHRINK_PCT:g} %)")
     for step in summary["selection"]["steps"]:
-        verdict = f"added {step['added']}" if step["added"] else f"stop ({step['best_candidate']} not significant)"
+        verdict = (f"added {step['added']}" if step["added"]
+                   else f"stop ({step['best_candidate']} not significant)")
         if step.get("chosen_over"):
             verdict += (f" (within --min-score of {step['chosen_over']}'s held-out score, larger evidence "
                         "on all trials)")

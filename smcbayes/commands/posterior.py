@@ -91,8 +91,10 @@ def print_summary(info: dict[str, Any]) -> None:
         print(f"correlated: {pair['a']} - {pair['b']}: r = {pair['r']:+.2f}")
     corr = info.get("correction") or {}
     if corr.get("enabled") and corr.get("target") == "emulator":
-        print(f"the emulated posterior sampled by importance: {corr['draws']} emulator evaluations (no forward "
-              f"run), Pareto k-hat {corr['k_hat']:.2f}, importance ESS {corr['ess']:.0f} (emcee chains' table "
+        print(f"the emulated posterior sampled by importance: {corr['draws']} "
+              "emulator evaluations (no forward "
+              f"run), Pareto k-hat {corr['k_hat']:.2f}, "
+              f"importance ESS {corr['ess']:.0f} (emcee chains' table "
               "in summary_emulator.csv)")
     elif corr.get("enabled"):
         print(f"importance correction: {corr['evaluations']} forward evaluations, Pareto k-hat "

@@ -52,7 +52,8 @@ def simulate_and_write(model: ForwardModel, ids: list[str], out: Path) -> int:
     effects = ", ".join(model.effects.names) or "none"
     figure = plot_simulation(results, measured_force(model.project, ids), out / "simulation",
                              f"{label}\neffects: {effects}")
-    print(f"simulated {len(ids)} configuration(s) in {seconds * 1000:.0f} ms ({model.solver.name} solver, effects: {effects})")
+    print(f"simulated {len(ids)} configuration(s) in {seconds * 1000:.0f} ms "
+          f"({model.solver.name} solver, effects: {effects})")
     print(f"{'configuration':<16}{'status':<10}{'limit reached (s)':>18}{'final gap (mm)':>16}")
     for cid, res in results.items():
         print(f"{cid:<16}{res.status[0]:<10}{res.switch_time_s[0]:>18.2f}{res.gap_mm[0, -1]:>16.3f}")

@@ -59,7 +59,8 @@ class ChargeSpec(Strict):
             if not self.pieces:
                 raise ValueError("a layout charge needs pieces = [{ x_mm, y_mm, length_mm, width_mm }, ...]")
             if self.coverage_pct is not None or self.length_mm is not None or self.width_mm is not None:
-                raise ValueError("a layout charge takes its size from pieces; remove coverage_pct/length_mm/width_mm")
+                raise ValueError("a layout charge takes its size from pieces; "
+                                 "remove coverage_pct/length_mm/width_mm")
             return self
         if self.pieces is not None:
             raise ValueError("pieces need shape = \"layout\"")
@@ -86,7 +87,8 @@ class DataSpec(Strict):
     format: Literal["csv", "press", "moldflow"] = "csv"
     time_column: str | None = Field(None, description="csv: time column (default time_s)")
     force_column: str | None = Field(None, description="default force_kN (csv), dbPr\\diIstKraftGes (press)")
-    displacement_column: str | None = Field(None, description="default displacement_mm (csv), dbPr\\diIstPos (press)")
+    displacement_column: str | None = Field(None, description="default displacement_mm (csv), "
+                                                              "dbPr\\diIstPos (press)")
     force_unit: str | None = Field(None, description="N, kN, MN, tonne-force; default from the file")
     displacement_unit: str | None = Field(None, description="mm, m, um; default from the file")
 
@@ -103,7 +105,8 @@ class PartSpec(Strict):
 
     thickness_mm: float | None = Field(None, gt=0, description="measured thickness of the part")
     mass_g: float | None = Field(None, gt=0, description="mass of the part after demoulding, flash removed")
-    density_g_cm3: float | None = Field(None, gt=0, description="consolidated density that turns mass_g into a "
+    density_g_cm3: float | None = Field(None, gt=0, description="consolidated density "
+                                                                "that turns mass_g into a "
                                         "thickness (e.g. in [defaults.part])")
 
     @model_validator(mode="after")

@@ -148,16 +148,19 @@ class CorrectionSpec(CodeBuilt):
     """
 
     draws: int = Field(14000, ge=0,
-                        description="most proposal draws in total (points outside the prior box cost no forward run)")
+                        description="most proposal draws in total "
+                                    "(points outside the prior box cost no forward run)")
     per_iteration: int = Field(500, ge=1, description="proposal draws per iteration")
     ess_target: float = Field(2000.0, gt=0,
-                               description="stop early once the smoothed weights have at least this importance ESS")
+                               description="stop early once the smoothed weights "
+                                           "have at least this importance ESS")
     k_target: float = Field(0.5, gt=0, description="... and a Pareto k-hat at most this")
     centres: int = Field(200, ge=1, description="Student-t kernels of the mixture proposal")
     nu: float = Field(5.0, gt=0, description="degrees of freedom of the Student-t kernels")
     defensive: float = Field(0.25, ge=0, lt=1, description="share of the uniform prior in every proposal")
     widen_first: float = Field(1.5, gt=0,
-                                description="bandwidth factor of the first proposal (fitted to emulator draws)")
+                                description="bandwidth factor of the first proposal "
+                                            "(fitted to emulator draws)")
     widen: float = Field(1.0, gt=0, description="bandwidth factor of the later proposals")
     ess_floor: float = Field(50.0, gt=0,
                               description="minimum ESS of the tempered weights a proposal is fitted to")
@@ -167,7 +170,8 @@ class CorrectionSpec(CodeBuilt):
     chains: int = Field(100, ge=0,
                          description="centres carried by Metropolis-Hastings chains on the exact posterior")
     fit_temperature: float = Field(0.5, gt=0, le=1,
-                                    description="exponent T of the tempered posterior pi^T the proposals are fitted to")
+                                    description="exponent T of the tempered posterior "
+                                                "pi^T the proposals are fitted to")
 
 
 REFINE_EMULATED = 800
@@ -324,7 +328,8 @@ def override(spec: BaseModel, values: Mapping[str, Any], source: str = "command 
         e = err.errors()[0]
         name = str(e["loc"][0]) if e["loc"] else "?"
         flag = "--" + name.replace("_", "-")
-        raise ConfigError(f"{source}: {flag} {e.get('input')!r}: {e['msg'].removeprefix('Value error, ')}") from None
+        raise ConfigError(f"{source}: {flag} {e.get('input')!r}: "
+                          f"{e['msg'].removeprefix('Value error, ')}") from None
 
 
 def default_of(spec: type[BaseModel], name: str) -> Any:

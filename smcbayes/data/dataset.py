@@ -156,7 +156,8 @@ def end_stack_height_mm(spec: ConfigurationSpec, force: Curve | None, hold: Curv
     held = (f"+ {closed:.3f} mm closed in the hold" if hold is not None
             else "(no hold curve: nothing closed in the hold)")
     steps.append(f"end state: part {part:.3f} mm {held} + ram travel {travel:.3f} mm to the force "
-                 f"limit = stack height {height:.3f} mm at contact (nominal {spec.charge.stack_height_mm:g} mm)")
+                 f"limit = stack height {height:.3f} mm at contact "
+                 f"(nominal {spec.charge.stack_height_mm:g} mm)")
     return height
 
 

@@ -310,7 +310,8 @@ def end_state_offsets_mm(res: SimulationResult, m: Measurement, bound_mm: float 
                         f"contact: {why}; give the trial its end state, leave it out of the loss or "
                         "choose another [loss] contact")
     if not m.speed_mm_s:
-        raise DataError(f"configuration '{m.config_id}': a contact from the end state needs the set closing speed")
+        raise DataError(f"configuration '{m.config_id}': a contact from the end state "
+                        "needs the set closing speed")
     t, _, _, ok = _safe(res)
     ts = _switch(res, t, ok)
     gap = np.where(ok[:, None], res.gap_mm, 0.0)

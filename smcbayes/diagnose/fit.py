@@ -336,7 +336,8 @@ def refit(ctx: DiagnosisContext, extra: Sequence[str], ids: Sequence[str], start
         for step in range(settings.polish):
             u_new, loss_new, used = lm_step(ctx, extra, ids, u)
             count += used
-            bar.update(2, note=f"polish step {step + 1}/{settings.polish}, loss {min(loss, loss_new):.4g} kN^2")
+            bar.update(2, note=f"polish step {step + 1}/{settings.polish}, "
+                               f"loss {min(loss, loss_new):.4g} kN^2")
             if not loss_new < loss * (1.0 - 1e-6):
                 break
             u, loss = u_new, loss_new

@@ -176,7 +176,8 @@ def which_effect(ctx: DiagnosisContext, settings: DiagnoseSettings, fit_ids: lis
         t0 = time.perf_counter()
         sigs[name] = signature(ctx, name, base, fit_ids, rng)
         start = ctx.start((name,), base.params)
-        fits[name] = refit(ctx, (name,), fit_ids, start, settings.fit, rng, desc=f"diagnosis: {name} ({k}/{steps})")
+        fits[name] = refit(ctx, (name,), fit_ids, start, settings.fit, rng,
+                           desc=f"diagnosis: {name} ({k}/{steps})")
         tests[name] = held_out_test(ctx, base, fits[name], holdout)
         log(f"{name}: absorbable {100 * sigs[name].absorbable_share:.0f} %, held-out loss "
             f"{tests[name].loss_kN2:.4g} vs {tests[name].loss_base_kN2:.4g} kN^2, "
@@ -315,7 +316,8 @@ def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None
     base, fits, rows, evidence = which_effect(ctx, settings, fit_ids, holdout, rng, log)
     decision = decide(rows, settings.min_score)
     log(decision["statement"])
-    selected, steps, grown, left_out = _select(ctx, settings, decision, rows, fits, (fit_ids, holdout), evidence, rng, log)
+    selected, steps, grown, left_out = _select(ctx, settings, decision, rows, fits, (fit_ids, holdout),
+                                               evidence, rng, log)
     shown = {"base": base}
     pick = decision["best"] or (rows[0]["effect"] if rows else None)
     if pick is not None:
@@ -330,10 +332,12 @@ def diagnose(ctx: DiagnosisContext, settings: DiagnoseSettings, out: Path | None
                "candidates": list(settings.candidates), "fit_settings": asdict(settings.fit),
                "min_score": settings.min_score, "where": where.to_json(), "ranking": rows,
                "decision": decision, "selected_effects": selected,
-               "selection": {"max_effects": settings.max_effects, "steps": steps, "left_out": left_out}, "shrink": shrink, **evidence,
+               "selection": {"max_effects": settings.max_effects, "steps": steps, "left_out": left_out},
+               "shrink": shrink, **evidence,
                "base_calibrated_params": ctx.base_params, "truth": ctx.truth,
                "simulator_runs": ctx.forward_runs, "forward_runs_reused": ctx.forward_runs_reused,
-               "forward_runs_made": ctx.forward_runs - ctx.forward_runs_reused, "seconds": time.perf_counter() - t0}
+               "forward_runs_made": ctx.forward_runs - ctx.forward_runs_reused,
+               "seconds": time.perf_counter() - t0}
     if out is not None:
         write_outputs(ctx, summary, where, shown, out, settings.figures)
     return summary

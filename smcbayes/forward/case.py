@@ -94,7 +94,8 @@ class SpeedProfile:
             data = np.genfromtxt(path, delimiter=",", names=True)
             t, x = np.asarray(data["time_s"], float), np.asarray(data["position_mm"], float) * MM
         except (OSError, ValueError) as err:
-            raise ConfigError(f"{path}: cannot read ram profile (need columns time_s, position_mm): {err}") from None
+            raise ConfigError(f"{path}: cannot read ram profile "
+                              f"(need columns time_s, position_mm): {err}") from None
         if t.size < 2 or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(x)):
             raise ConfigError(f"{path}: ram profile needs >= 2 rows with strictly increasing time_s")
         if not np.max(x - x[0]) > 0.0:
@@ -172,7 +173,8 @@ class Case:
                                   f"({mould.width_mm:g}); use the 2-D solver for a partial-width strip")
             length = charge.length_mm * MM if charge.length_mm else charge.coverage_pct / 100 * L
             if length > L:
-                raise ConfigError(f"{where}: charge.length_mm {length / MM:g} exceeds mould.length_mm {L / MM:g}")
+                raise ConfigError(f"{where}: charge.length_mm {length / MM:g} "
+                                  f"exceeds mould.length_mm {L / MM:g}")
             area0 = length * W
             pieces = ((0.0, 0.0, length, W),)
         elif charge.shape == "layout":
@@ -183,7 +185,8 @@ class Case:
                 lx = charge.length_mm * MM
                 ly = (charge.width_mm or charge.length_mm) * MM
                 if lx > L or ly > W:
-                    raise ConfigError(f"{where}: centre charge {lx / MM:g} x {ly / MM:g} mm does not fit the mould")
+                    raise ConfigError(f"{where}: centre charge {lx / MM:g} x {ly / MM:g} mm "
+                                      "does not fit the mould")
                 area0 = lx * ly
             else:
                 area0 = charge.coverage_pct / 100 * area_mould

@@ -99,7 +99,8 @@ class CellCompaction:
         with np.errstate(invalid="ignore"):
             slope = np.where(np.isfinite(pc_up) & np.isfinite(pc), (pc_up - pc) / ds, np.inf)
         zeta_eff = np.asarray(zeta, dtype=float) + dt * s * slope
-        ok = full.ravel() & (solid.ravel() < CLOSED) & np.isfinite(pc) & np.isfinite(zeta_eff) & (zeta_eff > 0)
+        ok = (full.ravel() & (solid.ravel() < CLOSED) & np.isfinite(pc) & np.isfinite(zeta_eff)
+              & (zeta_eff > 0))
         coeff = np.where(ok, grid.cell_area * gap / np.where(ok, zeta_eff, 1.0), 0.0)
         threshold = np.where(ok, pc, np.inf)
         stiffness = np.where(ok, s * np.where(ok, slope, 0.0), 0.0)

@@ -297,7 +297,8 @@ def _first_pressure(grid: Grid, full: NDArray[np.bool_], guess: Array | None,
         starts = [pp for pp in [p, *_starts(sink, V * grid.cell_area, mean)] if _acting(pp, sink)]
         if not starts:
             raise SolverError("2-D pressure: the cavity is full and no cell can compact")
-        p = min(starts, key=lambda pp: _merit(grid, pp, V, faces_, fluidity, unknown, force, sink, speed_floor))
+        p = min(starts, key=lambda pp: _merit(grid, pp, V, faces_, fluidity, unknown,
+                                              force, sink, speed_floor))
     if not np.any(p):
         p.ravel()[np.flatnonzero(full.ravel())] = _cold_start(grid, p, faces_, fluidity, V, unknown, sink)
     return p
@@ -504,5 +505,6 @@ def _inflow(p: Array, fx: FaceSet, fy: FaceSet, cond: tuple[Array, Array], full:
     if got > 0 and total > 0:
         scale = total / got  # removes the solver tolerance from the volume balance
         inflow *= scale
-        fluxes = [np.where(fs.full_a & fs.full_b, q, q * scale) for fs, q in zip((fx, fy), fluxes, strict=True)]
+        fluxes = [np.where(fs.full_a & fs.full_b, q, q * scale)
+                  for fs, q in zip((fx, fy), fluxes, strict=True)]
     return inflow.reshape(p.shape), (fluxes[0], fluxes[1])

@@ -263,7 +263,8 @@ def _setup(case: Case, p: dict[str, Array], effects: EffectStack, table: Materia
 
 def _closing_step(ctx: _Context, ram: Array, force_rate: Array, ram_rate: Array) -> Array:
     """Speed-controlled step (s), ``(P,)``: the nominal step, stretched up to
-    :data:`~smcbayes.forward.programme.MAX_STRETCH` times while the ram, its speed and the force all move slowly.
+    :data:`~smcbayes.forward.programme.MAX_STRETCH` times while the ram, its speed and the force
+    all move slowly.
 
     The nominal step covers 1/steps of the nominal closing; a ram slowing under load or a
     soft frame would otherwise spend thousands of steps creeping to the force limit.  The

@@ -281,7 +281,8 @@ class Stepper:
         """Append a node (and snapshots when the filled area passes the next mark)."""
         r = self.run
         if len(r.t) >= MAX_NODES:
-            raise SolverError(f"configuration '{self.case.id}': the 2-D run needs more than {MAX_NODES} steps")
+            raise SolverError(f"configuration '{self.case.id}': the 2-D run needs "
+                              f"more than {MAX_NODES} steps")
         area, bulk, solid, solid_volume = self.measure(st)
         for name, value in (("t", st.t), ("gap", st.gap), ("area", area), ("force", force),
                             ("deflection", force * self.inv_k), ("volume", bulk), ("solid", solid),

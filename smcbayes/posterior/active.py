@@ -225,7 +225,8 @@ def _one_round(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff
     clock.append(time.perf_counter())
     stats = {"training_points": int(x.shape[0]), "error_nats": err if np.isfinite(err) else None,
              "quantile_shift": shift if np.isfinite(shift) else None, "disputed": state.disputed is not None,
-             "seconds": dict(zip(("sampling", "forward", "fit"), np.diff(clock).round(2).tolist(), strict=True))}
+             "seconds": dict(zip(("sampling", "forward", "fit"),
+                                 np.diff(clock).round(2).tolist(), strict=True))}
     _log_round(out_dir, state.rounds, theta, vals, n_rand, ctx.space.free_names, stats)
     return surrogate, (x_new, y_new), err, shift
 
@@ -263,7 +264,8 @@ def refine(ctx: RunContext, data: tuple[Array, Array], surrogate: Any, n_eff: fl
     status: dict[str, Any] = {"rounds": 0, "converged": False, "error_nats": None, "quantile_shift": None,
                               "spread": None, "spread_checks": 0}
     while state.remaining > 0:
-        surrogate, data, err, shift = _one_round(ctx, data, surrogate, n_eff, quick, rng, out_dir, state, per_round)
+        surrogate, data, err, shift = _one_round(ctx, data, surrogate, n_eff, quick, rng,
+                                                 out_dir, state, per_round)
         state.rounds += 1
         state.below = state.below + 1 if err < settings.refine_tolerance_nats else 0
         logger.info("active learning round %d: %d training points, out-of-sample error %.2f nats, "
@@ -319,7 +321,8 @@ def spread_chains(ctx: RunContext, surrogate: Any, n_eff: float, settings: Poste
     the same functions, so the measurement that ended the active learning can be repeated
     with chains fit to be pooled."""
     def run(functions: int, chosen: int) -> list[Chains]:
-        return sample(ctx, surrogate, n_eff, settings.model_copy(update={"functions": functions, "seed": chosen}),
+        return sample(ctx, surrogate, n_eff,
+                      settings.model_copy(update={"functions": functions, "seed": chosen}),
                       rng, "stretch")[1]
 
     control = run(0, int(rng.integers(2**31 - 1)))[0].samples.reshape(-1, ctx.space.dim)

@@ -63,5 +63,6 @@ class CentreChains:
             x = self.position[chain]
             log_ratio += (log_t_pairwise(x, y, proposal.chol_at(y), proposal.nu)
                           - log_t_pairwise(y, x, proposal.chol[chain], proposal.nu))
-        move = np.isfinite(log_target[pick]) & (np.log(rng.random(pick.size)) < np.nan_to_num(log_ratio, nan=-np.inf))
+        move = np.isfinite(log_target[pick]) & (np.log(rng.random(pick.size))
+                                                < np.nan_to_num(log_ratio, nan=-np.inf))
         self.position[chain[move]], self.log_target[chain[move]] = y[move], log_target[pick][move]

@@ -17,8 +17,9 @@ Cornuet, Marin, Mira and Robert, Scand. J. Stat. 39, 2012) with a defensive prop
 a mixture of M Student-t kernels (nu = 5, heavy tails) centred at points c_m drawn from
 the current sample (the emcee draws of the emulator at t = 0, then the exact sample
 weighted for the tempered posterior, see below), plus a share beta of the uniform prior
-so that no region of the prior box has zero proposal density.  The kernel scales V_m come from a Gaussian mixture fitted to the
-sample (:mod:`smcbayes.posterior.mixture`): a centre drawn from component k has
+so that no region of the prior box has zero proposal density.  The kernel scales V_m come
+from a Gaussian mixture fitted to the sample (:mod:`smcbayes.posterior.mixture`): a centre
+drawn from component k has
 V_m = h_k^2 S_k, the component's covariance times Scott's bandwidth for the component's
 share of the centres (widened at t = 0, where the emulator may be offset), and component k
 gets a share of the centres proportional to sqrt(alpha_k), its mass alpha_k.  A posterior
@@ -265,7 +266,8 @@ def correct(log_target: Callable[[Array], Array], start: Array, settings: Correc
             the sample is settled at the targets of ``settings`` all the same.
     """
     sizes = _iteration_sizes(settings)
-    proposals: list[Proposal] = [fit_proposal(*seed_weights(start, known), settings, rng, settings.widen_first)]
+    proposals: list[Proposal] = [fit_proposal(*seed_weights(start, known), settings,
+                                              rng, settings.widen_first)]
     points = _Points(np.empty((0, start.shape[1])))
     history: list[dict[str, float]] = []
     smoothed, k_hat, settled = np.empty(0), float("inf"), False

@@ -142,6 +142,7 @@ def assemble(base: PhaseDiscrepancy | None, plans: dict[str, tuple[list[Group], 
             models[cid], sources[cid] = built[key]
         else:
             models[cid], sources[cid] = base, LOO
-    extra = [{**model.as_dict(), "residuals": words, "configurations": [c for c in plans if sources[c] == words]}
+    extra = [{**model.as_dict(), "residuals": words,
+              "configurations": [c for c in plans if sources[c] == words]}
              for model, words in built.values() if model is not None]
     return BandErrorModels(models, sources, base, LOO, runs, extra)

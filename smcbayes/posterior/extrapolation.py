@@ -89,7 +89,8 @@ def leave_out_groups(project: ProjectConfig, train_ids: Sequence[str], cid: str)
     if side is not None and _speed_side(min(speeds), [max(speeds)]) is not None:
         edge = max(speeds) if side == "above" else min(speeds)
         groups.append(tuple(i for i, v in enumerate(speeds) if _speed_side(v, [edge]) is None))
-        words.append(f"the {edge:g} mm/s trials predicted from the {'slower' if side == 'above' else 'faster'} ones")
+        words.append(f"the {edge:g} mm/s trials predicted from the "
+                     f"{'slower' if side == 'above' else 'faster'} ones")
     keys = [_charge_key(c) for c in train]
     distinct = list(dict.fromkeys(keys))
     if _charge_key(cfg) not in distinct and len(distinct) >= 2:

@@ -131,8 +131,9 @@ def sandwich_points(residuals: Sequence[Array], sensitivities: Sequence[Array], 
     sensitivities s_ki = d sim_ki / d psi (kN per unit of the sampled coordinates),
     L = (1/K) sum_k (1/N_k) sum_i r_ki^2 the loss, and V_k = sum_{|l| <= M} sum_i g_ki
     g_k,i+l' the variance of the sum of the score series g_ki = r_ki s_ki (lag products
-    about zero over Sokal's window M of the residual series).  Unlike sum_k N_k / tau_k it weights the error correlation
-    where each parameter acts (a parameter seen only in the last second of a curve gets
+    about zero over Sokal's window M of the residual series).  Unlike sum_k N_k / tau_k it
+    weights the error correlation where each parameter acts (a parameter seen only in the
+    last second of a curve gets
     that second's error structure).  With white residuals on curves of equal length it
     reduces to sum_k N_k (every curve is read on the same number of loss grid points).
     It is taken at the best calibrated point, not an exact optimum: a remaining mean score

@@ -81,8 +81,10 @@ def bands_plot(bands: Mapping[str, Band], path: Path, title: str) -> list[Path]:
         b, ax = bands[cid], axes[k // ncols][k % ncols]
         ax.fill_between(b.time_s, b.force_pred_kN[0], b.force_pred_kN[4], color="tab:blue", alpha=0.15,
                         label="predictive 90 %")
-        ax.fill_between(b.time_s, b.force_kN[0], b.force_kN[4], color="tab:blue", alpha=0.3, label="model 90 %")
-        ax.fill_between(b.time_s, b.force_kN[1], b.force_kN[3], color="tab:blue", alpha=0.5, label="model 50 %")
+        ax.fill_between(b.time_s, b.force_kN[0], b.force_kN[4], color="tab:blue", alpha=0.3,
+                        label="model 90 %")
+        ax.fill_between(b.time_s, b.force_kN[1], b.force_kN[3], color="tab:blue", alpha=0.5,
+                        label="model 50 %")
         ax.plot(b.time_s, b.force_kN[2], color="tab:blue", lw=1.2, label="model median")
         if b.force_pred_mean_kN is not None:
             ax.plot(b.time_s, b.force_pred_mean_kN, color="tab:orange", lw=1.2, ls="--",

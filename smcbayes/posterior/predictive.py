@@ -114,7 +114,8 @@ def _predictive_draws(force: Array, grid: Array, switch_s: Array, travel_mm: Arr
     if discrepancy is None:
         err, scale = sigma * rng.standard_normal(base.shape), sigma
     else:
-        d = remaining_travel_mm(grid[None, :], np.repeat(switch_s, k)[:, None], np.repeat(travel_mm, k)[:, None])
+        d = remaining_travel_mm(grid[None, :], np.repeat(switch_s, k)[:, None],
+                                np.repeat(travel_mm, k)[:, None])
         err = discrepancy.sample(d, rng)
         scale = float(np.mean(discrepancy.scale_kN(d)))
     return np.clip(base + err, 0.0, limit_kN), scale
@@ -201,8 +202,8 @@ def predictive_bands(model: Simulator, theta: Array, config_ids: Sequence[str],
         force = _curves_on_grid(res.time_s[ok], res.force_kN[ok], grid)
         disp = _curves_on_grid(res.time_s[ok], res.displacement_mm[ok], grid)
         switch = res.switch_time_s[ok]
-        travel = np.array([np.interp(s, t, v) for s, t, v in zip(switch, res.time_s[ok], res.displacement_mm[ok],
-                                                                     strict=True)])
+        travel = np.array([np.interp(s, t, v) for s, t, v in zip(switch, res.time_s[ok],
+                                                                 res.displacement_mm[ok], strict=True)])
         if delays_s is not None and np.size(delays_s.get(cid, ())):
             force, disp, switch, travel = _delayed(grid, force, disp, switch, travel,
                                                    np.asarray(delays_s[cid], dtype=float))

@@ -216,7 +216,8 @@ def fit_proposal(u: Array, log_w: Array | None, settings: CorrectionSettings, rn
     if log_w is not None and settings.local and ess >= 4 * d:
         k = max(4 * d, int(ess // 2))
         scale = 0.5 * scale + 0.5 * _local_covs(u, w, centres, cov, k) * (widen * 1.5) ** 2 + 1e-9 * np.eye(d)
-        scale_at = _with_local(scale_at if scale_at is not None else (lambda p: np.broadcast_to(const, (p.shape[0], d, d))),
+        scale_at = _with_local(scale_at if scale_at is not None
+                               else (lambda p: np.broadcast_to(const, (p.shape[0], d, d))),
                                u, w, cov, k, (widen * 1.5) ** 2)
     chol_at = None if scale_at is None else (lambda p: np.linalg.cholesky(scale_at(p)))
     return Proposal(centres, np.linalg.cholesky(scale), settings.nu, settings.defensive, chol_at)

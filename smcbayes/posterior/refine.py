@@ -135,7 +135,8 @@ def round_design(draws_unit: Array, surrogate: Predictor, count: int,
     parts = [rand]
     pool = draws_unit
     if wide_unit is not None and wide_unit.shape[0]:
-        parts.append(wide_unit[rng.choice(wide_unit.shape[0], size=min(count // wide_share, wide_unit.shape[0]),
+        parts.append(wide_unit[rng.choice(wide_unit.shape[0],
+                                          size=min(count // wide_share, wide_unit.shape[0]),
                                           replace=False)])
         pool = np.vstack([draws_unit, wide_unit])
     lo, hi = local_box(draws_unit)
@@ -190,7 +191,8 @@ class EmulatorCheck:
     correlation: float
 
     def as_dict(self) -> dict[str, float]:
-        return {k: getattr(self, k) for k in ("points", "mean_abs_error", "rmse", "max_abs_error", "correlation")}
+        return {k: getattr(self, k) for k in ("points", "mean_abs_error", "rmse",
+                                              "max_abs_error", "correlation")}
 
 
 def check_emulator(draws_unit: Array, emulated_log_loss: Callable[[Array], Array],

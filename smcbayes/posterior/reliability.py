@@ -248,7 +248,8 @@ def _curve_budget_reason(active: dict[str, Any]) -> str:
                      f"(> {SPREAD_MAX})")
     # the budget's own last confirmation asked for nothing more: only those before it count
     if len([c for c in failed if c["forward_runs"] < active.get("evaluations", 0)]) >= CONFIRMATIONS:
-        confirm_words += f"; after {CONFIRMATIONS} failed confirmations it asked for none until its budget's end"
+        confirm_words += (f"; after {CONFIRMATIONS} failed confirmations it asked for none until its "
+                          "budget's end")
     return (f"the active learning spent its {active.get('evaluations')} forward runs before the emulator was "
             f"validated where the posterior lies (its last rounds' errors at fresh posterior draws "
             f"{words(errors, ' nats')}, each to be within {active.get('tolerance_nats', math.nan):.2g}; "

@@ -121,7 +121,8 @@ def _tables(ctx: RunContext, chains: list, corrected: Any, rng: np.random.Genera
 
 def _corr_block(corr: tuple) -> dict[str, Any]:
     matrix, labels, pairs = corr
-    return {"labels": labels, "matrix": matrix.tolist(), "strongest": [{"a": a, "b": b, "r": r} for a, b, r in pairs]}
+    return {"labels": labels, "matrix": matrix.tolist(),
+            "strongest": [{"a": a, "b": b, "r": r} for a, b, r in pairs]}
 
 
 def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any], settings: Any,
@@ -145,7 +146,8 @@ def _bands_and_figures(ctx: RunContext, t: dict[str, Any], budget: dict[str, Any
     errors = band_error_models(ctx, fit, band_ids)
     limits = {cid: float(p.project.get(cid).press.force_limit_kN) for cid in band_ids}
     offsets = np.asarray(list(errors.offsets_mm.values()), dtype=float)
-    delays = {cid: offsets / p.project.get(cid).press.speed_mm_s for cid in band_ids} if offsets.size else None
+    delays = ({cid: offsets / p.project.get(cid).press.speed_mm_s for cid in band_ids} if offsets.size
+              else None)
     bands = predictive_bands(ctx.runner, space.from_unit(draw_unit), band_ids, measured, noise, rng,
                              discrepancy=errors.models, force_limit_kN=limits, delays_s=delays)
     fig = out_dir / "figures"
@@ -213,7 +215,8 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     if corrected is not None:
         attrs.update(k_hat=corrected.k_hat, importance_ess=corrected.ess,
                      correction_evaluations=0 if emulated else corrected.evaluations)
-    to_inference_data(space, chains, attrs, corrected, t["resampled"]).to_netcdf(str(out_dir / "posterior.nc"))
+    to_inference_data(space, chains, attrs,
+                      corrected, t["resampled"]).to_netcdf(str(out_dir / "posterior.nc"))
     write_table(out_dir / "summary.csv", t["table"])
     if corrected is not None:
         write_table(out_dir / "summary_emulator.csv", t["raw"])
@@ -228,12 +231,14 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     bands, band_runs, val_ids, errors = _bands_and_figures(ctx, t, budget, settings, rng, out_dir, fit)
     corr_info = correction_info(corrected, settings)
     notes = extrapolation_notes(ctx.problem.project, ctx.problem.train_ids, list(bands))
-    warns += [extrapolation_warning(cid, why, errors.sources.get(cid, "")) for cid, why in notes.items() if why]
+    warns += [extrapolation_warning(cid, why, errors.sources.get(cid, ""))
+              for cid, why in notes.items() if why]
     return {
         "method": attrs["method"],
         "parameters": [asdict(s) for s in t["table"]], "warnings": warns, "proposal_notes": proposal_notes,
         "correlation": _corr_block(t["corr"]),
-        "emulator_parameters": [asdict(s) for s in t["raw"]], "emulator_correlation": _corr_block(t["raw_corr"]),
+        "emulator_parameters": [asdict(s) for s in t["raw"]],
+        "emulator_correlation": _corr_block(t["raw_corr"]),
         "correction": corr_info,
         "forward_evaluations": {"correction": corr_info["evaluations"], "emulator_check": check.points,
                                 "bands": band_runs},

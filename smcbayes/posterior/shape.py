@@ -62,7 +62,8 @@ def bimodal_split(x: Array) -> float | None:
     """
     hist, edges = np.histogram(np.clip(x, 0.0, 1.0), bins=BINS, range=(0.0, 1.0))
     h = np.convolve(hist.astype(float), np.ones(3) / 3.0, mode="same")
-    peaks = [i for i in range(BINS) if h[i] > 0 and h[i] >= h[max(i - 1, 0)] and h[i] > h[min(i + 1, BINS - 1)]]
+    peaks = [i for i in range(BINS) if h[i] > 0 and h[i] >= h[max(i - 1, 0)]
+             and h[i] > h[min(i + 1, BINS - 1)]]
     if len(peaks) < 2:
         return None
     order = sorted(peaks, key=lambda i: h[i], reverse=True)

@@ -61,7 +61,8 @@ def emulator_spread(reported_unit: Array, control_unit: Array, function_draws: S
     """
     noise = quantile_shifts(reported_unit, [control_unit])
     shifts = np.maximum(quantile_shifts(reported_unit, function_draws) - noise, 0.0)
-    return {"functions": len(function_draws), "steps": int(steps), "max_quantile_shift": float(np.max(shifts)),
+    return {"functions": len(function_draws), "steps": int(steps),
+            "max_quantile_shift": float(np.max(shifts)),
             "per_parameter": {n: float(v) for n, v in zip(names, shifts, strict=True)},
             "sampling_noise": {n: float(v) for n, v in zip(names, noise, strict=True)}}
 

@@ -128,7 +128,8 @@ def residual_budget(ctx: RunContext, fit: LocalFit | None = None) -> dict[str, A
     mse = {cid: float(np.mean(r**2)) for cid, r in zip(fit.config_ids, residuals, strict=True)}
     tau, n_eff = effective_points(residuals, centred=False)
     sandwich = sandwich_points(residuals, sensitivities) if fit.usable else float("nan")
-    total = min(sandwich, float(n_eff.sum())) if np.isfinite(sandwich) and sandwich > 0 else float(n_eff.sum())
+    total = (min(sandwich, float(n_eff.sum())) if np.isfinite(sandwich) and sandwich > 0
+             else float(n_eff.sum()))
     return {"config_ids": list(fit.config_ids), "tau": tau.tolist(), "n_eff": n_eff.tolist(),
             "n_eff_residual": float(n_eff.sum()), "n_eff_sandwich": sandwich,
             "n_eff_total": total, "mse_kN2": mse}

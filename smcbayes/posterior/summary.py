@@ -110,7 +110,8 @@ def _inference_data(az: Any, space: ParameterSpace, chains: Sequence[Chains], at
     posterior, stats, component = _chain_groups(space, chains)
     clean = {k: (float(v) if isinstance(v, np.floating) else v) for k, v in attrs.items()}
     if corrected is None:
-        return az.from_dict(posterior=posterior, sample_stats=stats, coords={"component": component}, attrs=clean)
+        return az.from_dict(posterior=posterior, sample_stats=stats,
+                            coords={"component": component}, attrs=clean)
     theta = space.from_unit(resampled)
     lp = corrected.log_target[_rows_of(corrected.unit, resampled)]
     idata = az.from_dict(posterior={n: theta[None, :, j] for j, n in enumerate(space.free_names)},

@@ -109,7 +109,8 @@ def _polish_row(polish: dict[str, Any] | None) -> list[tuple[str, str]]:
         return []
     how = "converged" if polish.get("converged") else "its budget spent"
     return [("local search (forward model)",
-             f"{fmt(polish.get('evaluations'))} evaluations ({how}), loss {fmt(polish.get('start_loss_kN2'))} "
+             f"{fmt(polish.get('evaluations'))} evaluations ({how}), "
+             f"loss {fmt(polish.get('start_loss_kN2'))} "
              f"-> {fmt(polish.get('best_loss_kN2'))} kN^2")]
 
 

@@ -85,7 +85,8 @@ def _method_words(post: dict[str, Any]) -> str:
         pooled = (f", pooled with {fmt(spread.get('functions'))} GP sample functions' posteriors"
                   if spread.get("pooled") else "")
         return (f"A Gaussian process emulates the force curves{_active_words(post)}; the likelihood of their "
-                f"expected loss is sampled by importance on the emulator (no forward run{pooled}, seed {seed}; "
+                "expected loss is sampled by importance on the emulator "
+                f"(no forward run{pooled}, seed {seed}; "
                 f"{seconds} s).")
     return (f"The calibration's Gaussian process emulates the likelihood{_active_words(post)}; "
             f"emcee samples it ({fmt(s.get('walkers'))} walkers, up to {fmt(s.get('steps'))} steps, "
@@ -113,7 +114,8 @@ def _active_words(post: dict[str, Any]) -> str:
         return begun
     done = ("validated: out-of-sample error below 1 nat, stable quantiles and a small spread"
             if active.get("converged") else "stopped by its budget before it was validated")
-    return (f"{begun}, trained further by active learning with {fmt(active.get('evaluations'))} forward runs in "
+    return (f"{begun}, trained further by active learning with "
+            f"{fmt(active.get('evaluations'))} forward runs in "
             f"{fmt(active.get('rounds'))} rounds ({done})")
 
 

@@ -184,7 +184,8 @@ class RunDir:
         if self.root.exists() and not self.root.is_dir():
             raise ConfigError(f"{self.root}: is a file, not a run directory; choose another --out")
         if not self.is_run():
-            where = "does not exist" if not self.root.exists() else "holds no calibration run (no config.json)"
+            where = ("does not exist" if not self.root.exists()
+                     else "holds no calibration run (no config.json)")
             raise ConfigError(f"{self.root}: {where}; --resume continues a run started with the same --out")
         return self.identity()
 
@@ -228,7 +229,8 @@ class RunDir:
                 continue  # unknown names are reported by override() below
             raise ConfigError(f"{option}{key} {value}: the run in {self.root} was started with "
                               f"{key} = {getattr(own, key)}; {resume} changes only {option}budget, "
-                              f"{option}tolerance and {option}polish (drop the option, or start a new run with another --out)")
+                              f"{option}tolerance and {option}polish (drop the option, "
+                              "or start a new run with another --out)")
         return override(own, given, source=str(self.root))
 
     def load_problem(self) -> Problem:
@@ -359,7 +361,8 @@ def _comparable(identity: Mapping[str, Any]) -> dict[str, Any]:
     out = dict(identity)
     project = out.get("project")
     if isinstance(project, dict):
-        out["project"] = {k: v for k, v in project.items() if k not in ("calibration", "posterior", "diagnose")}
+        out["project"] = {k: v for k, v in project.items()
+                          if k not in ("calibration", "posterior", "diagnose")}
         out["project"]["truth"] = (project.get("calibration") or {}).get("truth")
     if "noise" in out and out["noise"] is None:
         out["noise"] = "fit"

@@ -4,8 +4,9 @@ A :class:`Task` is a block of parameter vectors (free parameters, user units) an
 configuration; an :class:`Objective` turns it into a :class:`TaskResult` of per-row errors
 and statuses, and the simulated curves when the task asks for them (``curves=True``).
 A :class:`Simulator` is anything that turns parameter vectors into curves: the native
-forward model and the external-command adapter are the two implementations.  The loss of an evaluation is the mean of its per-configuration errors over
-the objective's configurations (thesis eq. 3.7, ``1/p * sum_k``).  Objectives must be
+forward model and the external-command adapter are the two implementations.  The loss of
+an evaluation is the mean of its per-configuration errors over the objective's
+configurations (thesis eq. 3.7, ``1/p * sum_k``).  Objectives must be
 picklable: executors ship them to worker processes or cluster nodes.
 """
 
@@ -168,7 +169,8 @@ class SimulatorObjective:
         curves = result if task.curves else None
         if task.config_id not in self.config_ids:
             nan = np.full(result.rows, np.nan)
-            status = [s if s == STATUS_OK or s.startswith("failed") else f"failed: {s}" for s in result.status]
+            status = [s if s == STATUS_OK or s.startswith("failed") else f"failed: {s}"
+                      for s in result.status]
             return TaskResult(task.indices, task.config_id, nan, nan.copy(), nan.copy(), status,
                               time.perf_counter() - start, curves)
         spec = self.loss_spec if self.loss_spec is not None else LossSpec()
@@ -278,7 +280,8 @@ class FlakyObjective:
         """The inner errors, with the drawn failures as failed rows."""
         res = self.inner.evaluate(task)
         bad = np.array([self.fails(i, task.config_id, task.attempt) for i in task.indices], dtype=bool)
-        status = ["failed: injected transient failure" if b else s for s, b in zip(res.status, bad, strict=True)]
+        status = ["failed: injected transient failure" if b else s
+                  for s, b in zip(res.status, bad, strict=True)]
         nan_where = lambda a: np.where(bad, np.nan, a)  # noqa: E731
         return TaskResult(res.indices, res.config_id, nan_where(res.error), nan_where(res.force_mse_kN2),
                           nan_where(res.displacement_mse_mm2), status, res.seconds, res.curves)

@@ -237,7 +237,8 @@ class Runner:
         return [Task(tuple(range(lo, min(lo + size, rows))), theta[lo:lo + size], cid, curves)
                 for cid in config_ids for lo in range(0, rows, size)]
 
-    def run(self, theta: Array, config_ids: Sequence[str], curves: bool = False) -> dict[str, list[TaskResult]]:
+    def run(self, theta: Array, config_ids: Sequence[str],
+            curves: bool = False) -> dict[str, list[TaskResult]]:
         """Evaluate ``theta`` ``(P, d)`` (free parameters, user units) on ``config_ids``.
 
         Returns each configuration's task results in row order.

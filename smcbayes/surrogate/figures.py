@@ -15,7 +15,8 @@ from smcbayes.plotting import save, subplots
 Array = NDArray[np.float64]
 
 
-def plot_convergence(losses: Array, init: int, path: Path, local: NDArray[np.bool_] | None = None) -> list[Path]:
+def plot_convergence(losses: Array, init: int, path: Path,
+                     local: NDArray[np.bool_] | None = None) -> list[Path]:
     """Loss per evaluation and best-so-far (thesis figure 4.22); failures marked at the top.
 
     Args:

@@ -275,7 +275,8 @@ class BayesOpt:
                 "params": {k: float(v[0]) for k, v in params.items()},
                 "errors": errors,
                 "force_mse_kN2": {c: float(parts[c][0].force_mse_kN2[parts[c][1]]) for c in ids},
-                "displacement_mse_mm2": {c: float(parts[c][0].displacement_mse_mm2[parts[c][1]]) for c in ids},
+                "displacement_mse_mm2": {c: float(parts[c][0].displacement_mse_mm2[parts[c][1]])
+                                         for c in ids},
                 "loss": None if reasons else loss, "status": "failed" if reasons else "ok",
                 "reason": "; ".join(reasons) or None, "seconds": seconds}
 

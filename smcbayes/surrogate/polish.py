@@ -61,7 +61,8 @@ class SearchLog(Protocol):
     space: ParameterSpace
     state: LogState
 
-    def log_round(self, rnd: int, first_index: int, unit: Array, kind: str | None = None) -> dict[str, Any]: ...
+    def log_round(self, rnd: int, first_index: int, unit: Array,
+                  kind: str | None = None) -> dict[str, Any]: ...
 
     def evaluate_round(self, record: dict[str, Any]) -> None: ...
 

@@ -137,7 +137,8 @@ def test_evaluate_without_data_exits_2(tmp_path: Path, capsys: pytest.CaptureFix
     assert "\n" not in err and "not found" in err
 
 
-def test_evaluate_with_the_contact_from_the_end_state(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_evaluate_with_the_contact_from_the_end_state(tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
     """The thesis project takes each trial's contact from its end state; synthetic trials
     carry their own simulated parts, so at the truth their offsets are 0, and a trial
     without its part is averaged over the training trials' offsets instead of failing."""

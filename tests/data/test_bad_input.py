@@ -22,9 +22,11 @@ CSV_CASES = {
     "empty": ("", ["file is empty"]),
     "header_only": ("time_s,force_kN\n", ["no data rows"]),
     "missing_column": ("time_s,force\n0,0\n1,1\n", ["missing column 'force_kN'", "data.force_column"]),
-    "non_numeric": ("time_s,force_kN\n0,0\n1,abc\n2,3\n", ["row 3", "column 'force_kN'", "'abc'", "fix or remove"]),
+    "non_numeric": ("time_s,force_kN\n0,0\n1,abc\n2,3\n",
+                    ["row 3", "column 'force_kN'", "'abc'", "fix or remove"]),
     "nan": ("time_s,force_kN\n0,0\n1,nan\n2,3\n", ["row 3", "column 'force_kN'", "NaN", "remove the row"]),
-    "duplicate_time": ("time_s,force_kN\n0,0\n1,1\n1,2\n", ["row 4", "column 'time_s'", "duplicate", "sort or de-duplicate"]),
+    "duplicate_time": ("time_s,force_kN\n0,0\n1,1\n1,2\n",
+                       ["row 4", "column 'time_s'", "duplicate", "sort or de-duplicate"]),
     "decreasing_time": ("time_s,force_kN\n0,0\n2,1\n1,2\n", ["row 4", "decreasing", "sort or de-duplicate"]),
     "one_row": ("time_s,force_kN\n0,0\n", ["at least 2"]),
 }
@@ -62,11 +64,13 @@ def test_press_export_errors(tmp_path: Path) -> None:
     with pytest.raises(DataError, match="file is empty"):
         read_press(p)
     head = "Zeit;dbPr\\diIstPos;dbPr\\diIstKraftGes\r\n;mm;kN\r\n"
-    p.write_bytes((head + "01.01.2024 00:00:00.000000;1,0;2,0\r\n01.01.2024 00:00:00.500000;1,0;x\r\n").encode("utf-16-le"))
+    p.write_bytes((head + "01.01.2024 00:00:00.000000;1,0;2,0\r\n"
+                          "01.01.2024 00:00:00.500000;1,0;x\r\n").encode("utf-16-le"))
     with pytest.raises(DataError) as info:
         read_press(p)
     _check(info.value, p, ["row 4", "dbPr\\diIstKraftGes", "'x'"])
-    p.write_bytes((head + "01.01.2024 00:00:00.500000;1,0;2,0\r\n01.01.2024 00:00:00.500000;1,0;3,0\r\n").encode("utf-16-le"))
+    p.write_bytes((head + "01.01.2024 00:00:00.500000;1,0;2,0\r\n"
+                          "01.01.2024 00:00:00.500000;1,0;3,0\r\n").encode("utf-16-le"))
     with pytest.raises(DataError) as info:
         read_press(p)
     _check(info.value, p, ["row 4", "duplicate", "Zeit"])

@@ -130,16 +130,19 @@ def test_interp_rows_on_sorted_grids_padded_nodes_and_nan() -> None:
         ok = np.isfinite(x[p])
         np.testing.assert_allclose(out[p][ok], np.interp(x[p][ok], xp[p], fp[p]), rtol=1e-12, atol=1e-12)
     on_node = x[2] == xp[2, 4]
-    np.testing.assert_allclose(out[2][~on_node], np.interp(x[2][~on_node], xp[2], fp[2]), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(out[2][~on_node], np.interp(x[2][~on_node], xp[2], fp[2]),
+                               rtol=1e-12, atol=1e-12)
     assert np.all(out[2][on_node] == fp[2, 7])
     assert np.isnan(out[3, 7]) and np.isfinite(out[3, 8])
     np.testing.assert_array_equal(out[4], fp[4, -1])  # a row of one node holds its last value
     j, w = row_weights(x, xp)
     np.testing.assert_array_equal(apply_weights(fp, j, w), out)
     # one node per row; nodes shared by all rows
-    np.testing.assert_array_equal(interp_rows(x[:2], xp[:2, :1], fp[:2, :1]), np.repeat(fp[:2, :1], 50, axis=1))
+    np.testing.assert_array_equal(interp_rows(x[:2], xp[:2, :1], fp[:2, :1]),
+                                  np.repeat(fp[:2, :1], 50, axis=1))
     np.testing.assert_allclose(interp_rows(x[:2], xp[:1], fp[:1]), [np.interp(x[0], xp[0], fp[0]),
-                                                                    np.interp(x[1], xp[0], fp[0])], rtol=1e-12)
+                                                                    np.interp(x[1], xp[0], fp[0])],
+                               rtol=1e-12)
 
 
 def test_missing_measurement_or_result_is_an_error(dh, tmp_path: Path) -> None:

@@ -86,7 +86,8 @@ def test_moldflow_picks_dataset_by_quantity(tmp_path: Path) -> None:
     write_moldflow(tmp_path / "f.xml", "Press force:XY Plot", t, f, "kN", "Press force")
     write_moldflow(tmp_path / "d.xml", "Press displacement:XY Plot", t, x, "mm", "Press displacement")
     body_f = (tmp_path / "f.xml").read_text().split("<Dataset>")[1].split("</Dataset>")[0]
-    both = (tmp_path / "d.xml").read_text().replace("</Dataset>", f"</Dataset>\n  <Dataset>{body_f}</Dataset>")
+    both = (tmp_path / "d.xml").read_text().replace("</Dataset>",
+                                                    f"</Dataset>\n  <Dataset>{body_f}</Dataset>")
     (tmp_path / "both.xml").write_text(both)
     np.testing.assert_allclose(read_moldflow(tmp_path / "both.xml", "force").values, f)
     np.testing.assert_allclose(read_moldflow(tmp_path / "both.xml", "displacement").values, x)

@@ -25,7 +25,8 @@ def fits(ctx: DiagnosisContext) -> dict[str, Fit]:
     return out
 
 
-def test_heat_map_of_residuals(synthetic_ctx: Callable[[str | None], DiagnosisContext], tmp_path: Path) -> None:
+def test_heat_map_of_residuals(synthetic_ctx: Callable[[str | None], DiagnosisContext],
+                               tmp_path: Path) -> None:
     ctx = synthetic_ctx(None)
     rep = analyse(ctx, (), fits(ctx)["base"].theta, FIT_IDS + HOLD_IDS, bins=10)
     assert_png_and_svg(heat_map(rep, tmp_path / "figures" / "heatmap"), tmp_path / "figures" / "heatmap")

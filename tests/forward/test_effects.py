@@ -200,7 +200,8 @@ def test_cure_step_satisfies_the_exact_kamal_sourour_solution() -> None:
     p = {"k1": np.array([1e-5, 1e-3, 1e-2, 1e-1, 1e-3]), "k2": np.array([1.0, 2e-2, 0.2, 1.0, 1e-4])}
     for dt in (0.01, 0.1, 1.0, 5.0, 10.0):
         start = {"cure": np.array([0.0, 0.0, 0.05, 0.1, 0.0])}
-        end = effect.advance(None, p, start, np.full(5, 5e-3), np.full(5, dt))["cure"]  # type: ignore[arg-type]
+        end = effect.advance(None, p, start, np.full(5, 5e-3),  # type: ignore[arg-type]
+                             np.full(5, dt))["cure"]
         elapsed = invariant(end, p["k1"], p["k2"]) - invariant(start["cure"], p["k1"], p["k2"])
         np.testing.assert_allclose(elapsed, dt, rtol=1e-4)
 
@@ -313,7 +314,8 @@ def test_a_fill_below_the_limit_switches_once_the_ram_has_closed_the_gap_and_loa
     values = {**model.space.defaults(), **SHEAR, "tau_c_MPa": 0.01, "k_press_kN_mm": k_kN_mm}
     batch = {k: np.full(len(b_Pa_s), v) for k, v in values.items()}
     batch["B_Pa_s"] = b_Pa_s
-    res = model.solver.solve(case, to_si(batch, model.space.parameters), model.effects, model.project.material)
+    res = model.solver.solve(case, to_si(batch, model.space.parameters),
+                             model.effects, model.project.material)
     assert model.solver.last_path == ("compiled" if path == "compiled" else "numpy")
     assert all(s == "ok" for s in res.status)
     expected = (case.gap0 - case.gap_full + limit_kN * 1e3 / (k_kN_mm * 1e6)) / case.speed

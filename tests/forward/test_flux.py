@@ -76,7 +76,8 @@ def test_slip_dominated_plug_flow(m: float) -> None:
     a_s, s = 1e-8, 1.0 / m
     plug = dict(n=0.5, tau_star=1e40, eta0=1e40, a_s=a_s, tau_c=0.0, m=m)
     disc = squeeze_force(planar=False, length=R, gap=H, speed=V, **plug)[0]
-    assert disc == pytest.approx(2 * np.pi * R ** (3 + s) / ((3 + s) * H) * (V / (2 * a_s * H)) ** s, rel=5e-3)
+    assert disc == pytest.approx(2 * np.pi * R ** (3 + s) / ((3 + s) * H) * (V / (2 * a_s * H)) ** s,
+                                 rel=5e-3)
     bar = squeeze_force(planar=True, length=A, gap=H, speed=V, **plug)[0]
     assert bar == pytest.approx(4 * W * A ** (2 + s) / ((2 + s) * H) * (V / (a_s * H)) ** s, rel=5e-3)
 

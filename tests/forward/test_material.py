@@ -54,7 +54,8 @@ def test_slip_law_threshold_and_power() -> None:
 
 def test_arrhenius_is_relative_to_the_mould_temperature() -> None:
     assert zero_shear_viscosity(1e4, 5000.0, 408.15, 408.15) == 1e4
-    assert zero_shear_viscosity(1e4, 5000.0, 353.15, 408.15) > 1e4 > zero_shear_viscosity(1e4, 5000.0, 420.0, 408.15)
+    assert (zero_shear_viscosity(1e4, 5000.0, 353.15, 408.15) > 1e4
+            > zero_shear_viscosity(1e4, 5000.0, 420.0, 408.15))
 
 
 def test_cure_factor_grows_and_diverges_at_gelation() -> None:

@@ -102,7 +102,7 @@ def test_effect_parameter_tables_apply_only_with_their_effect(thesis_config: Pat
     on = ForwardModel(project, effects=["compressibility"])
     assert on.space.fixed == {"rho_solid_g_cm3": 1.5, "bulk_viscosity_MPa_s": 0.0}
     assert "compaction_modulus_MPa" in on.space.free_names
-    typo = project.model_copy(update={"parameters": {**project.parameters,
-                                                     "rho_solid_g_cm": project.parameters["rho_solid_g_cm3"]}})
+    typo = project.model_copy(update={"parameters": {
+        **project.parameters, "rho_solid_g_cm": project.parameters["rho_solid_g_cm3"]}})
     with pytest.raises(ConfigError, match="did you mean 'rho_solid_g_cm3'"):
         ForwardModel(typo)

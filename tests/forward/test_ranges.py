@@ -20,7 +20,8 @@ ALL = list(BASE_PARAMETERS) + [p for cls in registered().values() for p in cls.p
 
 
 @pytest.mark.parametrize("param", ALL, ids=lambda p: p.name)
-def test_range_holds_the_default_and_the_built_in_box_and_is_valid(param) -> None:  # type: ignore[no-untyped-def]
+def test_range_holds_the_default_and_the_built_in_box_and_is_valid(  # type: ignore[no-untyped-def]
+        param) -> None:
     r = physical_range(param.name)
     assert r.lower < r.upper and len(r.reason) > 30
     assert r.contains(param.default) and r.contains(param.lower) and r.contains(param.upper)

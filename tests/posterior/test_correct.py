@@ -55,7 +55,8 @@ def biased_start(rng: np.random.Generator) -> np.ndarray:
 def test_correction_recovers_exact_moments_from_biased_proposal() -> None:
     rng = np.random.default_rng(0)
     start = biased_start(rng)
-    res = correct(log_target, start, CorrectionSettings(draws=1600, per_iteration=400, ess_target=np.inf), rng)
+    res = correct(log_target, start,
+                  CorrectionSettings(draws=1600, per_iteration=400, ess_target=np.inf), rng)
     mean, sd, corr = weighted_moments(res.unit[res.weights > 0], res.weights[res.weights > 0])
     # the uncorrected draws are off by >= 0.05 in the mean and have no correlation ...
     assert np.max(np.abs(start.mean(0) - MU)) > 0.09
@@ -86,9 +87,11 @@ def test_same_seed_same_result_and_failed_runs_get_zero_weight() -> None:
         out[u[:, 0] > 0.6] = np.nan  # the forward model "failed" there
         return out
 
-    a = correct(flaky, biased_start(np.random.default_rng(2)), CorrectionSettings(draws=400, per_iteration=200),
+    a = correct(flaky, biased_start(np.random.default_rng(2)),
+                CorrectionSettings(draws=400, per_iteration=200),
                 np.random.default_rng(3))
-    b = correct(flaky, biased_start(np.random.default_rng(2)), CorrectionSettings(draws=400, per_iteration=200),
+    b = correct(flaky, biased_start(np.random.default_rng(2)),
+                CorrectionSettings(draws=400, per_iteration=200),
                 np.random.default_rng(3))
     np.testing.assert_array_equal(a.unit, b.unit)
     np.testing.assert_array_equal(a.log_weight, b.log_weight)
@@ -191,7 +194,8 @@ def test_the_correction_recovers_from_a_degenerate_start() -> None:
     the defensive prior's draws carry the next proposals to the posterior."""
     rng = np.random.default_rng(0)
     start = np.tile(MU + np.array([0.1, -0.1, 0.05]), (3000, 1))
-    res = correct(log_target, start, CorrectionSettings(draws=3000, per_iteration=500, ess_target=np.inf), rng)
+    res = correct(log_target, start,
+                  CorrectionSettings(draws=3000, per_iteration=500, ess_target=np.inf), rng)
     mean, sd, _ = weighted_moments(res.unit[res.weights > 0], res.weights[res.weights > 0])
     assert res.history[0]["ess"] < 10 and res.ess > 500 and res.k_hat < 0.5
     np.testing.assert_allclose(mean, MU, atol=0.01)
@@ -236,7 +240,8 @@ def test_stops_early_once_the_weights_are_good() -> None:
 
 def test_local_kernels_follow_the_sample() -> None:
     rng = np.random.default_rng(8)
-    res = correct(log_target, biased_start(rng), CorrectionSettings(draws=1600, per_iteration=400, local=True), rng)
+    res = correct(log_target, biased_start(rng),
+                  CorrectionSettings(draws=1600, per_iteration=400, local=True), rng)
     mean = res.weights @ res.unit
     np.testing.assert_allclose(mean, MU, atol=0.03)
 

@@ -1,8 +1,9 @@
 """Leave-one-out and leave-group-out refits for the bands' error model.
 
 On a linear model the damped Gauss-Newton step without configuration k (or without a group
-of configurations) is the exact least squares refit on the others; the line search never takes a step that fits the others
-worse than the calibrated point; and on a model with a per-configuration systematic error
+of configurations) is the exact least squares refit on the others; the line search never
+takes a step that fits the others worse than the calibrated point; and on a model with a
+per-configuration systematic error
 (as a trial's contact height shifts its whole curve), error quantiles learnt from the
 leave-one-out residuals cover a new configuration at about the nominal rate, where those
 learnt at the calibrated point under-cover.
@@ -31,7 +32,8 @@ def linear_problem(rng: np.random.Generator, k: int = 6, n: int | list[int] = 50
     ns = [n] * k if isinstance(n, int) else list(n)
     jac = [rng.normal(0.0, 20.0, (m, d)) + np.linspace(0, 40, m)[:, None] for m in ns]
     truth = rng.uniform(0.3, 0.7, d)
-    ys = [j @ truth + offset_kN * rng.standard_normal() + noise_kN * rng.standard_normal(j.shape[0]) for j in jac]
+    ys = [j @ truth + offset_kN * rng.standard_normal() + noise_kN * rng.standard_normal(j.shape[0])
+          for j in jac]
     return jac, ys, truth
 
 

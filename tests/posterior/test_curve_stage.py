@@ -161,8 +161,8 @@ def test_the_rounds_error_is_the_weighted_mean_at_its_simulated_posterior_draws(
     # expected loss e^1 everywhere (the mean curves' e^3); simulated e^(1 + k / 10) at row k:
     # errors of k / 10 * N_eff / 2
     features = SimpleNamespace(loss=lambda y: np.exp(1.0 + y[:, 0] / 10.0))
-    emulator = SimpleNamespace(loss=lambda x, variance=False: np.full(len(x), np.e if variance else np.e ** 3),
-                               features=features)
+    emulator = SimpleNamespace(
+        loss=lambda x, variance=False: np.full(len(x), np.e if variance else np.e ** 3), features=features)
     new = np.zeros((5, 2))
     y_new = np.arange(5.0)[:, None]
     step = Round(new, 3, None, 0.0, np.array([2.0, 1.0, 1.0]))
@@ -184,7 +184,8 @@ def test_rounds_validate_only_when_stable_and_accurate_together() -> None:
     assert not _validated(small[:-1], stable[:-1], 1.0, narrow, still)  # too few rounds
     # the last round moved
     assert not _validated(small, [*stable[:-1], 2 * QUANTILE_SHIFT], 1.0, narrow, still)
-    assert not _validated(small, [None, *stable[:-1]], 1.0, narrow, still)  # a round with nothing to compare
+    # a round with nothing to compare
+    assert not _validated(small, [None, *stable[:-1]], 1.0, narrow, still)
     # every round must be within the tolerance: a good mean over the rounds is not enough
     assert not _validated([0.2, 0.2, 1.4], stable, 1.0, narrow, still)
     # earlier rounds do not count
@@ -305,7 +306,8 @@ def test_a_rounds_line_gives_the_measures_the_stop_reads_beside_its_bounds() -> 
     assert "(at most 1 to stop)" in line
     assert f"posterior moved 0.031 of a parameter's range (at most {QUANTILE_SHIFT:g})" in line
     mean = np.mean([0.2, 0.1, 0.06])
-    assert f"spread 0.060, mean of the last {VALIDATED_ROUNDS} {mean:.3f} (at most {SPREAD_MAX:g} on average)" in line
+    assert (f"spread 0.060, mean of the last {VALIDATED_ROUNDS} {mean:.3f} "
+            f"(at most {SPREAD_MAX:g} on average)") in line
     # two rounds since a failed confirmation: no mean the stop would read yet
     progress.since = 2
     assert "mean of the last" not in _round_status(progress, 1.0, 400)
@@ -434,7 +436,8 @@ def _kernel_case(rng: np.random.Generator, rows: int, nodes: int, grid: np.ndarr
             "speed": np.array([0.5, 1.1]), "ends": np.array([time_m[0][-1], 1.2])}
 
 
-def _kernel_expected(case: dict[str, np.ndarray], end_state: bool, flow_stop: bool, bound: float) -> np.ndarray:
+def _kernel_expected(case: dict[str, np.ndarray], end_state: bool, flow_stop: bool,
+                     bound: float) -> np.ndarray:
     """The same comparison in numpy, summed over the configurations: the simulated curve's
     first value held before the delayed contact and its switch value beyond the switch, the
     measured one's ends held."""
@@ -442,9 +445,11 @@ def _kernel_expected(case: dict[str, np.ndarray], end_state: bool, flow_stop: bo
     nodes = case["force"][0].shape[1]
     for k in range(2):
         offset = case["stack"][k] - case["heights"][:, k]
-        delay = (np.clip(offset, -bound, bound) if bound > 0 else offset) / case["speed"][k] if end_state else 0.0
+        clipped = np.clip(offset, -bound, bound) if bound > 0 else offset
+        delay = clipped / case["speed"][k] if end_state else 0.0
         switch = case["switch"][:, k]
-        end = np.full(len(switch), case["ends"][k]) if flow_stop else np.maximum(switch + delay, case["ends"][k])
+        end = (np.full(len(switch), case["ends"][k]) if flow_stop
+               else np.maximum(switch + delay, case["ends"][k]))
         t = end[:, None] * case["grid"][None, :]
         x = np.clip((t - np.reshape(delay, (-1, 1))) / switch[:, None], 0.0, 1.0) * (nodes - 1)
         i = np.minimum(np.floor(x).astype(int), nodes - 2)
@@ -480,8 +485,8 @@ def test_the_loss_kernel_is_the_interpolated_comparison_of_the_two_curves(end_st
 
     def run(kernel, features: np.ndarray, *extra: int) -> np.ndarray:
         out = np.full(rows, -1.0)
-        kernel(features, nodes, end_state, flow_stop, bound, case["stack"], case["speed"], case["ends"], common,
-               case["grid"], case["times"], case["forces"], case["starts"], out, *extra)
+        kernel(features, nodes, end_state, flow_stop, bound, case["stack"], case["speed"], case["ends"],
+               common, case["grid"], case["times"], case["forces"], case["starts"], out, *extra)
         return out
 
     out = run(loss_rows, zero)

@@ -121,7 +121,8 @@ def test_a_well_specified_case_keeps_about_nominal_coverage() -> None:
     cov50, cov90 = [], []
     for _ in range(4):
         tm = np.sort(rng.uniform(0.0, 1.05 * T_END, 500))
-        fm = 100.0 * np.minimum(tm, T_END) + spread_kN(remaining_travel_mm(tm, T_END, TRAVEL)) * rng.standard_normal(tm.size)
+        fm = (100.0 * np.minimum(tm, T_END)
+              + spread_kN(remaining_travel_mm(tm, T_END, TRAVEL)) * rng.standard_normal(tm.size))
         b = predictive_bands(RampModel(), theta, ["c"], {"c": (tm, fm)}, {}, rng, grid_points=600,
                              discrepancy=disc, force_limit_kN={"c": 5000.0})["c"]
         cov50.append(b.coverage50)
@@ -141,7 +142,8 @@ def test_sharper_bands_score_better_when_both_cover() -> None:
     wide = predictive_bands(RampModel(), theta, ["c"], {"c": (tm, fm)}, {"c": 40.0}, rng)["c"]
     assert wide.coverage90 > 0.97 and right.coverage90 > 0.8
     assert right.crps_kN < wide.crps_kN and right.interval_score90_kN < wide.interval_score90_kN
-    assert right.crps_kN == pytest.approx(10.0 * 0.5642, rel=0.2)  # CRPS of N(0, s) at its own draws: s / sqrt(pi)
+    # CRPS of N(0, s) at its own draws: s / sqrt(pi)
+    assert right.crps_kN == pytest.approx(10.0 * 0.5642, rel=0.2)
 
 
 def test_training_residuals_are_measured_minus_simulated_at_the_measured_times() -> None:

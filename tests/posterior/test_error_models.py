@@ -33,7 +33,8 @@ def test_a_configuration_beyond_the_training_set_takes_its_group_model() -> None
     assert models.models["thin"] is base and models.sources["thin"] == LOO  # one usable curve only
     wide = models.models["faster"]
     assert wide is not None and wide is not base
-    assert models.sources["faster"] == "leave-group-out refits: the 0.7 mm/s trials predicted from the slower ones"
+    assert models.sources["faster"] == ("leave-group-out refits: the 0.7 mm/s trials predicted from the "
+                                        "slower ones")
     d = np.linspace(0.5, 4.5, 9)
     assert np.all(wide.scale_kN(d) > 4 * base.scale_kN(d))
     summary = models.summary()

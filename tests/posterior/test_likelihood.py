@@ -95,7 +95,8 @@ def test_sandwich_points_of_white_residuals_count_every_point() -> None:
     for lengths in ((400, 400, 400), (400, 250, 400)):
         grids = [np.linspace(0.0, 1.0, n) for n in lengths]
         exact = len(lengths) ** 2 / sum(1.0 / n for n in lengths)
-        ratios = [sandwich_points([rng.standard_normal(g.size) for g in grids], [sensitivity(g) for g in grids])
+        ratios = [sandwich_points([rng.standard_normal(g.size) for g in grids],
+                                  [sensitivity(g) for g in grids])
                   / exact for _ in range(100)]
         assert np.median(ratios) == pytest.approx(1.0, abs=0.06)
 
@@ -106,7 +107,8 @@ def test_sandwich_points_match_the_information_of_short_correlated_records() -> 
     # N_eff = K L tr(A^-1 F) / d
     rng = np.random.default_rng(3)
     factors = press_noise_factors()
-    info = sum(sensitivity(t / t[-1]).T @ np.linalg.solve(cov, sensitivity(t / t[-1])) for t, cov, _, _ in factors)
+    info = sum(sensitivity(t / t[-1]).T @ np.linalg.solve(cov, sensitivity(t / t[-1]))
+               for t, cov, _, _ in factors)
     a = sum(sensitivity(g / g[-1]).T @ sensitivity(g / g[-1]) / g.size for _, _, _, g in factors)
     sandwich, about_zero, centred = [], [], []
     for _ in range(60):
@@ -286,7 +288,8 @@ def test_sampler_recovers_a_gaussian(moves: str) -> None:
         lp = -0.5 * np.sum(((u - centre) / sd) ** 2, axis=1)
         return np.where(inside, lp, -np.inf)
 
-    chains = run_ensemble(log_prob, 2, SamplerSettings(walkers=16, max_steps=3000, min_steps=500, moves=moves),
+    chains = run_ensemble(log_prob, 2,
+                          SamplerSettings(walkers=16, max_steps=3000, min_steps=500, moves=moves),
                           np.random.default_rng(5))
     flat = chains.samples.reshape(-1, 2)
     np.testing.assert_allclose(flat.mean(0), centre, atol=0.02)
@@ -431,7 +434,8 @@ def test_chains_that_only_started_a_settled_importance_sample_give_notes_not_war
     bad = ParameterSummary("eta0", "Pa s", 1.0, 0.1, 0.9, 1.0, 1.1, r_hat=1.3, ess=5000.0)
     chains = [Chains(np.zeros((10, 4, 2)), np.zeros((10, 4)), np.full(4, 0.3), np.ones(2), 100, 10, 1,
                      converged=False)]
-    for target, of in (("emulator", "the importance sampling on the emulator"), ("forward model", "the correction")):
+    for target, of in (("emulator", "the importance sampling on the emulator"),
+                       ("forward model", "the correction")):
         with warnings.catch_warnings(record=True) as seen:
             warnings.simplefilter("always")
             settled = _chain_warnings([bad], chains, SimpleNamespace(target=target, settled=True))
@@ -499,8 +503,10 @@ def test_reliability_names_each_failed_diagnostic() -> None:
     assert assess(emulator_only, space, 10.0, cheap=True)["notes"] == []
     spread = {"max_quantile_shift": 0.25, "per_parameter": {"n": 0.05, "m": 0.25}}
     reasons = assess({**converged, "emulator_spread": spread}, space, 10.0)["reasons"]
-    assert len(reasons) == 1 and "quantile of m moves by 0.25" in reasons[0] and "raise --refine" in reasons[0]
-    validated = {**converged, "emulator_spread": spread, "active_learning": {"enabled": True, "converged": True}}
+    assert (len(reasons) == 1 and "quantile of m moves by 0.25" in reasons[0]
+            and "raise --refine" in reasons[0])
+    validated = {**converged, "emulator_spread": spread,
+                 "active_learning": {"enabled": True, "converged": True}}
     reasons = assess(validated, space, 10.0)["reasons"]
     assert len(reasons) == 1 and "--refine" not in reasons[0] and "--correct-draws" in reasons[0]
     small = {"max_quantile_shift": 0.08, "per_parameter": {"n": 0.08, "m": 0.01}}
@@ -509,7 +515,8 @@ def test_reliability_names_each_failed_diagnostic() -> None:
     spent = {"enabled": True, "converged": False, "evaluations": 800, "error_nats": 0.4,
              "quantile_shift": 0.02, "spread": 0.3, "spread_checks": 4}
     reason = assess({**converged, "active_learning": spent}, space, 10.0)["reasons"][0]
-    assert "GP sample functions still moved" in reason and "0.3 of its range" in reason and "4 measurement" in reason
+    assert ("GP sample functions still moved" in reason and "0.3 of its range" in reason
+            and "4 measurement" in reason)
     unvalidated = {**spent, "error_nats": 2.5, "spread": None, "spread_checks": 0}
     reason = assess({**converged, "active_learning": unvalidated}, space, 10.0)["reasons"][0]
     assert "before the emulator was validated" in reason and "2.5 nats" in reason

@@ -32,7 +32,8 @@ class LinearModel:
             ok[list(self.failed)] = False
             force[~ok] = np.nan
             out[cid] = SimpleNamespace(ok=ok, time_s=np.tile(t, (theta.shape[0], 1)), force_kN=force,
-                                       displacement_mm=disp, switch_time_s=np.full(theta.shape[0], self.t_end))
+                                       displacement_mm=disp,
+                                       switch_time_s=np.full(theta.shape[0], self.t_end))
         return out
 
 
@@ -46,7 +47,8 @@ def test_model_bands_are_the_quantiles_of_the_draws_and_noise_free_prediction_eq
     qa = np.quantile(a, QUANTILES)
     inside = b.time_s <= 10.0
     np.testing.assert_allclose(b.force_kN[:, inside], qa[:, None] * b.time_s[None, inside], rtol=1e-12)
-    np.testing.assert_allclose(b.force_kN[:, ~inside], np.broadcast_to(qa[:, None] * 10.0, (5, (~inside).sum())))
+    np.testing.assert_allclose(b.force_kN[:, ~inside],
+                               np.broadcast_to(qa[:, None] * 10.0, (5, (~inside).sum())))
     # the displacement quantiles of -0.1 a t are those of a reversed
     np.testing.assert_allclose(b.displacement_mm[:, inside], -0.1 * qa[::-1, None] * b.time_s[None, inside],
                                rtol=1e-12, atol=1e-12)

@@ -62,7 +62,8 @@ def test_log_exp_acquisition_is_tempered_mean_plus_log_sd_in_nats() -> None:
     mean, std = surrogate.predict(x)
     a, zeta = 0.5 * 4.0, 2.0 ** -1.1
     assert acquisition_zeta(2) == pytest.approx(zeta)
-    np.testing.assert_allclose(log_exp_acquisition(x, surrogate, 4.0), 2 * zeta * (-a * mean) + np.log(a * std))
+    np.testing.assert_allclose(log_exp_acquisition(x, surrogate, 4.0),
+                               2 * zeta * (-a * mean) + np.log(a * std))
 
 
 class Fixed:

@@ -161,14 +161,16 @@ def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path
     stage's verdict consistent with its stopping rule."""
     from smcbayes.posterior.stage import PosteriorSettings, run_posterior
 
-    settings = PosteriorSettings(emulator="loss", walkers=16, steps=1500, refine=90, draws=20, correct_draws=0,
+    settings = PosteriorSettings(emulator="loss", walkers=16, steps=1500, refine=90,
+                                 draws=20, correct_draws=0,
                                  seed=1)
     info = run_posterior(_fresh_copy(run_dir, tmp_path / "active"), settings)
     truth = _truth_inside_and_slip_pair_positive(info)
     active = info["active_learning"]
     assert not info["correction"]["enabled"] and active["enabled"]
     spread = info["emulator_spread"]
-    assert spread["functions"] >= 2 and set(spread["per_parameter"]) == set(spread["sampling_noise"]) == set(truth)
+    assert (spread["functions"] >= 2
+            and set(spread["per_parameter"]) == set(spread["sampling_noise"]) == set(truth))
     assert 0 <= spread["max_quantile_shift"] == max(spread["per_parameter"].values()) < 1
     # the sample functions' posteriors are pooled with the GP mean's, one component each
     assert spread["pooled"]
@@ -180,7 +182,8 @@ def test_active_learning_alone_finds_the_posterior(run_dir: Path, tmp_path: Path
     assert flagged == (spread["max_quantile_shift"] > SPREAD_MAX)
     assert info["forward_evaluations"]["refine"] == active["evaluations"] <= 90
     assert info["forward_evaluations"]["inference"] == active["evaluations"] + 5
-    log = [json.loads(line) for line in (tmp_path / "active" / "posterior" / "refine.jsonl").read_text().splitlines()]
+    log = [json.loads(line)
+           for line in (tmp_path / "active" / "posterior" / "refine.jsonl").read_text().splitlines()]
     assert len(log) == active["evaluations"]
     stats = [rec["round_stats"] for rec in log if "round_stats" in rec]
     assert len(stats) == active["rounds"]
@@ -233,7 +236,8 @@ def test_a_large_spread_sends_the_active_learning_where_sample_functions_disagre
     monkeypatch.setattr(active, "spread_chains", recorded(ended))
     monkeypatch.setattr(stage, "spread_chains", recorded(repeated))
     folder = _fresh_copy(run_dir, tmp_path / "spread")
-    info = run_posterior(folder, PosteriorSettings(emulator="loss", walkers=16, steps=300, refine=150, draws=10,
+    info = run_posterior(folder, PosteriorSettings(emulator="loss", walkers=16,
+                                                   steps=300, refine=150, draws=10,
                                                    correct_draws=0, seed=2))
     status = info["active_learning"]
     assert status["converged"] and status["spread_checks"] == 2 and status["spread"] == 0.02
@@ -375,7 +379,8 @@ def test_auto_takes_the_curve_emulator_where_the_loss_allows_it(run_dir: Path,
 
     ctx = load_run(run_dir)
     assert not ctx.noise_free
-    assert _curves_allowed(ctx, "auto") and _curves_allowed(ctx, "curves") and not _curves_allowed(ctx, "loss")
+    assert (_curves_allowed(ctx, "auto") and _curves_allowed(ctx, "curves")
+            and not _curves_allowed(ctx, "loss"))
     profiled = LossSpec(contact="profile", contact_offset_mm=0.3)
     other = SimpleNamespace(noise_free=False, problem=SimpleNamespace(project=SimpleNamespace(loss=profiled)))
     with caplog.at_level(logging.INFO, logger="smcbayes.posterior.stage"):
@@ -408,10 +413,12 @@ def test_the_log_loss_emulator_is_corrected_by_default_only_with_a_fast_simulato
         assert (native.emulator, native.correct_draws, native.refine) == ("loss", draws, REFINE_CORRECTED)
         assert _begin(ctx(False, "native"), spec)[0].correct_draws == 0  # the 2-D solver
         assert _begin(ctx(False, "external"), spec)[0].correct_draws == 0
-    assert _begin(ctx(False, "native"), PosteriorSpec(emulator="loss", correct_draws=50))[0].correct_draws == 50
+    assert _begin(ctx(False, "native"),
+                  PosteriorSpec(emulator="loss", correct_draws=50))[0].correct_draws == 50
 
 
-def test_auto_starts_the_stage_with_the_curve_emulator_and_no_correction(run_dir: Path, tmp_path: Path) -> None:
+def test_auto_starts_the_stage_with_the_curve_emulator_and_no_correction(run_dir: Path,
+                                                                         tmp_path: Path) -> None:
     """On noisy curves whose loss the curve emulator gives, the default settings start the
     stage with it, its budget and no correction, although the built-in model is fast."""
     from smcbayes.config import PosteriorSpec
@@ -557,7 +564,8 @@ def test_the_emulator_interpolates_its_points_and_predicts_new_ones(run_dir: Pat
     var_log = var[:, :emulator.components] @ emulator.basis ** 2
     calibrated = emulator.loss(u[45:], variance=True)
     assert not np.allclose(calibrated, with_var)
-    np.testing.assert_allclose(calibrated, mean_loss + features.spec.w_force * np.mean(force ** 2 * var_log, axis=1),
+    np.testing.assert_allclose(calibrated,
+                               mean_loss + features.spec.w_force * np.mean(force ** 2 * var_log, axis=1),
                                rtol=1e-12)
 
 
@@ -652,7 +660,8 @@ def test_the_hidden_mass_is_the_mean_curves_posterior_less_the_emulated_one(run_
     outputs, variance = emulator.predict(x, variance=True)
     j, nk = emulator.components, len(features.ids) * features.nodes
     force = emulator.curves(outputs)[:, :nk] + FORCE_FLOOR_KN
-    expected_s2 = features.spec.w_force * np.mean(force ** 2 * (variance[:, :j] @ emulator.basis ** 2), axis=1)
+    expected_s2 = features.spec.w_force * np.mean(force ** 2 * (variance[:, :j] @ emulator.basis ** 2),
+                                                  axis=1)
     np.testing.assert_allclose(s2, expected_s2, rtol=1e-9)
     for n_eff in (4.0, 2000.0):
         lp_mean = log_posterior(emulator, n_eff, variance=False)(x)
@@ -906,7 +915,8 @@ def test_each_round_logs_its_measures_beside_the_bounds_of_the_stop(
     lines = [r.getMessage() for r in caplog.records if "curve emulator round" in r.getMessage()]
     record = learned.record
     assert len(lines) == record["rounds"] == 1
-    assert f"round 1: {25 + ROUND_RUNS_CURVES} points, {ROUND_RUNS_CURVES} of 200 active-learning runs;" in lines[0]
+    assert (f"round 1: {25 + ROUND_RUNS_CURVES} points, {ROUND_RUNS_CURVES} of 200 active-learning runs;"
+            in lines[0])
     assert f"error {record['last_errors_nats'][-1]:.2f} nats" in lines[0] and "at most 1 to stop" in lines[0]
     # the first round has no earlier emulator to have moved from, and no three rounds to average
     assert "posterior move not measured" in lines[0] and "mean of the last" not in lines[0]
@@ -947,7 +957,8 @@ def test_at_the_budgets_end_rounds_from_before_a_failed_confirmation_count(
         return len(errors) >= 2
 
     readings = [1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX]
-    learned, seen = _scripted_learning(run_dir, monkeypatch, 3 * ROUND_RUNS_CURVES, readings, validated=two_rounds)
+    learned, seen = _scripted_learning(run_dir, monkeypatch, 3 * ROUND_RUNS_CURVES, readings,
+                                       validated=two_rounds)
     record = learned.record
     # the failure after two rounds asks for two new ones; only one more fits the budget
     assert [(c["rounds"], c["passed"]) for c in record["confirmations"]] == [(2, False), (3, True)]
@@ -956,7 +967,8 @@ def test_at_the_budgets_end_rounds_from_before_a_failed_confirmation_count(
     assert learned.final is not None and learned.final.max_shift == 0.5 * SPREAD_MAX
     # with room for both new rounds the next confirmation waits for them, and at the
     # budget's end it is an ordinary validation
-    learned, _ = _scripted_learning(run_dir, monkeypatch, 4 * ROUND_RUNS_CURVES, readings, validated=two_rounds)
+    learned, _ = _scripted_learning(run_dir, monkeypatch, 4 * ROUND_RUNS_CURVES, readings,
+                                    validated=two_rounds)
     record = learned.record
     assert [(c["rounds"], c["passed"]) for c in record["confirmations"]] == [(2, False), (4, True)]
     assert record["converged"] and not record["validated_at_budget_end"]

@@ -53,7 +53,8 @@ def errors_at(synthetic: Path, tmp: Path, values: dict[str, float]) -> dict[str,
     return validation_errors(problem, results)
 
 
-def test_validation_errors_are_small_at_the_truth_and_large_elsewhere(synthetic: Path, tmp_path: Path) -> None:
+def test_validation_errors_are_small_at_the_truth_and_large_elsewhere(synthetic: Path,
+                                                                      tmp_path: Path) -> None:
     project = load_project(synthetic)
     assert project_of({"project": project.model_dump(mode="json")}) is not None
     at_truth = errors_at(synthetic, tmp_path, TRUTH)

@@ -232,7 +232,8 @@ def test_the_emulators_start_and_active_learning_are_stated() -> None:
     start = {"calibration_gp": 61, "local_search": 178}
     words = _active_words({"active_learning": {"enabled": True, "evaluations": 400, "rounds": 14,
                                                "converged": False, "start_points": start}})
-    assert words.startswith(", starting from its 61 points and 178 evaluations of the calibration's local search")
+    assert words.startswith(", starting from its 61 points and 178 evaluations "
+                            "of the calibration's local search")
     assert "400 forward runs in 14 rounds (stopped by its budget" in words
     alone = {"enabled": False, "evaluations": 0, "start_points": {"calibration_gp": 30, "local_search": 0}}
     assert _active_words({"active_learning": alone}) == ""

@@ -64,7 +64,8 @@ def test_full_summary_gives_verdict_ranking_decision_next_step_and_shrink(tmp_pa
     assert paragraphs[0] == "The misfit is concentrated in the last 30 % of the closing"
     assert "press_compliance explains the gap." in paragraphs
     # a summary written before effect sets were selected: the named effect is the set
-    assert any("--effect press_compliance" in p and p.startswith("Selected effect set: press_compliance. Next step")
+    assert any("--effect press_compliance" in p
+               and p.startswith("Selected effect set: press_compliance. Next step")
                for p in paragraphs)
     ranking, shrink = blocks(sec, Table)
     assert ranking.rows[0] == ("1", "press_compliance", "1", "42 %", "812.3", "95.5", "88.2", "4.12",
@@ -117,7 +118,8 @@ def test_an_empty_summary_gives_only_the_where_heading(tmp_path: Path) -> None:
 def test_selection_steps_and_the_selected_set_are_named(tmp_path) -> None:
     from smcbayes.report.sections_diagnosis import _selection
 
-    diag = {"decision": {"best": "compressibility"}, "selected_effects": ["compressibility", "press_compliance"],
+    diag = {"decision": {"best": "compressibility"},
+            "selected_effects": ["compressibility", "press_compliance"],
             "selection": {"steps": [
                 {"added": "press_compliance", "best_candidate": "press_compliance", "score": 40.0,
                  "holdout_loss_before_kN2": 2e4, "holdout_loss_after_kN2": 9e3},

@@ -30,7 +30,8 @@ def test_most_frequent_failure_counts_reasons_per_configuration() -> None:
     from smcbayes.commands.calibrate import most_frequent_failure
 
     info = {"config_ids": ["bar", "bar-2"], "failure_reasons": [
-        {"index": 0, "reason": "bar: exited with 1: no licence; retry; bar-2: exited with 1: no licence; retry"},
+        {"index": 0, "reason": "bar: exited with 1: no licence; retry; "
+                               "bar-2: exited with 1: no licence; retry"},
         {"index": 1, "reason": "bar: timed out after 60 s; bar-2: exited with 1: no licence; retry"},
     ]}
     assert most_frequent_failure(info) == (" (most often, 3 of 4 configuration runs: "

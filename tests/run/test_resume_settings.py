@@ -80,5 +80,6 @@ def test_api_resume_takes_the_runs_own_settings(tmp_path: Path) -> None:
         result = calibrate(config, out, fidelity="1d", figures=False, resume=True, budget=4)
     assert result.summary["evaluations"] == 4
     assert result.summary["settings"]["init"] == 2
-    with pytest.raises(ConfigError, match="init 3: the run in .* was started with init = 2; resume=True changes only budget"):
+    with pytest.raises(ConfigError, match="init 3: the run in .* was started with init = 2; "
+                                          "resume=True changes only budget"):
         calibrate(config, out, fidelity="1d", figures=False, resume=True, init=3)

@@ -107,7 +107,8 @@ def test_the_runner_of_every_stage_retries_and_counts_the_runs(tmp_path: Path) -
 
 @pytest.mark.parametrize("retries", [0, 3])
 def test_retried_errors_fill_the_failed_rows(retries: int) -> None:
-    with Runner(FlakyObjective(quadratic(), 0.2, seed=4), retries=retries) as runner:  # type: ignore[arg-type]
+    with Runner(FlakyObjective(quadratic(), 0.2, seed=4),  # type: ignore[arg-type]
+                retries=retries) as runner:
         errors = runner.errors(theta(12))
     missing = int(np.isnan(errors).sum())
     assert (missing == 0) if retries else (missing >= 10)

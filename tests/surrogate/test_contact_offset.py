@@ -33,7 +33,8 @@ def test_a_calibration_records_each_trials_contact_offset(tmp_path: Path) -> Non
 
     problem = cal.run_dir.load_problem()
     theta = np.array([[cal.best_params[n] for n in problem.model.space.free_names]])
-    again = contact_offsets_mm(problem.model.simulate(theta, train), problem.dataset, problem.project.loss, train)
+    again = contact_offsets_mm(problem.model.simulate(theta, train), problem.dataset,
+                               problem.project.loss, train)
     assert again == offsets
 
 

@@ -131,7 +131,8 @@ def test_posterior_of_an_external_run_uses_the_external_command(tmp_path: Path, 
     calls = Path(str(config) + ".calls")
     before = len(calls.read_text().splitlines())
     # the log-loss emulator, whose stage without learning makes no run but these below
-    assert main(["posterior", str(out), "--emulator", "loss", "--walkers", "8", "--steps", "60", "--functions",
+    assert main(["posterior", str(out), "--emulator", "loss", "--walkers", "8",
+                 "--steps", "60", "--functions",
                  "0", "--draws", "2", "--refine", "0"]) == 0
     info = json.loads((out / "posterior" / "summary.json").read_text())
     made = len(calls.read_text().splitlines()) - before

@@ -44,5 +44,6 @@ def test_the_posteriors_threaded_kernels_leave_torch_on_the_sessions_thread() ->
         "    matern52(np.random.default_rng(0).random((600, 3)), np.ones((50, 3)), np.ones(3))\n"
         "    print(torch.get_num_threads())\n"
     )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=300)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=True, timeout=300)
     assert done.stdout.strip() == "1"

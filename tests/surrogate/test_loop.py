@@ -126,7 +126,8 @@ def test_interrupted_flaky_run_resumes_to_the_uninterrupted_run(tmp_path: Path) 
     run(tmp_path / "cut", flaky, **kw)
     run(tmp_path / "whole", flaky, **kw)
     strip = lambda name: [{k: v for k, v in r.items() if k != "seconds"}  # noqa: E731
-                          for _, r in sorted(RunLog(tmp_path / name / "log.jsonl").read().evaluations.items())]
+                          for _, r in sorted(
+                              RunLog(tmp_path / name / "log.jsonl").read().evaluations.items())]
     assert strip("cut") == strip("whole") and len(strip("whole")) == 10
     assert any(r["status"] != "ok" for r in strip("whole"))
 

@@ -54,7 +54,8 @@ def test_the_local_search_lowers_the_loss_within_its_budget(tmp_path: Path) -> N
     polished = [r for r in bo.state.rounds.values() if r["kind"] == POLISH]
     assert len(polished) == 12 and all(len(r["indices"]) == 1 for r in polished)
     assert len(bo.state.evaluations) == 8 + 12
-    start = min(r["loss"] for r in bo.state.evaluations.values() if r["round"] < min(p["round"] for p in polished))
+    start = min(r["loss"] for r in bo.state.evaluations.values()
+                if r["round"] < min(p["round"] for p in polished))
     assert bo.polish is not None and bo.polish.start_loss == start
     assert bo.polish.best_loss == bo.best()["loss"] < start
     # the start point is answered from the log, not run again
@@ -146,7 +147,8 @@ def test_failed_evaluations_of_the_local_search_are_logged_and_skipped(tmp_path:
         local = [r for r in bo.state.evaluations.values() if bo.state.rounds[r["round"]]["kind"] == POLISH]
         assert len(local) == bo.polish.evaluations > 0
         assert any(r["status"] == "failed" for r in local)
-        assert bo.polish.best_loss == min(r["loss"] for r in local + [bo.state.evaluations[bo.polish.start_index]]
+        assert bo.polish.best_loss == min(r["loss"]
+                                          for r in local + [bo.state.evaluations[bo.polish.start_index]]
                                           if r["loss"] is not None)
 
 

@@ -44,7 +44,8 @@ def _pick(path: Path, sets: list[ET.Element], quantity: str, name: str | None) -
     elif len(sets) == 1:
         return sets[0]
     else:
-        hits = [s for s, n in zip(sets, names, strict=False) if any(k in n.lower() for k in _KEYWORDS[quantity])]
+        hits = [s for s, n in zip(sets, names, strict=False)
+                if any(k in n.lower() for k in _KEYWORDS[quantity])]
     if len(hits) != 1:
         raise DataError(f"{path}: {len(hits)} datasets match {quantity} {name or ''}; datasets: "
                         f"{', '.join(repr(n) for n in names)}; give the dataset name in the config")
