@@ -21,7 +21,9 @@ emulator and pooled with its sample functions' posteriors,
 own spread is within the bound too; after :data:`CONFIRMATIONS` failed confirmations it asks
 for no more before its budget's end.  At the budget's end the last rounds count towards a
 validation whether they ran before or after a failed confirmation.  A stage whose budget
-runs out first is reported unreliable.  ``refine.jsonl`` logs each round."""
+runs out first is reported unreliable.  ``refine.jsonl`` logs each round.  The learning's
+progress, its measures and the constants named here are in
+:mod:`smcbayes.posterior.curve_progress`."""
 
 from __future__ import annotations
 
@@ -30,7 +32,7 @@ import json
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +43,15 @@ from smcbayes.config import PosteriorSpec
 from smcbayes.config.settings import ROUND_RUNS_CURVES
 from smcbayes.errors import SurrogateError
 from smcbayes.posterior.context import RunContext, start_curves
-from smcbayes.posterior.correct import CorrectionSettings, ImportanceSample
+from smcbayes.posterior.correct import CorrectionSettings
+from smcbayes.posterior.curve_progress import (
+    VALIDATED_ROUNDS,
+    Progress,
+    confirmed,
+    finite,
+    log_drift,
+    round_status,
+)
 from smcbayes.posterior.curve_round import Round, next_round
 from smcbayes.posterior.curve_sample import (
     EXPECTED_LOSS,
@@ -54,29 +64,10 @@ from smcbayes.posterior.curve_sample import (
 )
 from smcbayes.posterior.curve_spread import curve_spread
 from smcbayes.posterior.curves import CurveEmulator, CurveFeatures, log_posterior
-from smcbayes.posterior.spread import SPREAD_MAX
 
 logger = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
-
-VALIDATED_ROUNDS = 3
-"""Rounds in a row whose out-of-sample error is within the tolerance and whose posterior
-quantiles moved by at most :data:`QUANTILE_SHIFT`, to stop.  Pooled over the rounds, the
-error let the accuracy benchmark's first case stop after 240 active-learning runs at 0.99
-nats, its last round 1.3, with a quantile 0.12 of the prior width off."""
-
-QUANTILE_SHIFT = 0.05
-"""Largest move of a 5/50/95 % quantile of the emulated posterior between rounds (share of
-the unit cube) that a validated round allows, and over the :data:`VALIDATED_ROUNDS` rounds
-that validate (their drift, :meth:`_Progress.drift`)."""
-
-CONFIRMATIONS = 3
-"""Most confirmations that may fail: then the learning asks for no more until the end of its
-budget.  Each draws the reported posterior, 70-220 s on the measured thesis trials beside
-other work (three to five rounds' fit and sampling); a learning whose validations the
-reported posterior keeps failing would spend that every three rounds until its budget ends."""
-
 
 @dataclass
 class Learned:
@@ -100,100 +91,6 @@ class Learned:
     draws: Array | None = None
 
 
-@dataclass
-class _Progress:
-    """The active learning so far: the data, each round's measures (one entry per round),
-    where the next round's importance sampling starts and where its exploration's walkers go
-    on.
-
-    Attributes:
-        since: the first round that counts towards a validation (the one after the last
-            failed confirmation), but at the budget's end.
-        late: the last validation counted rounds from before the last failed confirmation,
-            which only the budget's end allows.
-        explorers: where the last round's exploration's walkers stopped ``(W, d)``, W the
-            ensemble's walkers.
-        earlier: the log posteriors of the emulators that drew the last rounds, the last
-            round's at the end (at most :data:`VALIDATED_ROUNDS` + 1 of them).
-        sample: the last round's importance sample of the emulated posterior.
-        drifts: the drift over the rounds ending at each round that measured it
-            (:meth:`drift`), by the rounds taken.
-    """
-
-    x: Array
-    y: Array
-    start: Array
-    spent: int = 0
-    rounds: int = 0
-    since: int = 0
-    errors: list[float] = field(default_factory=list)
-    shifts: list[float | None] = field(default_factory=list)
-    spreads: list[float] = field(default_factory=list)
-    recent: list[Array] = field(default_factory=list)
-    confirmations: list[dict[str, Any]] = field(default_factory=list)
-    late: bool = False
-    explorers: Array | None = None
-    earlier: list[Callable[[Array], Array]] = field(default_factory=list)
-    sample: ImportanceSample | None = None
-    drifts: dict[int, float | None] = field(default_factory=dict)
-
-    def validated(self, tolerance_nats: float, ended: bool = False) -> bool:
-        """The rounds since the last failed confirmation validate the emulator
-        (:func:`_validated`); once the budget has ``ended``, the last
-        :data:`VALIDATED_ROUNDS` rounds count whether they ran before or after it."""
-        k = 0 if ended else self.since
-        return _validated(self.errors[k:], self.shifts[k:], tolerance_nats, self.spreads[k:], self.drift)
-
-    def drift(self) -> float | None:
-        """How far the emulated posterior moved over the last :data:`VALIDATED_ROUNDS`
-        rounds: the quantile shift (:func:`~smcbayes.posterior.curve_sample.quantile_shift`)
-        between the last round's sample and the posterior of the emulator that drew the
-        round that many rounds before; ``None`` with fewer rounds or a sample too thin to
-        tell.  Each round's move may be small while the posterior creeps one way round after
-        round, into a tail the emulator learns point by point: on the measured thesis trials
-        two learnings whose last three rounds moved the quantiles by at most 0.048 each had
-        drifted 0.066 and 0.121 over them, and n's 5 % quantile lay 0.23-0.25 of its range
-        above where longer learnings put it.  Measured once a round, when a validation asks
-        for it."""
-        if self.rounds not in self.drifts:
-            thin = (self.sample is None or len(self.earlier) <= VALIDATED_ROUNDS
-                    or self.sample.ess < ROUND_ESS)
-            self.drifts[self.rounds] = None if thin else quantile_shift(self.sample,
-                                                                         self.earlier[-1 - VALIDATED_ROUNDS])
-        return self.drifts[self.rounds]
-
-    @property
-    def before(self) -> Callable[[Array], Array] | None:
-        """The log posterior of the emulator the last round sampled (``None`` before the
-        first round)."""
-        return self.earlier[-1] if self.earlier else None
-
-    @property
-    def draws(self) -> Array | None:
-        """Draws ``(S, d)`` of the last round's emulated posterior (or of the last failed
-        confirmation's; resampled, so heavy points repeat); ``None`` before the first round."""
-        return self.start if self.rounds else None
-
-    def failed(self) -> int:
-        """How many confirmations failed."""
-        return sum(1 for c in self.confirmations if not c["passed"])
-
-    def record(self, converged: bool) -> dict[str, Any]:
-        """The active learning's record (see :func:`learn`)."""
-        last = [_finite(e) for e in self.errors[-VALIDATED_ROUNDS:]]
-        return {"evaluations": self.spent, "converged": converged, "rounds": self.rounds,
-                "error_nats": None if not last or None in last else max(last),
-                "quantile_shift": self.shifts[-1] if self.shifts else None,
-                "last_errors_nats": last, "last_quantile_shifts": self.shifts[-VALIDATED_ROUNDS:],
-                "last_spreads": [_finite(v) for v in self.spreads[-VALIDATED_ROUNDS:]],
-                "drift": self.drifts.get(self.rounds),
-                "drifts": [{"rounds": k, "drift": v} for k, v in sorted(self.drifts.items())
-                           if v is not None],
-                "validated_rounds": VALIDATED_ROUNDS,
-                "bounds": {"quantile_shift": QUANTILE_SHIFT, "drift": QUANTILE_SHIFT, "spread": SPREAD_MAX},
-                "confirmations": self.confirmations, "validated_at_budget_end": self.late}
-
-
 def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features: CurveFeatures,
           x: Array, y: Array, n_eff: float, budget: int, tolerance_nats: float, rng: np.random.Generator,
           log: Callable[[dict[str, Any]], None] | None = None, walkers: int = 32,
@@ -207,7 +104,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     posterior's shares, :func:`~smcbayes.posterior.curve_aim.targeted`; measured before they
     join its data) is at most ``tolerance_nats`` and the quantiles of the emulated
     posterior moved by at most :data:`QUANTILE_SHIFT`, each round and over those rounds
-    (:meth:`_Progress.drift`), and the same rounds' sample functions
+    (:meth:`Progress.drift`), and the same rounds' sample functions
     moved them by at most :data:`~smcbayes.posterior.spread.SPREAD_MAX` on average (one
     round's, on one support of a thin sample, is too noisy to stop at).  With ``confirm``,
     a validated emulator's reported posterior is drawn and the learning stops only if its own
@@ -245,7 +142,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         ``last_quantile_shifts`` (those of the last :data:`VALIDATED_ROUNDS` rounds; ``None``
         for a round with nothing to compare, or a sample too thin to tell), ``last_spreads``
         (those of the last :data:`VALIDATED_ROUNDS` rounds), ``drift`` (the posterior's move over
-        them, :meth:`_Progress.drift`; ``None`` unless their other measures passed),
+        them, :meth:`Progress.drift`; ``None`` unless their other measures passed),
         ``drifts`` (every drift measured, after how many ``rounds``), ``validated_rounds`` and
         ``bounds`` (those the stop asks of the move, the drift and the mean spread),
         ``confirmations`` (after how many
@@ -259,7 +156,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         at the earliest.
     """
     spec = spec or CorrectionSettings()
-    progress = _Progress(x, y, x[np.argsort(features.loss(y))[:walkers]])
+    progress = Progress(x, y, x[np.argsort(features.loss(y))[:walkers]])
     emulator = None
     while True:
         t0 = time.perf_counter()
@@ -268,18 +165,18 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         # a reported posterior that keeps failing would cost a draw every few rounds; at the
         # budget's end the stage draws it anyway, so there it still confirms
         ended = progress.spent >= budget
-        asks = confirm is None or progress.failed() < CONFIRMATIONS or ended
+        asks = confirm is None or progress.may_confirm() or ended
         # after a failed confirmation new rounds must validate before the next one, but at
         # the budget's end none can follow: the last rounds count whenever they ran, and the
         # reported posterior, drawn there anyway, decides by its own spread
         validated = progress.validated(tolerance_nats)
         progress.late = not validated and ended and progress.validated(tolerance_nats, True)
-        _log_drift(progress)
+        log_drift(progress)
         converged = (validated or progress.late) and asks
         if converged and confirm is not None:
             t_confirm = time.perf_counter()
             final = confirm(emulator, progress.draws)
-            converged = _confirmed(progress, final, rng, progress.spent < budget)
+            converged = confirmed(progress, final, rng, progress.spent < budget)
             # the confirmation's own time is in its record, not in the next round's
             t0 += time.perf_counter() - t_confirm
         if converged or progress.spent >= budget:
@@ -289,7 +186,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
                           explorers=progress.explorers)
         record = _take(progress, step, emulator, n_eff, simulate, rng, t0)
         logger.info("curve emulator round %d: %d points, %s", progress.rounds, record["training_points"],
-                    _round_status(progress, tolerance_nats, budget))
+                    round_status(progress, tolerance_nats, budget))
         if log is not None:
             log(record)
     return Learned(emulator, progress.x, progress.y,
@@ -297,7 +194,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
                    progress.draws)
 
 
-def _take(progress: _Progress, step: Round, emulator: CurveEmulator, n_eff: float,
+def _take(progress: Progress, step: Round, emulator: CurveEmulator, n_eff: float,
           simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], rng: np.random.Generator,
           t0: float) -> dict[str, Any]:
     """Record the round ``step`` drawn from ``emulator``, simulate its rows, add them to the
@@ -319,59 +216,9 @@ def _take(progress: _Progress, step: Round, emulator: CurveEmulator, n_eff: floa
     progress.recent.append(step.new[ok])
     progress.x, progress.y = np.vstack([progress.x, step.new[ok]]), np.vstack([progress.y, y_new[ok]])
     return {"round": progress.rounds, "training_points": len(np.unique(progress.x, axis=0)),
-            "forward_runs": progress.spent, "error_nats": _finite(progress.errors[-1]),
+            "forward_runs": progress.spent, "error_nats": finite(progress.errors[-1]),
             "quantile_shift": progress.shifts[-1], **_round_record(emulator, step),
             "seconds_fit_and_sampling": t1 - t0, "seconds_forward": time.perf_counter() - t1}
-
-
-def _round_status(progress: _Progress, tolerance_nats: float, budget: int) -> str:
-    """One log line: the last round's measures beside the bounds the stop asks of
-    :data:`VALIDATED_ROUNDS` rounds in a row (:meth:`_Progress.validated`; the spreads'
-    mean over the rounds it counts), and the active-learning runs spent of ``budget``, so
-    that a user watching a long learning sees what it still waits for."""
-    shift = progress.shifts[-1]
-    moved = ("posterior move not measured" if shift is None else
-             f"posterior moved {shift:.3f} of a parameter's range (at most {QUANTILE_SHIFT:g})")
-    # at the budget's end the stop counts the last rounds whenever they ran
-    since = 0 if progress.spent >= budget else progress.since
-    counted = progress.spreads[since:][-VALIDATED_ROUNDS:]
-    mean = (f", mean of the last {VALIDATED_ROUNDS} {np.mean(counted):.3f}"
-            if len(counted) == VALIDATED_ROUNDS else "")
-    return (f"{progress.spent:,} of {budget:,} active-learning runs; error {progress.errors[-1]:.2f} nats "
-            f"at fresh posterior draws (at most {tolerance_nats:g} to stop), {moved}, spread "
-            f"{progress.spreads[-1]:.3f}{mean} (at most {SPREAD_MAX:g} on average)")
-
-
-def _log_drift(progress: _Progress) -> None:
-    """One log line with the posterior's drift over the last rounds, when a validation
-    measured it (their other measures passed): whether it passes or holds the learning."""
-    drift = progress.drifts.get(progress.rounds)
-    if drift is not None:
-        logger.info("curve emulator round %d: the posterior moved %.3f of a parameter's range over the "
-                    "last %d rounds (at most %g to stop)", progress.rounds, drift, VALIDATED_ROUNDS,
-                    QUANTILE_SHIFT)
-
-
-def _confirmed(progress: _Progress, final: FinalPosterior, rng: np.random.Generator, going_on: bool) -> bool:
-    """Whether the reported posterior ``final`` of a validated emulator has a spread of at
-    most :data:`~smcbayes.posterior.spread.SPREAD_MAX`; records it (with its time) and,
-    when it has not and the learning is ``going_on``, restarts the validation and starts
-    the next round's sampling from the mean's importance sample of that posterior."""
-    passed = bool(final.max_shift <= SPREAD_MAX)
-    se = (final.spread or {}).get("max_quantile_shift_se")
-    progress.confirmations.append({"rounds": progress.rounds, "forward_runs": progress.spent,
-                                   "spread": _finite(final.max_shift), "spread_se": se, "passed": passed,
-                                   "seconds": float(sum(final.seconds.values()))})
-    logger.info("curve emulator validated after %d rounds; the reported posterior's spread %.4f%s %s",
-                progress.rounds, final.max_shift, "" if se is None else f" (standard error {se:.4f})",
-                "confirms it" if passed else f"does not (> {SPREAD_MAX})")
-    if not passed and going_on:
-        progress.since = progress.rounds
-        progress.start = final.sample.resample(3 * START_ROWS // 4, rng)
-        if progress.failed() >= CONFIRMATIONS:
-            logger.info("curve emulator: %d confirmations failed; no more, the learning runs to its budget",
-                        CONFIRMATIONS)
-    return passed
 
 
 def _fit(features: CurveFeatures, x: Array, y: Array, earlier: CurveEmulator | None,
@@ -414,30 +261,10 @@ def _factor_range(emulator: CurveEmulator) -> dict[str, float] | None:
 
 def _round_record(emulator: CurveEmulator, step: Round) -> dict[str, Any]:
     """What ``refine.jsonl`` keeps of a round's sample, spread and emulator."""
-    return {"spread": _finite(step.spread), "importance_ess": step.sample.ess, "k_hat": step.sample.k_hat,
+    return {"spread": finite(step.spread), "importance_ess": step.sample.ess, "k_hat": step.sample.k_hat,
             **step.aim,
             "components": emulator.components, "lengthscales": emulator.corr.lengthscales.tolist(),
             "variance_factor": emulator.variance_factor.tolist()}
-
-
-def _finite(value: float) -> float | None:
-    """``value`` as a float, ``None`` where it is not finite (JSON has no infinity)."""
-    return float(value) if np.isfinite(value) else None
-
-
-def _validated(errors: list[float], shifts: list[float | None], tolerance_nats: float,
-               spreads: list[float], drift: Callable[[], float | None]) -> bool:
-    """The last :data:`VALIDATED_ROUNDS` rounds validate the emulator, their mean spread is
-    small and the posterior's ``drift`` over them (called only when the rest holds, as it
-    costs a pass over the last round's sample) is within :data:`QUANTILE_SHIFT` (see
-    :func:`learn`)."""
-    recent = shifts[-VALIDATED_ROUNDS:]
-    if not (len(recent) == VALIDATED_ROUNDS and all(s is not None and s <= QUANTILE_SHIFT for s in recent)
-            and all(e <= tolerance_nats for e in errors[-VALIDATED_ROUNDS:])
-            and bool(np.mean(spreads[-VALIDATED_ROUNDS:]) <= SPREAD_MAX)):
-        return False
-    moved = drift()
-    return moved is not None and moved <= QUANTILE_SHIFT
 
 
 def curve_posterior(ctx: RunContext, start: Array, n_eff: float, settings: PosteriorSpec,

@@ -25,8 +25,8 @@ import numpy as np
 
 from smcbayes.forward.parameters import ParameterSpace
 from smcbayes.posterior.correct import K_HAT_WARN, draws_advice
+from smcbayes.posterior.curve_progress import CONFIRMATIONS, QUANTILE_SHIFT
 from smcbayes.posterior.curve_spread import SPREAD_MIN_ESS
-from smcbayes.posterior.curve_stage import CONFIRMATIONS, QUANTILE_SHIFT
 from smcbayes.posterior.spread import SPREAD_MAX, share_words
 
 R_HAT_MAX = 1.05

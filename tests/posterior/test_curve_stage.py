@@ -12,19 +12,18 @@ from scipy.stats import norm
 
 from smcbayes.posterior.correct import ImportanceSample
 from smcbayes.posterior.curve_aim import AIMED, TARGETED, aimed, draws, lift, targeted
+from smcbayes.posterior.curve_progress import (
+    QUANTILE_SHIFT,
+    VALIDATED_ROUNDS,
+    Progress,
+    confirmed,
+    round_status,
+    rounds_validated,
+)
 from smcbayes.posterior.curve_round import Round
 from smcbayes.posterior.curve_sample import START_ROWS, FinalPosterior, quantile_shift
 from smcbayes.posterior.curve_spread import FunctionPosteriors, function_spread, spread_standard_error
-from smcbayes.posterior.curve_stage import (
-    QUANTILE_SHIFT,
-    VALIDATED_ROUNDS,
-    _confirmed,
-    _fresh_error,
-    _Progress,
-    _round_status,
-    _take,
-    _validated,
-)
+from smcbayes.posterior.curve_stage import _fresh_error, _take
 from smcbayes.posterior.spread import SPREAD_MAX
 
 
@@ -180,31 +179,31 @@ def test_rounds_validate_only_when_stable_and_accurate_together() -> None:
     def still() -> float:
         return QUANTILE_SHIFT / 2
 
-    assert _validated(small, [None, *stable], 1.0, narrow, still)
-    assert not _validated(small[:-1], stable[:-1], 1.0, narrow, still)  # too few rounds
+    assert rounds_validated(small, [None, *stable], 1.0, narrow, still)
+    assert not rounds_validated(small[:-1], stable[:-1], 1.0, narrow, still)  # too few rounds
     # the last round moved
-    assert not _validated(small, [*stable[:-1], 2 * QUANTILE_SHIFT], 1.0, narrow, still)
+    assert not rounds_validated(small, [*stable[:-1], 2 * QUANTILE_SHIFT], 1.0, narrow, still)
     # a round with nothing to compare
-    assert not _validated(small, [None, *stable[:-1]], 1.0, narrow, still)
+    assert not rounds_validated(small, [None, *stable[:-1]], 1.0, narrow, still)
     # every round must be within the tolerance: a good mean over the rounds is not enough
-    assert not _validated([0.2, 0.2, 1.4], stable, 1.0, narrow, still)
+    assert not rounds_validated([0.2, 0.2, 1.4], stable, 1.0, narrow, still)
     # earlier rounds do not count
-    assert _validated([50.0, *small], stable, 1.0, [1.0, *narrow], still)
+    assert rounds_validated([50.0, *small], stable, 1.0, [1.0, *narrow], still)
     # the same rounds' sample functions must agree with the mean, on average: one round's
     # noisy reading neither stops the learning nor holds it, and earlier rounds do not count
-    assert not _validated(small, stable, 1.0, [*narrow[:-1], 3 * SPREAD_MAX], still)
-    assert not _validated(small, stable, 1.0, [1.1 * SPREAD_MAX] * VALIDATED_ROUNDS, still)
-    assert _validated(small, stable, 1.0, [*narrow[:-1], 1.5 * SPREAD_MAX], still)
-    assert _validated(small, stable, 1.0, [3 * SPREAD_MAX, *narrow], still)
+    assert not rounds_validated(small, stable, 1.0, [*narrow[:-1], 3 * SPREAD_MAX], still)
+    assert not rounds_validated(small, stable, 1.0, [1.1 * SPREAD_MAX] * VALIDATED_ROUNDS, still)
+    assert rounds_validated(small, stable, 1.0, [*narrow[:-1], 1.5 * SPREAD_MAX], still)
+    assert rounds_validated(small, stable, 1.0, [3 * SPREAD_MAX, *narrow], still)
     # small moves that add up over the rounds do not validate, nor does a drift not measured
-    assert not _validated(small, stable, 1.0, narrow, lambda: 1.5 * QUANTILE_SHIFT)
-    assert not _validated(small, stable, 1.0, narrow, lambda: None)
+    assert not rounds_validated(small, stable, 1.0, narrow, lambda: 1.5 * QUANTILE_SHIFT)
+    assert not rounds_validated(small, stable, 1.0, narrow, lambda: None)
 
     # the drift is measured only when the rest validates
     def unwanted() -> float:
         raise AssertionError("measured")
 
-    assert not _validated(small[:-1], stable[:-1], 1.0, narrow, unwanted)
+    assert not rounds_validated(small[:-1], stable[:-1], 1.0, narrow, unwanted)
 
 
 def test_the_drift_is_the_move_from_the_emulator_before_the_validating_rounds(
@@ -220,7 +219,7 @@ def test_the_drift_is_the_move_from_the_emulator_before_the_validating_rounds(
     monkeypatch.setattr(curve_stage, "_fresh_error", lambda *args: 0.5)
     monkeypatch.setattr(curve_stage, "_round_record", lambda *args: {})
     step = QUANTILE_SHIFT * 0.6
-    progress = _Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
+    progress = Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
     assert progress.drift() is None  # no round yet
     rng = np.random.default_rng(1)
 
@@ -255,7 +254,7 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
     rounds that validated no longer count (but at the budget's end, with the new rounds
     among them), the next round starts from the reported sample, and both confirmations
     are recorded."""
-    progress = _Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
+    progress = Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
 
     def good_round() -> None:
         progress.rounds += 1
@@ -269,7 +268,7 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
         good_round()
     assert progress.validated(1.0)
     rng = np.random.default_rng(0)
-    assert not _confirmed(progress, _final(1.5 * SPREAD_MAX), rng, True)
+    assert not confirmed(progress, _final(1.5 * SPREAD_MAX), rng, True)
     assert not progress.validated(1.0) and progress.since == VALIDATED_ROUNDS
     # the next round's importance sampling starts from the reported sample (centred at 0.7)
     assert progress.start.shape == (3 * START_ROWS // 4, 1) and abs(np.median(progress.start) - 0.7) < 0.05
@@ -281,10 +280,10 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
         assert not progress.validated(1.0)
     good_round()
     assert progress.validated(1.0)
-    assert _confirmed(progress, _final(SPREAD_MAX / 2, 0.004), rng, True)
+    assert confirmed(progress, _final(SPREAD_MAX / 2, 0.004), rng, True)
     # with the budget spent, a failed confirmation is recorded and nothing restarts
     start = progress.start.copy()
-    assert not _confirmed(progress, _final(None), rng, False)  # an unmeasured spread confirms nothing
+    assert not confirmed(progress, _final(None), rng, False)  # an unmeasured spread confirms nothing
     assert progress.since == VALIDATED_ROUNDS and np.array_equal(progress.start, start)
     record = progress.record(True)
     assert [c["passed"] for c in record["confirmations"]] == [False, True, False]
@@ -298,10 +297,10 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
 def test_a_rounds_line_gives_the_measures_the_stop_reads_beside_its_bounds() -> None:
     """The spreads' mean is over the rounds the stop counts: those since the last failed
     confirmation, or at the budget's end the last ones whenever they ran."""
-    progress = _Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2), spent=160, rounds=4,
+    progress = Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2), spent=160, rounds=4,
                          since=1, errors=[3.0, 1.5, 0.8, 0.625], shifts=[None, 0.04, 0.02, 0.031],
                          spreads=[0.5, 0.2, 0.1, 0.06])
-    line = _round_status(progress, 1.0, 400)
+    line = round_status(progress, 1.0, 400)
     assert line.startswith("160 of 400 active-learning runs; error 0.62 nats at fresh posterior draws")
     assert "(at most 1 to stop)" in line
     assert f"posterior moved 0.031 of a parameter's range (at most {QUANTILE_SHIFT:g})" in line
@@ -310,18 +309,18 @@ def test_a_rounds_line_gives_the_measures_the_stop_reads_beside_its_bounds() -> 
             f"(at most {SPREAD_MAX:g} on average)") in line
     # two rounds since a failed confirmation: no mean the stop would read yet
     progress.since = 2
-    assert "mean of the last" not in _round_status(progress, 1.0, 400)
+    assert "mean of the last" not in round_status(progress, 1.0, 400)
     # but at the budget's end the stop counts the last three whenever they ran
-    assert f"mean of the last {VALIDATED_ROUNDS} {mean:.3f}" in _round_status(progress, 1.0, 160)
+    assert f"mean of the last {VALIDATED_ROUNDS} {mean:.3f}" in round_status(progress, 1.0, 160)
     # the first round has no earlier emulator to move from
     progress.shifts[-1] = None
-    assert "posterior move not measured" in _round_status(progress, 1.0, 400)
+    assert "posterior move not measured" in round_status(progress, 1.0, 400)
 
 
 def test_at_the_budgets_end_a_new_round_that_fails_keeps_the_learning_unvalidated() -> None:
     """Rounds from before a failed confirmation count at the budget's end only beside new
     rounds that pass too."""
-    progress = _Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
+    progress = Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
     for error in [0.5] * VALIDATED_ROUNDS + [1.5]:
         progress.errors.append(error)
         progress.shifts.append(QUANTILE_SHIFT / 2)

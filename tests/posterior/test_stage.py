@@ -819,6 +819,7 @@ def _scripted_learning(run_dir: Path, monkeypatch: pytest.MonkeyPatch, budget: i
     spreads; by default every round validates) and confirmations that read the spreads
     ``readings`` in turn: what it learned and the training points each confirmation saw
     (the draws each was given to start from are appended to ``given``)."""
+    import smcbayes.posterior.curve_progress as curve_progress
     import smcbayes.posterior.curve_sample as curve_sample
     import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.curve_sample import FinalPosterior
@@ -826,7 +827,7 @@ def _scripted_learning(run_dir: Path, monkeypatch: pytest.MonkeyPatch, budget: i
     monkeypatch.setattr(curve_round, "ROUND_DRAWS", 4000)
     # two iterations a round, so that the rounds' samples adapt as at full size
     monkeypatch.setattr(curve_sample, "EMULATOR_ITERATION", 2000)
-    monkeypatch.setattr(curve_stage, "_validated", validated or (lambda *args: True))
+    monkeypatch.setattr(curve_progress, "rounds_validated", validated or (lambda *args: True))
     ctx = load_run(run_dir)
     features, u, y, _ = _rows(run_dir, 25, 5)
     rng = np.random.default_rng(3)
@@ -935,9 +936,9 @@ def test_after_its_last_failed_confirmation_the_learning_runs_to_its_budget(
     """Once :data:`CONFIRMATIONS` confirmations failed, a validation (stubbed here) neither
     draws the reported posterior again nor stops the learning before its budget's end;
     there, where the stage draws that posterior anyway, it is confirmed once more."""
-    import smcbayes.posterior.curve_stage as curve_stage
+    import smcbayes.posterior.curve_progress as curve_progress
 
-    monkeypatch.setattr(curve_stage, "CONFIRMATIONS", 1)
+    monkeypatch.setattr(curve_progress, "CONFIRMATIONS", 1)
     budget = 2 * ROUND_RUNS_CURVES
     learned, seen = _scripted_learning(run_dir, monkeypatch, budget, [1.5 * SPREAD_MAX, 0.5 * SPREAD_MAX])
     record = learned.record
@@ -979,14 +980,15 @@ def test_a_confirmation_that_passes_is_the_posterior_drawn_after_the_learning(
     """The confirmation draws in the order the stage draws its reported posterior after the
     learning, so a learning that stops at its first confirmation reports what it reported
     without one (the validation stubbed, every spread confirming)."""
+    import smcbayes.posterior.curve_progress as curve_progress
     import smcbayes.posterior.curve_sample as curve_sample
     import smcbayes.posterior.curve_stage as curve_stage
     from smcbayes.posterior.stage import PosteriorSettings
 
     monkeypatch.setattr(curve_sample, "EMULATOR_DRAWS", 8000)
     monkeypatch.setattr(curve_sample, "FINAL_ITERATION", 2000)
-    monkeypatch.setattr(curve_stage, "_validated", lambda *args: True)
-    monkeypatch.setattr(curve_stage, "SPREAD_MAX", 1.0)
+    monkeypatch.setattr(curve_progress, "rounds_validated", lambda *args: True)
+    monkeypatch.setattr(curve_progress, "SPREAD_MAX", 1.0)
     ctx = load_run(run_dir)
     features, u, y, _ = _rows(run_dir, 25, 5)
     settings = PosteriorSettings(emulator="curves", walkers=16, steps=600, correct_draws=0)
