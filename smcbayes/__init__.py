@@ -26,6 +26,7 @@ from smcbayes.errors import (
     SmcBayesError,
     SmcBayesWarning,
     SolverError,
+    StaleRunsWarning,
     SurrogateError,
     UnreliablePosteriorWarning,
 )
@@ -37,8 +38,8 @@ _API = ("load_project", "calibrate", "sample_posterior", "diagnose_gap", "write_
 
 __all__ = [
     "ConfigError", "ContactOffsetWarning", "ConvergenceWarning", "DataError", "ParameterOnBoundWarning",
-    "SlowPathWarning", "SmcBayesError", "SmcBayesWarning", "SolverError", "SurrogateError",
-    "UnreliablePosteriorWarning",
+    "SlowPathWarning", "SmcBayesError", "SmcBayesWarning", "SolverError", "StaleRunsWarning",
+    "SurrogateError", "UnreliablePosteriorWarning",
     "__version__", *_API,
 ]
 

@@ -156,7 +156,7 @@ def calibrate(project: ProjectConfig | PathLike, out: PathLike, *, effects: Sequ
     project = project.model_copy(update={"calibration": spec})  # truth= included
     fixed = dict(overrides or {})
     run.prepare(RunIdentity(project.model_dump(mode="json"), None if effects is None else list(effects),
-                            fixed, fidelity, None if external is None else vars(external).copy(),
+                            fixed, fidelity, None if external is None else external.to_json(),
                             spec.model_dump(mode="json", exclude={"truth"})), resume)
     problem = build_problem(project, run.root, effects, fixed, fidelity, external, reuse_truth=resume)
     summary = run_calibration(problem, spec, run, make_executor(workers, scheduler), figures=figures)

@@ -117,6 +117,11 @@ class DataWarning(SmcBayesWarning):
     """Measured data were accepted but look suspicious."""
 
 
+class StaleRunsWarning(SmcBayesWarning):
+    """Forward runs an earlier stage kept were made by another model (its code, or the
+    external solver's files, changed since) and are not reused."""
+
+
 def closest(name: str, choices: Sequence[str]) -> str:
     """Return a ``" (did you mean 'x'?)"`` hint for a misspelt ``name``, or ``""``."""
     match = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.5)

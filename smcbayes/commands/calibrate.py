@@ -59,6 +59,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="time limit of one external run (s)")
     p.add_argument("--external-format", choices=("csv", "moldflow"), default=ExternalSpec.output_format,
                    help="what the external command writes to {output}")
+    p.add_argument("--external-file", action="append", metavar="PATH", default=None,
+                   help="a file the external simulator's results depend on (its script, study, "
+                        "mesh or material file; repeat for several): when its contents change, "
+                        "the runs of the old solver are not reused (the command line alone "
+                        "cannot tell)")
     p.add_argument("--effects-from", metavar="DIAGNOSIS_DIR", default=None,
                    help="switch on the effect set a diagnosis selected (the --out folder of "
                         "`smcbayes diagnose`, or its summary.json); adds to any --effect")
@@ -123,11 +128,29 @@ def _model_of_run(args: argparse.Namespace, run_dir: RunDir) -> tuple[
     project = recorded.project_config()
     if args.data_dir is not None:
         project = project.model_copy(update={"data_dir": str(Path(args.data_dir).resolve())})
-    external = (ExternalSpec(args.external, args.external_timeout, args.external_format) if args.external
+    external = (_external_spec(args) if args.external
                 else ExternalSpec(**recorded.external) if recorded.external else None)
     return (project, recorded.effects if args.effect is None else args.effect,
             parse_assignments(args.set) if args.set else dict(recorded.overrides),
             recorded.fidelity if args.fidelity is None else args.fidelity, external)
+
+
+def _external_spec(args: argparse.Namespace) -> ExternalSpec | None:
+    """The external simulator the command line gives (``None`` without ``--external``).
+
+    Raises:
+        ConfigError: ``--external-file`` without ``--external``, or naming no file.
+    """
+    if not args.external:
+        if args.external_file:
+            raise ConfigError("--external-file names a file of the external simulator: give "
+                              "--external COMMAND too")
+        return None
+    spec = ExternalSpec(args.external, args.external_timeout, args.external_format,
+                        tuple(args.external_file or ()))
+    if spec.missing():
+        raise ConfigError(f"--external-file {', '.join(spec.missing())}: no such file")
+    return spec
 
 
 def most_frequent_failure(info: Mapping[str, Any]) -> str:
@@ -161,12 +184,10 @@ def run(args: argparse.Namespace) -> int:
         effects, overrides, fidelity = args.effect, parse_assignments(args.set), args.fidelity
         if args.effects_from is not None:
             effects = list(dict.fromkeys([*(effects or []), *selected_effects(args.effects_from)]))
-        external = None
-        if args.external:
-            external = ExternalSpec(args.external, args.external_timeout, args.external_format)
+        external = _external_spec(args)
     settings = settings_from(project, args, run_dir)
     identity = RunIdentity(project.model_dump(mode="json"), effects, overrides, fidelity,
-                           None if external is None else vars(external).copy(),
+                           None if external is None else external.to_json(),
                            settings.model_dump(mode="json", exclude={"truth"}))
     run_dir.prepare(identity, args.resume)
     run_dir.record_command("calibrate", args.argv)

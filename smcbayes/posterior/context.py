@@ -78,6 +78,20 @@ class RunContext:
         return self.run.calibration_cache(read_only=True)
 
     @property
+    def stale_calibration_runs(self) -> str | None:
+        """A warning when the calibration kept forward runs of another model only (the
+        model's code, or the files the external simulator depends on, changed since): none
+        is reused, and the GP and best point the stage starts from describe that model;
+        ``None`` otherwise."""
+        cache = self.calibration_runs
+        if len(cache) or not cache.other_models():
+            return None
+        return ("the calibration's forward runs were made by another model (the model's code or "
+                "the external simulator's files changed since): none is reused, and the "
+                "calibration's GP and best point, where this stage starts, describe that model; "
+                "calibrate again if the change alters the simulated curves")
+
+    @property
     def space(self) -> ParameterSpace:
         """The parameter space."""
         return self.problem.space

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from smcbayes.config import PosteriorSpec
 from smcbayes.data.loss import best_offsets_mm, force_pair
-from smcbayes.errors import UnreliablePosteriorWarning
+from smcbayes.errors import StaleRunsWarning, UnreliablePosteriorWarning
 from smcbayes.forward.nodes import interp_rows
 from smcbayes.posterior.active import SPREAD_STEPS, fit_local, refine_stage, sample, spread_chains
 from smcbayes.posterior.context import (
@@ -162,6 +162,9 @@ def _begin(ctx: RunContext, settings: PosteriorSettings) -> tuple[PosteriorSetti
     resolved to an emulator, the defaults of the correction and the active learning that
     depend on it and the simulator filled in, no active learning on noise-free data) and
     its output folder."""
+    stale = ctx.stale_calibration_runs
+    if stale is not None:
+        warnings.warn(stale, StaleRunsWarning, stacklevel=3)
     slow = not ctx.problem.fast
     if ctx.noise_free and settings.correct_draws is None:
         settings = settings.model_copy(update={"correct_draws": 0})  # no weights can resolve a spike

@@ -54,14 +54,37 @@ _CURVES = ("time_s", "gap_mm", "displacement_mm", "force_kN", "fill_fraction", "
 def cache_tag(identity: Mapping[str, Any], model: Sequence[str] = ()) -> str:
     """Hash of what makes forward runs comparable: the run's model identity (project,
     effects, overrides, fidelity, external simulator), a stage's extra effects ``model``,
-    the package version and the source of the code that computes a run
-    (:func:`model_source`)."""
+    the package version, the source of the code that computes a run
+    (:func:`model_source`) and the present contents of the files the external simulator
+    depends on (its ``files``, :func:`file_digests`), so that a solver changed behind the
+    same command line does not find its old runs."""
     try:
         version = metadata.version("smcbayes")
     except metadata.PackageNotFoundError:
         version = "unknown"
     key = {"identity": dict(identity), "model": list(model), "version": version, "source": model_source()}
+    external = identity.get("external")
+    files = external.get("files") if isinstance(external, Mapping) else None
+    if files:
+        key["external_files"] = file_digests(files)
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode("utf-8")).hexdigest()[:16]
+
+
+def file_digests(paths: Sequence[str]) -> dict[str, str]:
+    """SHA-256 of each file's contents, by its path as given; ``"missing"`` for a path that
+    is not a file.  Read in blocks: a solver's study file may be large."""
+    out: dict[str, str] = {}
+    for name in paths:
+        path = Path(name)
+        if not path.is_file():
+            out[name] = "missing"
+            continue
+        digest = hashlib.sha256()
+        with path.open("rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                digest.update(block)
+        out[name] = digest.hexdigest()
+    return out
 
 
 @functools.cache
@@ -168,6 +191,14 @@ class ForwardCache:
                 self._records[rec["k"]] = rec
                 self._stored += 1
         self._files = len(list(self.folder.glob(f"{self.tag}-*.npz")))
+
+    def other_models(self) -> list[str]:
+        """Tags of the runs of other models kept in this cache's folder (the other
+        ``<tag>.jsonl`` files beside this one's): an earlier model code, project or
+        external solver."""
+        if not self.folder.is_dir():
+            return []
+        return sorted(p.stem for p in self.folder.glob("*.jsonl") if p != self.path)
 
     def stats(self) -> CacheStats:
         """Runs kept and runs begun, over every invocation that wrote this file."""

@@ -13,6 +13,7 @@ import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -30,11 +31,40 @@ from smcbayes.simulation.runner import Runner
 
 @dataclass(frozen=True)
 class ExternalSpec:
-    """How to run an external simulator (see :mod:`smcbayes.simulation.executors.external`)."""
+    """How to run an external simulator (see :mod:`smcbayes.simulation.executors.external`).
+
+    Attributes:
+        command: the command template.
+        timeout_s: wall-time limit of one run (s).
+        output_format: what the command writes (``csv`` or ``moldflow``).
+        files: the files the solver's results depend on (its script, study, mesh or
+            material files; kept as absolute paths, a relative one taken from the working
+            directory): their contents join the forward-run caches' tag
+            (:func:`~smcbayes.run.cache.cache_tag`), so that runs of a solver changed
+            behind the same command line are not reused.
+    """
 
     command: str
     timeout_s: float = 3600.0
     output_format: str = "csv"
+    files: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        # a run directory's identity holds them as a JSON list; a later stage may run
+        # from another working directory
+        object.__setattr__(self, "files", tuple(str(Path(f).resolve()) for f in self.files))
+
+    def missing(self) -> list[str]:
+        """The ``files`` that are not (or no longer) files."""
+        return [f for f in self.files if not Path(f).is_file()]
+
+    def to_json(self) -> dict[str, Any]:
+        """The spec as a run directory's identity records it (``files`` only when given, so
+        that the identity, and with it the caches' tag, of a run without them is as it
+        was before they existed)."""
+        out: dict[str, Any] = {"command": self.command, "timeout_s": self.timeout_s,
+                               "output_format": self.output_format}
+        return {**out, "files": list(self.files)} if self.files else out
 
 
 @dataclass
@@ -160,6 +190,10 @@ def build_problem(project: ProjectConfig, run_dir: Path, effects: Sequence[str] 
                           "curve: add data.force or set role = \"validation\"")
     simulator: Simulator = model
     if external is not None:
+        if external.missing():
+            raise ConfigError(f"the external simulator's file(s) {', '.join(external.missing())} "
+                              "(--external-file) are missing: restore them, or calibrate in a new "
+                              "run directory without them")
         simulator = ExternalSimulator(project, model.space, external.command, run_dir / "work",
                                       external.timeout_s, external.output_format)
     objective = SimulatorObjective(simulator, dataset, ids, project.loss)

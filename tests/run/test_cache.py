@@ -11,7 +11,7 @@ import pytest
 from smcbayes.forward.parameters import BASE_PARAMETERS, ParameterSpace
 from smcbayes.forward.result import SimulationResult
 from smcbayes.run import cache as cache_module
-from smcbayes.run.cache import MODEL_PACKAGES, ForwardCache, cache_tag, source_digest
+from smcbayes.run.cache import MODEL_PACKAGES, ForwardCache, cache_tag, file_digests, source_digest
 from smcbayes.simulation.objective import Task, TaskResult
 from smcbayes.simulation.runner import Runner
 
@@ -172,3 +172,28 @@ def test_the_source_digest_follows_every_model_file(tmp_path: Path) -> None:
     assert source_digest(tmp_path) == first
     (tmp_path / "forward" / "sub" / "law.py").write_text("K = 2\n")
     assert source_digest(tmp_path) not in (first, "unknown")
+
+
+def test_the_tag_follows_the_external_solvers_files(tmp_path: Path) -> None:
+    """The files an external solver depends on join the tag by their contents; a run
+    without them keeps the tag it had before they existed."""
+    study = tmp_path / "study.sdy"
+    study.write_text("mesh 1\n")
+    plain = {"project": {"name": "a"}, "external": {"command": "solve {params} {output}"}}
+    with_files = {**plain, "external": {**plain["external"], "files": [str(study)]}}
+    first = cache_tag(with_files)
+    assert first != cache_tag(plain) and cache_tag(with_files) == first
+    study.write_text("mesh 2\n")
+    second = cache_tag(with_files)
+    assert second not in (first, cache_tag(plain))
+    study.unlink()
+    assert file_digests([str(study)]) == {str(study): "missing"}
+    assert cache_tag(with_files) not in (first, second)
+
+
+def test_a_cache_names_the_other_models_runs_beside_it(tmp_path: Path) -> None:
+    cache = ForwardCache(tmp_path / "forward_cache", "a" * 16)
+    assert cache.other_models() == []
+    (tmp_path / "forward_cache").mkdir()
+    (tmp_path / "forward_cache" / f"{'b' * 16}.jsonl").write_text("")
+    assert cache.other_models() == ["b" * 16]

@@ -91,3 +91,18 @@ def test_a_truth_check_ignores_the_validation_files(data: Path, tmp_path: Path) 
         problem = build_problem(project, tmp_path)
     assert set(problem.dataset.measurements) == {"bar-07"}
     assert (tmp_path / "truth-data" / "force" / "bar-07.csv").is_file()
+
+
+def test_the_external_solvers_files_are_kept_absolute_and_must_exist(data: Path, tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "study.sdy").write_text("mesh\n")
+    spec = ExternalSpec("python solver.py {params} {output}", files=["study.sdy"])  # as JSON gives it
+    assert spec.files == (str(tmp_path / "study.sdy"),) and spec.missing() == []
+    assert spec.to_json()["files"] == [str(tmp_path / "study.sdy")]
+    # a run without files records what it recorded before they existed
+    assert "files" not in ExternalSpec("python solver.py {params} {output}").to_json()
+    (tmp_path / "study.sdy").unlink()
+    project = project_with(data, {"force": "force/bar-11.csv"})
+    with pytest.raises(ConfigError, match="study.sdy .*are missing"):
+        build_problem(project, tmp_path / "run", external=spec)

@@ -179,3 +179,42 @@ def test_external_run_gives_the_native_posterior(tmp_path: Path, script: Path, e
     assert made == ext["forward_runs_made"] == nat["forward_runs_made"] > 0
     assert ext["forward_evaluations"] == nat["forward_evaluations"]
     np.testing.assert_allclose(_quantiles(runs["external"]), _quantiles(runs["native"]), rtol=1e-6)
+
+
+def test_the_external_solvers_files_decide_which_runs_are_reused(tmp_path: Path, script: Path) -> None:
+    """With ``--external-file`` the caches' tag follows the solver's files: after the script
+    changes behind the same command line, the calibration's runs are not reused and the
+    posterior stage says why."""
+    from smcbayes.errors import StaleRunsWarning
+    from smcbayes.posterior.context import load_run
+    from smcbayes.posterior.stage import PosteriorSettings, _begin
+    from smcbayes.run.directory import RunDir
+
+    config = one_config(tmp_path)
+    out = tmp_path / "run"
+    cmd = f"{sys.executable} {script} {{params}} {{output}} {config}"
+    assert main(["calibrate", str(config), "--out", str(out), "--budget", "3", "--init", "2",
+                 "--external", cmd, "--external-file", str(script), "--no-figures"]) == 0
+    recorded = RunDir(out).identity().external
+    assert recorded is not None and recorded["files"] == [str(script.resolve())]
+    assert len(RunDir(out).calibration_cache(read_only=True)) == 3
+    assert load_run(out).stale_calibration_runs is None
+    script.write_text(SCRIPT + "# the solver's study file changed\n")
+    fresh = RunDir(out).calibration_cache(read_only=True)
+    assert len(fresh) == 0 and len(fresh.other_models()) == 1
+    ctx = load_run(out)
+    assert ctx.stale_calibration_runs is not None
+    with pytest.warns(StaleRunsWarning, match="made by another model"):
+        _begin(ctx, PosteriorSettings(emulator="loss", correct_draws=0))
+
+
+def test_an_external_file_must_exist_and_needs_the_external_command(tmp_path: Path, script: Path,
+                                                                     capsys: pytest.CaptureFixture) -> None:
+    config = one_config(tmp_path)
+    cmd = f"{sys.executable} {script} {{params}} {{output}} {config}"
+    assert main(["calibrate", str(config), "--out", str(tmp_path / "a"), "--external", cmd,
+                 "--external-file", str(tmp_path / "study.sdy")]) == 2
+    assert "study.sdy: no such file" in capsys.readouterr().err
+    assert main(["calibrate", str(config), "--out", str(tmp_path / "b"),
+                 "--external-file", str(script)]) == 2
+    assert "give --external COMMAND too" in capsys.readouterr().err
