@@ -61,9 +61,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="what the external command writes to {output}")
     p.add_argument("--external-file", action="append", metavar="PATH", default=None,
                    help="a file the external simulator's results depend on (its script, study, "
-                        "mesh or material file; repeat for several): when its contents change, "
-                        "the runs of the old solver are not reused (the command line alone "
-                        "cannot tell)")
+                        "mesh or material file, not one it writes; repeat for several): the run "
+                        "records its absolute path and contents; once they change, the old "
+                        "solver's runs are not reused and a --resume is refused (the command "
+                        "line alone cannot tell); the file must stay at that path for the "
+                        "later stages")
     p.add_argument("--effects-from", metavar="DIAGNOSIS_DIR", default=None,
                    help="switch on the effect set a diagnosis selected (the --out folder of "
                         "`smcbayes diagnose`, or its summary.json); adds to any --effect")
@@ -128,7 +130,8 @@ def _model_of_run(args: argparse.Namespace, run_dir: RunDir) -> tuple[
     project = recorded.project_config()
     if args.data_dir is not None:
         project = project.model_copy(update={"data_dir": str(Path(args.data_dir).resolve())})
-    external = (_external_spec(args) if args.external
+    # --external-file alone is refused by _external_spec, not dropped
+    external = (_external_spec(args) if args.external or args.external_file
                 else ExternalSpec(**recorded.external) if recorded.external else None)
     return (project, recorded.effects if args.effect is None else args.effect,
             parse_assignments(args.set) if args.set else dict(recorded.overrides),

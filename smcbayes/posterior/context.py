@@ -79,17 +79,21 @@ class RunContext:
 
     @property
     def stale_calibration_runs(self) -> str | None:
-        """A warning when the calibration kept forward runs of another model only (the
-        model's code, or the files the external simulator depends on, changed since): none
-        is reused, and the GP and best point the stage starts from describe that model;
-        ``None`` otherwise."""
+        """A warning when the external simulator's files changed since the calibration, or
+        the calibration kept forward runs of another model only (the package, its model code
+        or the run's model changed since): none of them is reused, and the GP and best
+        point the stage starts from describe that model; ``None`` otherwise."""
+        changed = self.run.changed_external_files()
         cache = self.calibration_runs
-        if len(cache) or not cache.other_models():
+        if not changed and (len(cache) or not cache.other_models()):
             return None
-        return ("the calibration's forward runs were made by another model (the model's code or "
-                "the external simulator's files changed since): none is reused, and the "
-                "calibration's GP and best point, where this stage starts, describe that model; "
-                "calibrate again if the change alters the simulated curves")
+        why = (f"the external simulator's file(s) {', '.join(changed)} changed since the calibration"
+               if changed else "the package, its model code or the run's model changed since the "
+               "calibration")
+        return (f"the calibration's forward runs ({cache.folder}) are of another model ({why}): "
+                "none is reused, and the calibration's GP and best point, where this stage "
+                "starts, describe that model; to start from the present one, calibrate again "
+                "with another --out")
 
     @property
     def space(self) -> ParameterSpace:

@@ -1,6 +1,6 @@
 """The curve emulator's active learning so far, and when it may stop.
 
-:class:`Progress` holds the learning's data and each round's measures: the emulator's
+:class:`LearningProgress` holds the learning's data and each round's measures: the emulator's
 error at the round's fresh posterior draws, how far the emulated posterior's quantiles
 moved, the spread of its sample functions, and the drift over the last
 :data:`VALIDATED_ROUNDS` rounds.  :func:`rounds_validated` says when those rounds validate
@@ -34,7 +34,7 @@ nats, its last round 1.3, with a quantile 0.12 of the prior width off."""
 QUANTILE_SHIFT = 0.05
 """Largest move of a 5/50/95 % quantile of the emulated posterior between rounds (share of
 the unit cube) that a validated round allows, and over the :data:`VALIDATED_ROUNDS` rounds
-that validate (their drift, :meth:`Progress.drift`)."""
+that validate (their drift, :meth:`LearningProgress.drift`)."""
 
 CONFIRMATIONS = 3
 """Most confirmations that may fail: then the learning asks for no more until the end of its
@@ -44,7 +44,7 @@ reported posterior keeps failing would spend that every three rounds until its b
 
 
 @dataclass
-class Progress:
+class LearningProgress:
     """The active learning so far: the data, each round's measures (one entry per round),
     where the next round's importance sampling starts and where its exploration's walkers go
     on.
@@ -143,9 +143,9 @@ class Progress:
                 "confirmations": self.confirmations, "validated_at_budget_end": self.late}
 
 
-def round_status(progress: Progress, tolerance_nats: float, budget: int) -> str:
+def round_status(progress: LearningProgress, tolerance_nats: float, budget: int) -> str:
     """One log line: the last round's measures beside the bounds the stop asks of
-    :data:`VALIDATED_ROUNDS` rounds in a row (:meth:`Progress.validated`; the spreads'
+    :data:`VALIDATED_ROUNDS` rounds in a row (:meth:`LearningProgress.validated`; the spreads'
     mean over the rounds it counts), and the active-learning runs spent of ``budget``, so
     that a user watching a long learning sees what it still waits for."""
     shift = progress.shifts[-1]
@@ -161,7 +161,7 @@ def round_status(progress: Progress, tolerance_nats: float, budget: int) -> str:
             f"{progress.spreads[-1]:.3f}{mean} (at most {SPREAD_MAX:g} on average)")
 
 
-def log_drift(progress: Progress) -> None:
+def log_drift(progress: LearningProgress) -> None:
     """One log line with the posterior's drift over the last rounds, when a validation
     measured it (their other measures passed): whether it passes or holds the learning."""
     drift = progress.drifts.get(progress.rounds)
@@ -171,7 +171,8 @@ def log_drift(progress: Progress) -> None:
                     QUANTILE_SHIFT)
 
 
-def confirmed(progress: Progress, final: FinalPosterior, rng: np.random.Generator, going_on: bool) -> bool:
+def confirmed(progress: LearningProgress, final: FinalPosterior, rng: np.random.Generator,
+              going_on: bool) -> bool:
     """Whether the reported posterior ``final`` of a validated emulator has a spread of at
     most :data:`~smcbayes.posterior.spread.SPREAD_MAX`; records it (with its time) and,
     when it has not and the learning is ``going_on``, restarts the validation and starts

@@ -6,19 +6,19 @@ Starts from the calibration GP's points (their curves the calibration's, or simu
 it did not keep them), then runs rounds of ``round_runs`` forward runs, each chosen by
 :func:`~smcbayes.posterior.curve_round.next_round`: mostly draws of the emulated posterior
 where the emulator's GP sample functions disagree, the rest exploring.  Two measures decide
-when to stop, in each of the last :data:`VALIDATED_ROUNDS` rounds: the emulator's error at
+when to stop, in each of the last ``VALIDATED_ROUNDS`` rounds: the emulator's error at
 the round's posterior draws, measured before they join its data (mean absolute, nats of
 log-likelihood, each draw weighted back to the posterior's share; at most
 ``refine_tolerance_nats``), and how far the emulated posterior's quantiles moved
 (:func:`~smcbayes.posterior.curve_sample.quantile_shift`, on common draws, so that the
-sampling noise cancels; at most :data:`QUANTILE_SHIFT`, each round and over those rounds);
+sampling noise cancels; at most ``QUANTILE_SHIFT``, each round and over those rounds);
 the same rounds' sample functions must also move it by at most
 :data:`~smcbayes.posterior.spread.SPREAD_MAX` on average.  A
 validated emulator's reported posterior (that of the expected loss,
 :data:`~smcbayes.posterior.curve_sample.EXPECTED_LOSS`, sampled by importance on the
 emulator and pooled with its sample functions' posteriors,
 :mod:`smcbayes.posterior.curve_sample`) is then drawn, and the learning stops only if its
-own spread is within the bound too; after :data:`CONFIRMATIONS` failed confirmations it asks
+own spread is within the bound too; after ``CONFIRMATIONS`` failed confirmations it asks
 for no more before its budget's end.  At the budget's end the last rounds count towards a
 validation whether they ran before or after a failed confirmation.  A stage whose budget
 runs out first is reported unreliable.  ``refine.jsonl`` logs each round.  The learning's
@@ -46,7 +46,7 @@ from smcbayes.posterior.context import RunContext, start_curves
 from smcbayes.posterior.correct import CorrectionSettings
 from smcbayes.posterior.curve_progress import (
     VALIDATED_ROUNDS,
-    Progress,
+    LearningProgress,
     confirmed,
     finite,
     log_drift,
@@ -99,12 +99,12 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
           round_runs: int = ROUND_RUNS_CURVES) -> Learned:
     """Active learning until validated (and confirmed) or ``budget`` further runs are spent.
 
-    The emulator is validated when, in each of the last :data:`VALIDATED_ROUNDS` rounds,
+    The emulator is validated when, in each of the last ``VALIDATED_ROUNDS`` rounds,
     its mean absolute error at the round's fresh posterior draws (weighted back to the
     posterior's shares, :func:`~smcbayes.posterior.curve_aim.targeted`; measured before they
     join its data) is at most ``tolerance_nats`` and the quantiles of the emulated
-    posterior moved by at most :data:`QUANTILE_SHIFT`, each round and over those rounds
-    (:meth:`Progress.drift`), and the same rounds' sample functions
+    posterior moved by at most ``QUANTILE_SHIFT``, each round and over those rounds
+    (``LearningProgress.drift``), and the same rounds' sample functions
     moved them by at most :data:`~smcbayes.posterior.spread.SPREAD_MAX` on average (one
     round's, on one support of a thin sample, is too noisy to stop at).  With ``confirm``,
     a validated emulator's reported posterior is drawn and the learning stops only if its own
@@ -112,9 +112,9 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
     spread and the reported one differ by 0.01-0.07 either way on the measured thesis trials,
     and a stop on the rounds' alone ended learnings whose reported posterior was then called
     unreliable.  After a failed confirmation the next rounds start from its sample, and
-    :data:`VALIDATED_ROUNDS` new rounds must validate before the next; after
-    :data:`CONFIRMATIONS` failed ones the learning runs to its budget.  At the budget's end
-    no new round can follow: the last :data:`VALIDATED_ROUNDS` rounds count towards the
+    ``VALIDATED_ROUNDS`` new rounds must validate before the next; after
+    ``CONFIRMATIONS`` failed ones the learning runs to its budget.  At the budget's end
+    no new round can follow: the last ``VALIDATED_ROUNDS`` rounds count towards the
     validation whether they ran before or after the last failed confirmation, and a
     validation is confirmed once more; a confirmation that passes after another is measured
     again on fresh supports by the stage (:func:`curve_posterior`).
@@ -139,10 +139,10 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         the last round's posterior (``None`` when no round ran), and the record of the active
         learning (``evaluations``, ``converged``, ``rounds``, ``error_nats`` (the worst of the
         last rounds' errors), ``quantile_shift`` (the last round's), ``last_errors_nats`` and
-        ``last_quantile_shifts`` (those of the last :data:`VALIDATED_ROUNDS` rounds; ``None``
+        ``last_quantile_shifts`` (those of the last ``VALIDATED_ROUNDS`` rounds; ``None``
         for a round with nothing to compare, or a sample too thin to tell), ``last_spreads``
-        (those of the last :data:`VALIDATED_ROUNDS` rounds), ``drift`` (the posterior's move over
-        them, :meth:`Progress.drift`; ``None`` unless their other measures passed),
+        (those of the last ``VALIDATED_ROUNDS`` rounds), ``drift`` (the posterior's move over
+        them, ``LearningProgress.drift``; ``None`` unless their other measures passed),
         ``drifts`` (every drift measured, after how many ``rounds``), ``validated_rounds`` and
         ``bounds`` (those the stop asks of the move, the drift and the mean spread),
         ``confirmations`` (after how many
@@ -156,7 +156,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
         at the earliest.
     """
     spec = spec or CorrectionSettings()
-    progress = Progress(x, y, x[np.argsort(features.loss(y))[:walkers]])
+    progress = LearningProgress(x, y, x[np.argsort(features.loss(y))[:walkers]])
     emulator = None
     while True:
         t0 = time.perf_counter()
@@ -194,7 +194,7 @@ def learn(simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], features
                    progress.draws)
 
 
-def _take(progress: Progress, step: Round, emulator: CurveEmulator, n_eff: float,
+def _take(progress: LearningProgress, step: Round, emulator: CurveEmulator, n_eff: float,
           simulate: Callable[[Array], tuple[Array, NDArray[np.bool_]]], rng: np.random.Generator,
           t0: float) -> dict[str, Any]:
     """Record the round ``step`` drawn from ``emulator``, simulate its rows, add them to the
@@ -225,7 +225,7 @@ def _fit(features: CurveFeatures, x: Array, y: Array, earlier: CurveEmulator | N
          recent: list[Array]) -> CurveEmulator:
     """The emulator of the rows ``x`` ``(N, d)`` and features ``y`` ``(N, F)``, its
     correlation's fit started from the ``earlier`` one's and its variances calibrated at the
-    last :data:`VALIDATED_ROUNDS` batches of ``recent`` rows (where the rounds sample, not
+    last ``VALIDATED_ROUNDS`` batches of ``recent`` rows (where the rounds sample, not
     over the calibration's far points)."""
     emulator = CurveEmulator(features, x, y, start=earlier)
     if recent:

@@ -208,8 +208,7 @@ def write_outputs(ctx: RunContext, emul: EmulatedPosterior, chains: list, budget
     warns, proposal_notes = _chain_warnings(t["raw"], chains, corrected)
     emulated = corrected is not None and corrected.target == "emulator"
     warns += [] if corrected is None else list(corrected.warnings)
-    stale = ctx.stale_calibration_runs
-    warns += [] if stale is None else [stale]
+    warns += [w for w in [ctx.stale_calibration_runs] if w is not None]
     attrs = {"n_eff": budget["n_eff_total"], "functions": emul.functions,
              "pooled_functions": len(chains) - emul.components,
              "method": "emulator" if corrected is None else "emulator, importance sampled" if

@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from smcbayes.config import CalibrationSpec, ProjectConfig, override
 from smcbayes.errors import ConfigError, RunDirError
-from smcbayes.run.cache import ForwardCache, cache_tag
+from smcbayes.run.cache import ForwardCache, cache_tag, file_digests
 from smcbayes.run.runlog import LOG_NAME, RunLog, write_json
 from smcbayes.simulation.problem import ExternalSpec, Problem, build_problem
 
@@ -71,7 +71,8 @@ class RunIdentity:
         effects: effects switched on (``None``: the project's own list).
         overrides: fixed parameter values given on the command line (user units).
         fidelity: ``"1d"``, ``"2d"`` or ``None`` (the project's solver setting).
-        external: the external simulator (command, timeout_s, output_format) or ``None``.
+        external: the external simulator (command, timeout_s, output_format and, when
+            given, the absolute paths of the ``files`` its results depend on) or ``None``.
         settings: the calibration settings.
     """
 
@@ -158,9 +159,13 @@ class RunDir:
     def prepare(self, identity: RunIdentity, resume: bool) -> None:
         """Create the directory, or check that a resumed run is the same calibration.
 
+        The contents of the external simulator's files, if it names any, are recorded when
+        the run begins (``external_files.json``).
+
         Raises:
             ConfigError: the path is a file; a run exists without ``resume``; ``resume`` of
-                a folder that holds no run, or with other settings.
+                a folder that holds no run, or with other settings; a file of the external
+                simulator is missing, or (``resume``) changed since the run began.
             RunDirError: ``resume`` of a run whose evaluation log is missing or emptied
                 while its summary counts evaluations.
         """
@@ -172,8 +177,47 @@ class RunDir:
         elif self.log_path.exists() or cfg.exists():
             raise ConfigError(f"{self.root}: already holds a calibration run; add --resume to "
                               "continue it or choose another --out")
+        files = ExternalSpec(**identity.external).files if identity.external else ()
+        digests = self._check_external_files(files, resume)
         self.root.mkdir(parents=True, exist_ok=True)
         write_json(cfg, identity.to_json())
+        if digests and not (resume and self.external_files_path.is_file()):
+            write_json(self.external_files_path, digests)
+
+    @property
+    def external_files_path(self) -> Path:
+        """``external_files.json``: the contents' SHA-256 of the external simulator's files
+        when the run began, by path."""
+        return self.root / "external_files.json"
+
+    def changed_external_files(self) -> list[str]:
+        """The external simulator's files whose contents differ from those the run began
+        with (``external_files.json``; none when it did not record them)."""
+        recorded = read_json(self.external_files_path)
+        if not isinstance(recorded, dict):
+            return []
+        now = file_digests(sorted(recorded))
+        return [f for f in sorted(recorded) if now[f] != recorded[f]]
+
+    def _check_external_files(self, files: Sequence[str], resume: bool) -> dict[str, str]:
+        """The contents' digests of the external simulator's ``files``, checked before the run
+        (re)starts.
+
+        Raises:
+            ConfigError: a file is missing, or a resumed run's files changed since it began
+                (its evaluations are the old solver's, which a resume would mix with the new
+                one's).
+        """
+        missing = [f for f in files if not Path(f).is_file()]
+        if missing:
+            raise ConfigError(f"the external simulator's file(s) {', '.join(missing)} are missing")
+        changed = self.changed_external_files() if resume else []
+        if changed:
+            raise ConfigError(f"{self.root}: the external simulator's file(s) {', '.join(changed)} "
+                              "changed since the run began; its evaluations are the old solver's, "
+                              "which a resume would mix with the new one's: start a new run with "
+                              "another --out, or restore the files")
+        return file_digests(files)
 
     def require_resumable(self) -> RunIdentity:
         """The identity of a run that ``--resume`` can continue.
@@ -308,12 +352,14 @@ class RunDir:
     def forward_cache(self, stage: str, folder: Path | None = None, model: Sequence[str] = (),
                       earlier: ForwardCache | None = None, read_only: bool = False) -> ForwardCache:
         """The forward-run cache of a stage's model (``<stage folder>/forward_cache/``), tied
-        to the run's identity (project, effects, overrides, fidelity, external simulator),
-        the model's extra effects ``model``, the package version and the model's source
-        (:func:`~smcbayes.run.cache.model_source`), so that runs of another calibration,
+        to the run's identity (project without its stage tables, effects, overrides,
+        fidelity, external simulator and its files' contents), the model's extra effects
+        ``model``, the package version and the model's source
+        (:func:`~smcbayes.run.cache.cache_tag`), so that runs of another calibration,
         model or model code are never reused; it also reads the runs of the ``earlier``
         cache (another stage's, of the same model), and writes nothing if ``read_only``."""
-        ident = self.identity().to_json()
+        # the stage tables do not change a forward run, and a resume may rewrite them
+        ident = _comparable(self.identity().to_json())
         tag = cache_tag({k: ident.get(k) for k in _MODEL_KEYS}, model)
         return ForwardCache(self.stage_dir(stage, folder) / "forward_cache", tag, earlier, read_only)
 

@@ -9,6 +9,7 @@ as the project's data directory.
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -38,10 +39,15 @@ class ExternalSpec:
         timeout_s: wall-time limit of one run (s).
         output_format: what the command writes (``csv`` or ``moldflow``).
         files: the files the solver's results depend on (its script, study, mesh or
-            material files; kept as absolute paths, a relative one taken from the working
-            directory): their contents join the forward-run caches' tag
-            (:func:`~smcbayes.run.cache.cache_tag`), so that runs of a solver changed
-            behind the same command line are not reused.
+            material files, not the files it writes; kept as absolute paths, a relative one
+            taken from the working directory, links not followed, sorted): their contents
+            join the forward-run caches' tag (:func:`~smcbayes.run.cache.cache_tag`), so
+            that runs of a solver changed behind the same command line are not reused, and
+            a calibration refuses to resume once they changed
+            (:meth:`~smcbayes.run.directory.RunDir.prepare`).
+
+    Raises:
+        ConfigError: ``files`` is one string instead of a sequence of paths.
     """
 
     command: str
@@ -50,9 +56,13 @@ class ExternalSpec:
     files: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
-        # a run directory's identity holds them as a JSON list; a later stage may run
-        # from another working directory
-        object.__setattr__(self, "files", tuple(str(Path(f).resolve()) for f in self.files))
+        if isinstance(self.files, str):
+            raise ConfigError(f"external simulator files: a sequence of paths, not the one string "
+                              f"{self.files!r}")
+        # a run directory's identity holds them as a JSON list, compared on resume; a later
+        # stage may run from another working directory; a link re-pointed later must count
+        # as a change of the file, so it is not resolved
+        object.__setattr__(self, "files", tuple(sorted({os.path.abspath(f) for f in self.files})))
 
     def missing(self) -> list[str]:
         """The ``files`` that are not (or no longer) files."""
@@ -192,8 +202,7 @@ def build_problem(project: ProjectConfig, run_dir: Path, effects: Sequence[str] 
     if external is not None:
         if external.missing():
             raise ConfigError(f"the external simulator's file(s) {', '.join(external.missing())} "
-                              "(--external-file) are missing: restore them, or calibrate in a new "
-                              "run directory without them")
+                              "(--external-file, ExternalSpec.files) are missing: restore them")
         simulator = ExternalSimulator(project, model.space, external.command, run_dir / "work",
                                       external.timeout_s, external.output_format)
     objective = SimulatorObjective(simulator, dataset, ids, project.loss)

@@ -15,7 +15,7 @@ from smcbayes.posterior.curve_aim import AIMED, TARGETED, aimed, draws, lift, ta
 from smcbayes.posterior.curve_progress import (
     QUANTILE_SHIFT,
     VALIDATED_ROUNDS,
-    Progress,
+    LearningProgress,
     confirmed,
     round_status,
     rounds_validated,
@@ -219,7 +219,7 @@ def test_the_drift_is_the_move_from_the_emulator_before_the_validating_rounds(
     monkeypatch.setattr(curve_stage, "_fresh_error", lambda *args: 0.5)
     monkeypatch.setattr(curve_stage, "_round_record", lambda *args: {})
     step = QUANTILE_SHIFT * 0.6
-    progress = Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
+    progress = LearningProgress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
     assert progress.drift() is None  # no round yet
     rng = np.random.default_rng(1)
 
@@ -254,7 +254,7 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
     rounds that validated no longer count (but at the budget's end, with the new rounds
     among them), the next round starts from the reported sample, and both confirmations
     are recorded."""
-    progress = Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
+    progress = LearningProgress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
 
     def good_round() -> None:
         progress.rounds += 1
@@ -297,7 +297,7 @@ def test_a_failed_confirmation_asks_for_new_validated_rounds_and_starts_from_its
 def test_a_rounds_line_gives_the_measures_the_stop_reads_beside_its_bounds() -> None:
     """The spreads' mean is over the rounds the stop counts: those since the last failed
     confirmation, or at the budget's end the last ones whenever they ran."""
-    progress = Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2), spent=160, rounds=4,
+    progress = LearningProgress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2), spent=160, rounds=4,
                          since=1, errors=[3.0, 1.5, 0.8, 0.625], shifts=[None, 0.04, 0.02, 0.031],
                          spreads=[0.5, 0.2, 0.1, 0.06])
     line = round_status(progress, 1.0, 400)
@@ -320,7 +320,7 @@ def test_a_rounds_line_gives_the_measures_the_stop_reads_beside_its_bounds() -> 
 def test_at_the_budgets_end_a_new_round_that_fails_keeps_the_learning_unvalidated() -> None:
     """Rounds from before a failed confirmation count at the budget's end only beside new
     rounds that pass too."""
-    progress = Progress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
+    progress = LearningProgress(np.zeros((4, 1)), np.zeros((4, 2)), np.full((4, 1), 0.2))
     for error in [0.5] * VALIDATED_ROUNDS + [1.5]:
         progress.errors.append(error)
         progress.shifts.append(QUANTILE_SHIFT / 2)

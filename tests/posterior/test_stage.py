@@ -1054,6 +1054,24 @@ def test_the_curve_emulators_start_takes_the_calibrations_curves_as_simulated(ru
             np.testing.assert_array_equal(getattr(kept[cid], name), getattr(fresh[cid], name))
 
 
+def test_a_calibration_whose_runs_are_all_of_another_model_is_named(run_dir: Path, tmp_path: Path) -> None:
+    """Only where the calibration kept runs of other models alone does the stage warn that
+    none is reused: beside runs of the present model, older ones are no reason to."""
+    import shutil
+
+    copy = tmp_path / "run"
+    shutil.copytree(run_dir, copy, ignore=shutil.ignore_patterns("posterior"))
+    folder = copy / "forward_cache"
+    own = sorted(folder.glob("*.jsonl"))
+    assert len(own) == 1 and load_run(copy).stale_calibration_runs is None
+    (folder / "0123456789abcdef.jsonl").write_text("")
+    assert load_run(copy).stale_calibration_runs is None
+    for path in folder.glob(f"{own[0].stem}*"):
+        path.unlink()
+    note = load_run(copy).stale_calibration_runs
+    assert note is not None and "the package, its model code or the run's model changed" in note
+
+
 def _gp_points_of_the_local_search(run: Path) -> tuple[int, bool]:
     """How many of the calibration GP's points are evaluations of a local search, and whether
     the best point is one (every evaluation of the calibration succeeded)."""

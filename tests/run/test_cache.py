@@ -191,9 +191,31 @@ def test_the_tag_follows_the_external_solvers_files(tmp_path: Path) -> None:
     assert cache_tag(with_files) not in (first, second)
 
 
-def test_a_cache_names_the_other_models_runs_beside_it(tmp_path: Path) -> None:
+def test_a_cache_names_the_other_models_runs_beside_it_not_its_own(tmp_path: Path) -> None:
     cache = ForwardCache(tmp_path / "forward_cache", "a" * 16)
     assert cache.other_models() == []
     (tmp_path / "forward_cache").mkdir()
+    (tmp_path / "forward_cache" / f"{'a' * 16}.jsonl").write_text("")
+    assert cache.other_models() == []
     (tmp_path / "forward_cache" / f"{'b' * 16}.jsonl").write_text("")
     assert cache.other_models() == ["b" * 16]
+
+
+def test_a_run_directorys_tag_ignores_its_projects_stage_tables(tmp_path: Path) -> None:
+    """A resume rewrites the run's project with its stage tables; those do not change a
+    forward run, so the run's caches keep their tag."""
+    import json
+
+    from smcbayes.run.directory import RunDir
+
+    project = {"name": "a", "calibration": {"polish": 600}, "posterior": {"walkers": 32}}
+    ident = {"project": project, "effects": None, "overrides": {}, "fidelity": None, "external": None}
+    run = RunDir(tmp_path / "run")
+    run.root.mkdir()
+    (run.root / "config.json").write_text(json.dumps(ident))
+    before = run.forward_cache("posterior").tag
+    edited = {**project, "calibration": {"polish": 50}, "posterior": {"walkers": 64}}
+    (run.root / "config.json").write_text(json.dumps({**ident, "project": edited}))
+    assert run.forward_cache("posterior").tag == before
+    (run.root / "config.json").write_text(json.dumps({**ident, "project": {**edited, "name": "b"}}))
+    assert run.forward_cache("posterior").tag != before

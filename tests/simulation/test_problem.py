@@ -97,9 +97,13 @@ def test_the_external_solvers_files_are_kept_absolute_and_must_exist(data: Path,
                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)
     (tmp_path / "study.sdy").write_text("mesh\n")
-    spec = ExternalSpec("python solver.py {params} {output}", files=["study.sdy"])  # as JSON gives it
-    assert spec.files == (str(tmp_path / "study.sdy"),) and spec.missing() == []
-    assert spec.to_json()["files"] == [str(tmp_path / "study.sdy")]
+    (tmp_path / "link.sdy").symlink_to(tmp_path / "study.sdy")
+    # as JSON gives them; sorted, once each, absolute, a link kept as the link
+    spec = ExternalSpec("python solver.py {params} {output}", files=["study.sdy", "link.sdy", "study.sdy"])
+    assert spec.files == (str(tmp_path / "link.sdy"), str(tmp_path / "study.sdy")) and spec.missing() == []
+    assert spec.to_json()["files"] == list(spec.files)
+    with pytest.raises(ConfigError, match="not the one string"):
+        ExternalSpec("python solver.py {params} {output}", files="study.sdy")  # type: ignore[arg-type]
     # a run without files records what it recorded before they existed
     assert "files" not in ExternalSpec("python solver.py {params} {output}").to_json()
     (tmp_path / "study.sdy").unlink()

@@ -181,10 +181,11 @@ def test_external_run_gives_the_native_posterior(tmp_path: Path, script: Path, e
     np.testing.assert_allclose(_quantiles(runs["external"]), _quantiles(runs["native"]), rtol=1e-6)
 
 
-def test_the_external_solvers_files_decide_which_runs_are_reused(tmp_path: Path, script: Path) -> None:
+def test_the_external_solvers_files_decide_which_runs_are_reused(tmp_path: Path, script: Path,
+                                                                  capsys: pytest.CaptureFixture) -> None:
     """With ``--external-file`` the caches' tag follows the solver's files: after the script
-    changes behind the same command line, the calibration's runs are not reused and the
-    posterior stage says why."""
+    changes behind the same command line, the calibration's runs are not reused, a resume
+    that would mix both solvers' evaluations is refused and the posterior stage says why."""
     from smcbayes.errors import StaleRunsWarning
     from smcbayes.posterior.context import load_run
     from smcbayes.posterior.stage import PosteriorSettings, _begin
@@ -196,16 +197,23 @@ def test_the_external_solvers_files_decide_which_runs_are_reused(tmp_path: Path,
     assert main(["calibrate", str(config), "--out", str(out), "--budget", "3", "--init", "2",
                  "--external", cmd, "--external-file", str(script), "--no-figures"]) == 0
     recorded = RunDir(out).identity().external
-    assert recorded is not None and recorded["files"] == [str(script.resolve())]
+    assert recorded is not None and recorded["files"] == [str(script)]
     assert len(RunDir(out).calibration_cache(read_only=True)) == 3
     assert load_run(out).stale_calibration_runs is None
     script.write_text(SCRIPT + "# the solver's study file changed\n")
     fresh = RunDir(out).calibration_cache(read_only=True)
     assert len(fresh) == 0 and len(fresh.other_models()) == 1
+    assert RunDir(out).changed_external_files() == [str(script)]
+    capsys.readouterr()
+    assert main(["calibrate", "--out", str(out), "--resume", "--budget", "4"]) == 2
+    assert "changed since the run began" in capsys.readouterr().err
     ctx = load_run(out)
-    assert ctx.stale_calibration_runs is not None
-    with pytest.warns(StaleRunsWarning, match="made by another model"):
+    assert ctx.stale_calibration_runs is not None and "my_solver.py changed" in ctx.stale_calibration_runs
+    with pytest.warns(StaleRunsWarning, match="are of another model"):
         _begin(ctx, PosteriorSettings(emulator="loss", correct_draws=0))
+    # a bare resume does not drop a file it is given without its command
+    assert main(["calibrate", "--out", str(out), "--resume", "--external-file", str(script)]) == 2
+    assert "give --external COMMAND too" in capsys.readouterr().err
 
 
 def test_an_external_file_must_exist_and_needs_the_external_command(tmp_path: Path, script: Path,
