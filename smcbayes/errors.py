@@ -118,8 +118,8 @@ class DataWarning(SmcBayesWarning):
 
 
 class StaleRunsWarning(SmcBayesWarning):
-    """Forward runs an earlier stage kept were made by another model (its code, or the
-    external solver's files, changed since) and are not reused."""
+    """Forward runs an earlier stage kept were made by another model (the package, its model
+    code, the run's model or the external solver's files changed since) and are not reused."""
 
 
 def closest(name: str, choices: Sequence[str]) -> str:

@@ -405,7 +405,8 @@ def test_the_log_loss_emulator_is_corrected_by_default_only_with_a_fast_simulato
         run = SimpleNamespace(begin_stage=lambda name, settings: tmp_path)
         profiled = SimpleNamespace(loss=LossSpec(contact="profile", contact_offset_mm=0.3))
         return SimpleNamespace(summary={"simulator": simulator}, noise_free=False, run=run,
-                               problem=SimpleNamespace(fast=fast, train_ids=["a"], project=profiled))
+                               problem=SimpleNamespace(fast=fast, train_ids=["a"], project=profiled),
+                               stale_calibration_runs=None)
 
     for spec in (PosteriorSpec(emulator="loss"), PosteriorSpec()):
         draws = spec.correction.draws
