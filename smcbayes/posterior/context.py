@@ -77,12 +77,13 @@ class RunContext:
         """The calibration's forward-run cache, read only: the curves of the GP's points."""
         return self.run.calibration_cache(read_only=True)
 
-    @property
+    @functools.cached_property
     def stale_calibration_runs(self) -> str | None:
         """A warning when the external simulator's files changed since the calibration, or
         the calibration kept forward runs of another model only (the package, its model code
         or the run's model changed since): none of them is reused, and the GP and best
-        point the stage starts from describe that model; ``None`` otherwise."""
+        point the stage starts from describe that model; ``None`` otherwise.  Read once, at
+        the stage's start, so that its warning and its summary say the same."""
         changed = self.run.changed_external_files()
         cache = self.calibration_runs
         if not changed and (len(cache) or not cache.other_models()):
